@@ -1,0 +1,56 @@
+"""Exception types shared by every stage.
+
+:class:`InputError` is raised for bad input or usage; the CLI turns it into exit status
+2 with one message naming the file, row or column, and what is wrong. Anything else is
+an internal failure (exit status 1).
+"""
+
+from __future__ import annotations
+
+
+class MagcalError(Exception):
+    """Base class of all magcal errors."""
+
+
+class InputError(MagcalError, ValueError):
+    """Bad input data or usage.
+
+    Parameters
+    ----------
+    message : str
+        What is wrong, in words a user can act on.
+    file : str or path-like, optional
+        The offending file.
+    row : int, optional
+        Data row number (1-based, counting the header as row 0 for CSV files).
+    column : str, optional
+        The offending column or variable name.
+
+    Examples
+    --------
+    >>> str(InputError("time not increasing", file="a.csv", row=12, column="time"))
+    'a.csv: row 12: column time: time not increasing'
+    """
+
+    def __init__(self, message: str, *, file=None, row: int | None = None,
+                 column: str | None = None):
+        self.message = message
+        self.file = None if file is None else str(file)
+        self.row = row
+        self.column = column
+        super().__init__(str(self))
+
+    def __str__(self) -> str:
+        parts = []
+        if self.file is not None:
+            parts.append(self.file)
+        if self.row is not None:
+            parts.append(f"row {self.row}")
+        if self.column is not None:
+            parts.append(f"column {self.column}")
+        parts.append(self.message)
+        return ": ".join(parts)
+
+
+class NotYetAvailableError(MagcalError):
+    """A stage of the chain that is not implemented yet."""
