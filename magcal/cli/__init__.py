@@ -1,0 +1,97 @@
+"""The ``magcal`` command: one entry point dispatching to thin subcommand modules.
+
+Each verb lives in ``magcal/cli/<module>.py`` and exposes ``register(subparsers)``, which
+adds its parser and sets ``func`` to a callable ``run(args) -> int``. Exit status follows
+CONTRACTS §0: 0 success, 2 bad input or usage (one message on stderr naming the file,
+row or column), 1 anything else.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from magcal._version import __version__
+from magcal.errors import InputError, NotYetAvailableError
+
+# verb -> (module, one-line help). Order is the order of the processing chain.
+VERBS: dict[str, tuple[str, str]] = {
+    "picog": ("magcal.cli.picog", "AC cleaning of multi-sensor data with PiCoG (fit, apply)"),
+    "model": ("magcal.cli.model", "Tsyganenko/IGRF model field at the spacecraft in Hpen"),
+    "offsets": ("magcal.cli.offsets", "DC offsets against the model on quiet days (fit, apply)"),
+    "align": ("magcal.cli.align", "rotation angles about Hp, He, Hn against a reference"),
+    "spincal": ("magcal.cli.spincal", "spin-ripple calibration of a spinning spacecraft"),
+    "flipper": ("magcal.cli.flipper", "spin-axis offset from flipper measurements"),
+    "discover": ("magcal.cli.discover", "find, name and add what the model is missing"),
+    "report": ("magcal.cli.report", "uncertainty report (HTML and PDF) for a processed data set"),
+    "demo": ("magcal.cli.demo", "run the whole chain on data_samples/ (the main job)"),
+}
+
+
+class _Parser(argparse.ArgumentParser):
+    """ArgumentParser whose usage errors exit with status 2 and one clear line."""
+
+    def error(self, message):  # noqa: D401 - argparse API
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _not_available(verb: str, help_text: str, subparsers) -> None:
+    parser = subparsers.add_parser(verb, help=f"{help_text} [not yet available]",
+                                   description=f"{help_text}. Not yet available in this version.")
+    parser.add_argument("rest", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
+
+    def run(args):
+        raise NotYetAvailableError(f"magcal {verb}: not yet available in magcal {__version__}")
+
+    parser.set_defaults(func=run)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Build the top-level parser with every verb registered."""
+    parser = _Parser(prog="magcal", description=(
+        "magcal turns raw multi-sensor spacecraft magnetometer data into calibrated "
+        "magnetic field products. Field values are in nT, times in UTC."))
+    parser.add_argument("--version", action="version", version=f"magcal {__version__}")
+    subparsers = parser.add_subparsers(dest="verb", metavar="VERB", parser_class=_Parser)
+    for verb, (module_name, help_text) in VERBS.items():
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            if exc.name != module_name:
+                raise
+            _not_available(verb, help_text, subparsers)
+            continue
+        module.register(subparsers)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the ``magcal`` command; return the exit status."""
+    from magcal.offline import configure_offline
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help(sys.stderr)
+        return 2
+    configure_offline()
+    try:
+        status = args.func(args)
+    except InputError as exc:
+        print(f"magcal {args.verb}: error: {exc}", file=sys.stderr)
+        return 2
+    except NotYetAvailableError as exc:
+        print(str(exc), file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("magcal: interrupted", file=sys.stderr)
+        return 1
+    except Exception as exc:  # noqa: BLE001 - the CLI boundary reports everything
+        print(f"magcal {args.verb}: internal error: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 1
+    return int(status or 0)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

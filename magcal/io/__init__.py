@@ -1,0 +1,1 @@
+"""Readers and writers: CSV (CONTRACTS §0), JSON products, CDF, GOES-R netCDF."""
