@@ -33,10 +33,10 @@ def hpen_basis(lon_deg, lat_deg) -> np.ndarray:
 
     Examples
     --------
-    >>> hpen_basis(0.0, 0.0)[0].round(12)
+    >>> hpen_basis(0.0, 0.0)[0].round(12) + 0.0
     array([[ 0.,  0.,  1.],
-           [-1., -0., -0.],
-           [-0.,  1.,  0.]])
+           [-1.,  0.,  0.],
+           [ 0.,  1.,  0.]])
     """
     lon = np.deg2rad(np.atleast_1d(np.asarray(lon_deg, dtype=float)))
     lat = np.deg2rad(np.atleast_1d(np.asarray(lat_deg, dtype=float)))
