@@ -1,0 +1,92 @@
+"""CSV reader/writer against CONTRACTS §0, with line-numbered errors."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from magcal.errors import InputError
+from magcal.io.csv import read_csv_frame, write_csv_frame
+
+
+def _write(tmp_path, text, name="in.csv"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def test_round_trip_values_and_times(tmp_path):
+    t = pd.date_range("2019-03-04T15:10:00", periods=5, freq="250ms", tz="UTC")
+    df = pd.DataFrame({"fgmo_x": [1.25, np.nan, -3.5, 4.0, 1e-4],
+                       "fgmo_y": np.arange(5.0), "fgmo_z": -np.arange(5.0)}, index=t)
+    path = write_csv_frame(tmp_path / "out.csv", df)
+    back = read_csv_frame(path)
+    assert back.index.equals(t.as_unit("ns").rename("time"))
+    np.testing.assert_allclose(back.to_numpy(), df.to_numpy(), atol=5e-5, equal_nan=True)
+    lines = path.read_text().splitlines()
+    assert lines[1] == "2019-03-04T15:10:00.000,1.2500,0.0000,0.0000"
+    assert lines[2].split(",")[1] == "NaN"
+
+
+def test_whole_second_times_written_without_fraction(tmp_path):
+    t = pd.date_range("2019-03-04", periods=2, freq="1s", tz="UTC")
+    path = write_csv_frame(tmp_path / "o.csv", pd.DataFrame({"Hp": [1.0, 2.0]}, index=t))
+    assert path.read_text().splitlines()[1].startswith("2019-03-04T00:00:00,")
+
+
+def test_z_suffix_fractional_seconds_and_missing_cells(tmp_path):
+    path = _write(tmp_path, "time,Hp,He,Hn\n2019-03-04T15:10:00Z,1,,3\n"
+                            "2019-03-04T15:10:00.5Z,NaN,2,3\n")
+    df = read_csv_frame(path, required=["Hp", "He", "Hn"])
+    assert df.index[1] == pd.Timestamp("2019-03-04T15:10:00.5", tz="UTC")
+    assert np.isnan(df["He"].iloc[0]) and np.isnan(df["Hp"].iloc[1])
+    assert df.attrs["n_missing"] == {"Hp": 1, "He": 1, "Hn": 0}
+
+
+def test_fill_values_become_nan_and_are_counted(tmp_path):
+    path = _write(tmp_path, "time,x\n2019-01-01T00:00:00,-1e31\n2019-01-01T00:00:01,-9999\n"
+                            "2019-01-01T00:00:02,-9998\n")
+    df = read_csv_frame(path)
+    assert df["x"].isna().tolist() == [True, True, False]
+    assert df.attrs["repairs"] == [{"what": "fill value replaced by NaN", "column": "x",
+                                    "count": 2}]
+
+
+@pytest.mark.parametrize("body, line, column, words", [
+    ("2019-01-01T00:00:01,1\n2019-01-01T00:00:00,2\n", 3, "time", "backwards"),
+    ("2019-01-01T00:00:00,1\n2019-01-01T00:00:00,2\n", 3, "time", "duplicate"),
+    ("2019-01-01T00:00:00,1\nyesterday,2\n", 3, "time", "cannot parse"),
+    ("2019-01-01T00:00:00,1\n2019-01-01T00:00:01,1.2.3\n", 3, "x", "not a number"),
+])
+def test_errors_name_file_line_and_column(tmp_path, body, line, column, words):
+    path = _write(tmp_path, "time,x\n" + body)
+    with pytest.raises(InputError) as err:
+        read_csv_frame(path)
+    assert err.value.row == line and err.value.column == column
+    assert words in str(err.value) and str(path) in str(err.value)
+
+
+def test_header_problems(tmp_path):
+    with pytest.raises(InputError, match="first column must be 'time'"):
+        read_csv_frame(_write(tmp_path, "t,x\n2019-01-01,1\n"))
+    with pytest.raises(InputError, match="missing required column"):
+        read_csv_frame(_write(tmp_path, "time,Hp\n2019-01-01,1\n"), required=["Hp", "He"])
+    with pytest.raises(InputError, match="no data rows"):
+        read_csv_frame(_write(tmp_path, "time,Hp\n"))
+    with pytest.raises(InputError, match="file is empty"):
+        read_csv_frame(_write(tmp_path, ""))
+    with pytest.raises(InputError, match="file not found"):
+        read_csv_frame(tmp_path / "nope.csv")
+
+
+def test_failed_write_leaves_no_file(tmp_path):
+    t = pd.DatetimeIndex(["2019-01-01T00:00:01", "2019-01-01T00:00:00"], tz="UTC")
+    with pytest.raises(InputError):
+        write_csv_frame(tmp_path / "bad.csv", pd.DataFrame({"x": [1.0, 2.0]}, index=t))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_provenance_sidecar(tmp_path):
+    t = pd.date_range("2019-01-01", periods=2, freq="1s", tz="UTC")
+    path = write_csv_frame(tmp_path / "p.csv", pd.DataFrame({"x": [1.0, 2.0]}, index=t),
+                           provenance={"step": "test"})
+    assert (tmp_path / "p.csv.provenance.json").read_text().count('"step": "test"') == 1
