@@ -23,7 +23,7 @@ def test_round_trip_values_and_times(tmp_path):
     assert back.index.equals(t.as_unit("ns").rename("time"))
     np.testing.assert_allclose(back.to_numpy(), df.to_numpy(), atol=5e-5, equal_nan=True)
     lines = path.read_text().splitlines()
-    assert lines[1] == "2019-03-04T15:10:00.000,1.2500,0.0000,0.0000"
+    assert lines[1] == "2019-03-04T15:10:00.000,1.2500,0.0000,-0.0000"  # -0.0 kept
     assert lines[2].split(",")[1] == "NaN"
 
 
