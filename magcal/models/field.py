@@ -1,0 +1,395 @@
+"""Model field along an orbit in Hpen: cadence grid, parallel processes, on-disk cache.
+
+:func:`model_field_hpen` evaluates IGRF + a Tsyganenko model (through
+:func:`magcal.models.irbem.evaluate_geo`) at the spacecraft, at the cadence of the
+comparison (1 min by default: denser input times are served by linear interpolation of
+the GEO field between grid points), in chunks spread over worker processes (IRBEM is not
+thread safe), and rotates it to Hpen with :func:`magcal.frames.hpen.geo_to_hpen`.
+
+Results are cached on disk (one file per request) under a key made of the model, its
+inputs, the positions, the times, the options and the IRBEM/spacepy/magcal versions; a
+rerun with the same request reads the file instead of calling IRBEM, and the result
+says so (``cache_hits``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import multiprocessing
+import os
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field as dc_field
+from pathlib import Path
+
+import numpy as np
+
+from magcal._version import __version__
+from magcal.errors import InputError
+from magcal.frames.hpen import geo_to_hpen
+from magcal.io.jsonio import product_dict
+from magcal.models import irbem
+
+#: Below this many evaluation points everything runs in the calling process.
+MIN_PARALLEL_POINTS = 20_000
+_CACHE_FORMAT = 1
+
+
+@dataclass(frozen=True)
+class ModelFieldResult:
+    """Model field in Hpen at the requested times.
+
+    Attributes
+    ----------
+    times : ndarray of datetime64[ns], shape (n,)
+    b_hpen_nT : ndarray, shape (n, 3)
+        ``(Hp, He, Hn)`` in nT; NaN where the model could not be evaluated.
+    invalid : ndarray of bool, shape (n,)
+        True where ``b_hpen_nT`` is NaN.
+    reasons : dict
+        ``{reason: count}`` over the evaluation points (first reason per point), plus
+        ``info:`` entries that do not invalidate anything.
+    model : str
+    cadence_s : float or None
+        Evaluation cadence; None when evaluated at the given times.
+    n_evaluated : int
+        Number of IRBEM evaluations made (0 on a cache hit).
+    cache_hits, cache_misses : int
+        1/0 per request when a cache directory is used, else 0/0.
+    backend : str
+        ``ctypes`` or ``get_Bfield`` (``cache`` on a hit).
+    provenance : dict
+    """
+
+    times: np.ndarray
+    b_hpen_nT: np.ndarray
+    invalid: np.ndarray
+    reasons: dict
+    model: str
+    cadence_s: float | None
+    n_evaluated: int
+    cache_hits: int = 0
+    cache_misses: int = 0
+    backend: str = "ctypes"
+    cache_key: str = ""
+    provenance: dict = dc_field(default_factory=dict)
+
+    @property
+    def n_invalid(self) -> int:
+        """Number of samples set to NaN."""
+        return int(np.count_nonzero(self.invalid))
+
+    def to_frame(self):
+        """``pandas.DataFrame`` with a UTC index named ``time`` and columns Hp, He, Hn."""
+        import pandas as pd
+
+        idx = pd.DatetimeIndex(self.times, name="time")
+        return pd.DataFrame(self.b_hpen_nT, index=idx, columns=["Hp", "He", "Hn"])
+
+    def summary(self) -> dict:
+        """JSON-ready report: counts, reasons, cache use."""
+        return {"model": self.model, "n": int(len(self.times)), "n_invalid": self.n_invalid,
+                "reasons": dict(self.reasons), "cadence_s": self.cadence_s,
+                "n_evaluated": self.n_evaluated, "cache_hits": self.cache_hits,
+                "cache_misses": self.cache_misses, "backend": self.backend,
+                "cache_key": self.cache_key}
+
+    def to_json(self) -> dict:
+        """Summary with schema/magcal versions and provenance (no sample arrays)."""
+        return product_dict({**self.summary(), "provenance": self.provenance})
+
+
+# --------------------------------------------------------------------------- inputs
+def _sample_step(series, times: np.ndarray) -> np.ndarray:
+    """Value of a time-indexed pandas object valid at ``times`` (previous-value lookup)."""
+    idx = irbem.as_datetime64(series.index)
+    if idx.size and np.any(np.diff(idx.astype(np.int64)) <= 0):
+        order = np.argsort(idx, kind="stable")
+        idx, series = idx[order], series.iloc[order]
+    values = np.asarray(series, dtype=float)
+    pos = np.searchsorted(idx, times, side="right") - 1
+    out = np.full((times.size,) + values.shape[1:], np.nan)
+    ok = pos >= 0
+    out[ok] = values[pos[ok]]
+    return out
+
+
+def _align(value, times: np.ndarray, name: str) -> np.ndarray:
+    """Scalar, aligned array or time-indexed pandas object -> float array of len(times)."""
+    if hasattr(value, "index") and hasattr(value, "iloc"):
+        return _sample_step(value, times)
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim == 0:
+        return np.full(times.size, float(arr))
+    if arr.shape[0] != times.size:
+        raise InputError(f"{name} has {arr.shape[0]} values for {times.size} times "
+                         "(give a scalar, one value per time, or a time-indexed series)")
+    return arr
+
+
+def _model_inputs(model: str, times: np.ndarray, kp, drivers) -> dict:
+    """IRBEM input dict aligned with ``times`` (only the inputs the model reads)."""
+    needed = irbem.REQUIRED_INPUTS[model]
+    inputs: dict[str, np.ndarray] = {}
+    if kp is not None:
+        inputs["Kp"] = _align(kp, times, "kp")
+    if drivers is not None:
+        keys = list(drivers.columns) if hasattr(drivers, "columns") else list(drivers)
+        for key in keys:
+            if key not in irbem.INPUT_KEYS:
+                continue
+            if key == "Kp" and "Kp" in inputs:
+                continue
+            inputs[key] = _align(drivers[key], times, key)
+    missing = [k for k in needed if k not in inputs]
+    if missing:
+        what = "kp" if missing == ["Kp"] else "drivers with " + ", ".join(missing)
+        raise InputError(f"model {model} needs {what}")
+    return {k: inputs[k] for k in needed}
+
+
+# --------------------------------------------------------------------------- cache key
+def _digest_array(h, name: str, arr: np.ndarray) -> None:
+    """Feed a compact canonical form of ``arr`` to hash ``h`` (constant / regular / RLE)."""
+    a = np.ascontiguousarray(arr)
+    h.update(f"|{name}:{a.dtype.str}:{a.shape}|".encode())
+    if a.size == 0:
+        return
+    flat = a.reshape(a.shape[0], -1) if a.ndim > 1 else a
+    first = flat[:1]
+    if np.array_equal(flat, np.broadcast_to(first, flat.shape), equal_nan=a.dtype.kind == "f"):
+        h.update(b"const")
+        h.update(first.tobytes())
+        return
+    if a.ndim == 1 and a.dtype.kind in "iuM":
+        d = np.diff(a.view(np.int64))
+        if np.all(d == d[0]):
+            h.update(b"regular")
+            h.update(a[:1].tobytes() + d[:1].tobytes())
+            return
+    if a.ndim == 1:
+        change = np.flatnonzero(a[1:] != a[:-1])
+        if change.size < a.size // 4:
+            h.update(b"rle")
+            h.update(change.tobytes())
+            h.update(a[np.r_[0, change + 1]].tobytes())
+            return
+    h.update(a.tobytes())
+
+
+def cache_key(model: str, times: np.ndarray, lon, lat, r, inputs: dict, options,
+              cadence_s) -> str:
+    """Hex key of a request (model, inputs, positions, times, options, versions)."""
+    h = hashlib.blake2b(digest_size=20)
+    h.update(json.dumps({"format": _CACHE_FORMAT, "model": model, "options": list(options),
+                         "cadence_s": cadence_s, "magcal": __version__,
+                         "irbem": irbem.library_version()}, sort_keys=True).encode())
+    _digest_array(h, "times", times)
+    for name, arr in (("lon", lon), ("lat", lat), ("r", r)):
+        _digest_array(h, name, np.atleast_1d(np.asarray(arr, dtype=float)))
+    for key in sorted(inputs):
+        _digest_array(h, key, np.asarray(inputs[key], dtype=float))
+    return h.hexdigest()
+
+
+def _cache_load(path: Path):
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return (z["b_hpen"], z["invalid"], json.loads(str(z["meta"])))
+    except (OSError, KeyError, ValueError):
+        return None
+
+
+def _cache_store(path: Path, b_hpen, invalid, meta: dict) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.part")
+    try:
+        with open(tmp, "wb") as handle:
+            np.savez(handle, b_hpen=b_hpen, invalid=invalid, meta=np.array(json.dumps(meta)))
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+# --------------------------------------------------------------------------- evaluation
+def _worker(t, xyz, model, inputs, options):
+    res = irbem.evaluate_geo(t, xyz, model, inputs, options)
+    return res.b_geo_nT, res.invalid, res.reasons, res.backend
+
+
+def default_n_jobs() -> int:
+    """Number of CPU cores this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def evaluate_parallel(t, xyz, model, inputs, options, n_jobs=None):
+    """:func:`irbem.evaluate_geo` over worker processes; returns (b_geo, invalid, reasons, backend).
+
+    The points are split into ``n_jobs * k`` contiguous chunks of at most
+    :data:`irbem.NTIME_MAX` points each.
+    """
+    n = len(t)
+    n_jobs = default_n_jobs() if n_jobs is None else max(1, int(n_jobs))
+    if n_jobs == 1 or n < MIN_PARALLEL_POINTS:
+        return _worker(t, xyz, model, inputs, options)
+    per_job = math.ceil(n / n_jobs)
+    n_chunks = n_jobs * math.ceil(per_job / irbem.NTIME_MAX)
+    bounds = np.linspace(0, n, n_chunks + 1).astype(int)
+    methods = multiprocessing.get_all_start_methods()
+    ctx = multiprocessing.get_context("fork" if "fork" in methods else None)
+    b = np.empty((n, 3))
+    invalid = np.empty(n, dtype=bool)
+    reasons: dict[str, int] = {}
+    backend = "ctypes"
+    with ProcessPoolExecutor(max_workers=n_jobs, mp_context=ctx) as pool:
+        futures = []
+        for a, z in zip(bounds[:-1], bounds[1:]):
+            part = {k: v[a:z] for k, v in inputs.items()}
+            futures.append((a, z, pool.submit(_worker, t[a:z], xyz[a:z], model, part,
+                                              options)))
+        for a, z, fut in futures:
+            bb, inv, why, used = fut.result()
+            b[a:z], invalid[a:z] = bb, inv
+            backend = used if used != "ctypes" else backend
+            for key, count in why.items():
+                reasons[key] = reasons.get(key, 0) + count
+    return b, invalid, reasons, backend
+
+
+def _grid_plan(times: np.ndarray, cadence_s):
+    """Evaluation grid for ``times`` at ``cadence_s``, or None to evaluate at ``times``.
+
+    Returns ``(grid, k, w)``: grid times, the index of the grid point at or before each
+    time, and the linear weight of the next grid point.
+    """
+    if cadence_s is None or times.size < 2:
+        return None
+    step = np.int64(round(float(cadence_s) * 1e9))
+    if step <= 0:
+        raise InputError("cadence_s must be positive")
+    ns = times.astype(np.int64)
+    if np.median(np.diff(ns)) >= step * 0.999:
+        return None
+    base = (ns[0] // step) * step
+    cell = (ns - base) // step
+    frac = ((ns - base) - cell * step) / step
+    need = np.unique(np.concatenate([cell, cell[frac > 0] + 1]))
+    k = np.searchsorted(need, cell)
+    grid = (base + need * step).astype("datetime64[ns]")
+    return grid, k, frac
+
+
+def model_field_hpen(times, lon_deg, lat_deg, r_re, model: str = "T89", kp=None,
+                     drivers=None, cadence_s: float | None = 60, n_jobs: int | None = None,
+                     cache_dir=None, options=None) -> ModelFieldResult:
+    """IGRF + Tsyganenko field at the spacecraft in Hpen.
+
+    Parameters
+    ----------
+    times : array_like, shape (n,)
+        UTC sample times (datetime64, DatetimeIndex, ISO strings).
+    lon_deg, lat_deg, r_re : float or array_like, shape (n,)
+        Geographic (geocentric) longitude, latitude in degrees and radius in Earth
+        radii; scalars for a geostationary spacecraft (e.g. 128.2, 0, 6.6).
+    model : {"IGRF", "T89", "T96", "T01", "T04"}
+    kp : float, array_like (n,) or time-indexed pandas Series, optional
+        Kp in Kp units (``1+`` = 4/3); a Series is read as a step function (each value
+        valid from its time stamp to the next). Needed by T89.
+    drivers : dict or DataFrame, optional
+        Solar-wind inputs named as IRBEM inputs (``Dst, Pdyn, ByIMF, BzIMF, G1..G3,
+        W1..W6``); scalars, aligned arrays, or a time-indexed DataFrame (step function).
+    cadence_s : float or None
+        Evaluation cadence (default 60 s). Times denser than this are served by linear
+        interpolation of the GEO field between grid points; None evaluates at ``times``.
+    n_jobs : int, optional
+        Worker processes (default: the usable CPU cores). 1 runs in-process.
+    cache_dir : path-like, optional
+        Directory of the on-disk cache; None disables caching.
+    options : sequence of 5 int, optional
+        IRBEM options (default :data:`magcal.models.irbem.DEFAULT_OPTIONS`).
+
+    Returns
+    -------
+    ModelFieldResult
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> t = np.datetime64("2019-11-01T00:00", "ns") + np.arange(3) * np.timedelta64(60, "s")
+    >>> res = model_field_hpen(t, 128.2, 0.0, 6.6, "T89", kp=1.0, n_jobs=1)
+    >>> res.b_hpen_nT.shape, res.n_invalid, bool(90 < res.b_hpen_nT[0, 0] < 130)
+    ((3, 3), 0, True)
+    """
+    from magcal.provenance import make_provenance
+
+    model = str(model).upper()
+    model = "T04" if model in ("TS04", "TS05", "T05") else model
+    if model not in irbem.KEXT:
+        raise InputError(f"unknown model {model!r}; choose one of {', '.join(irbem.KEXT)}")
+    t = irbem.as_datetime64(times)
+    n = t.size
+    if n and np.any(np.diff(t.astype(np.int64)) <= 0):
+        raise InputError("times must be strictly increasing")
+    opts = tuple(int(o) for o in (options if options is not None else irbem.DEFAULT_OPTIONS))
+    lon, lat, r = (np.asarray(v, dtype=float) for v in (lon_deg, lat_deg, r_re))
+    for name, v in (("lon_deg", lon), ("lat_deg", lat), ("r_re", r)):
+        if v.ndim and v.shape[0] != n:
+            raise InputError(f"{name} has {v.shape[0]} values for {n} times")
+    inputs = _model_inputs(model, t, kp, drivers)
+    params = {"model": model, "cadence_s": cadence_s, "options": list(opts),
+              "n": int(n), "irbem": irbem.library_version()}
+
+    key = ""
+    path = None
+    if cache_dir is not None:
+        key = cache_key(model, t, lon, lat, r, inputs, opts, cadence_s)
+        path = Path(cache_dir) / f"{model}-{key}.npz"
+        hit = _cache_load(path) if path.exists() else None
+        if hit is not None:
+            b_hpen, invalid, meta = hit
+            return ModelFieldResult(
+                times=t, b_hpen_nT=b_hpen, invalid=invalid, reasons=meta["reasons"],
+                model=model, cadence_s=cadence_s, n_evaluated=0, cache_hits=1,
+                cache_misses=0, backend="cache", cache_key=key,
+                provenance=make_provenance("model field", {**params, "cache": "hit"}))
+
+    plan = _grid_plan(t, cadence_s)
+    if plan is None:
+        t_eval, lon_e, lat_e, r_e, inp_e = t, lon, lat, r, inputs
+    else:
+        t_eval, k, w = plan
+        nearest = np.clip(np.searchsorted(t, t_eval), 0, n - 1)
+        prev = np.clip(nearest - 1, 0, n - 1)
+        closer = np.abs(t[prev] - t_eval) < np.abs(t[nearest] - t_eval)
+        nearest = np.where(closer, prev, nearest)
+        inp_e = {name: v[nearest] for name, v in inputs.items()}
+        te = t_eval.astype(np.int64).astype(float)
+        ts = t.astype(np.int64).astype(float)
+        lon_e = (np.interp(te, ts, np.rad2deg(np.unwrap(np.deg2rad(lon))))
+                 if lon.ndim else lon)
+        lat_e = np.interp(te, ts, lat) if lat.ndim else lat
+        r_e = np.interp(te, ts, r) if r.ndim else r
+    xyz = irbem.geo_position_re(lon_e, lat_e, r_e)
+    if xyz.shape[0] != t_eval.size:
+        xyz = np.broadcast_to(xyz, (t_eval.size, 3))
+    b_geo, bad, reasons, backend = evaluate_parallel(t_eval, xyz, model, inp_e, opts, n_jobs)
+    if plan is not None:
+        _, k, w = plan
+        k1 = np.minimum(k + 1, t_eval.size - 1)
+        b_geo = b_geo[k] * (1 - w)[:, None] + b_geo[k1] * w[:, None]
+        bad = bad[k] | (bad[k1] & (w > 0))
+    b_hpen = geo_to_hpen(b_geo, lon, lat)
+    b_hpen[bad] = np.nan
+    n_eval = int(t_eval.size)
+    if path is not None:
+        _cache_store(path, b_hpen, bad, {"reasons": reasons, "n_evaluated": n_eval})
+    return ModelFieldResult(
+        times=t, b_hpen_nT=b_hpen, invalid=bad, reasons=reasons, model=model,
+        cadence_s=cadence_s, n_evaluated=n_eval, cache_hits=0,
+        cache_misses=1 if path is not None else 0, backend=backend, cache_key=key,
+        provenance=make_provenance("model field", params))
