@@ -1,0 +1,349 @@
+"""Chains of PiCoG corrections and their collapse into upload matrices (§3.2, §4.3).
+
+A plan is a list of stages:
+
+- ``reference`` stage: each listed sensor is cleaned against one reference sensor
+  (which is not changed), one order after the other: ``B_n = B_{n-1} + A (B_{n-1} - B_ref)``
+  (Eq. 27 for the first order);
+- ``pair`` stage: two sensors clean each other in parallel, order by order (Eqs. 23-26):
+  ``B_{n,ij} = B_{n-1,ij} + A_{n-1,ij} (B_{n-1,ij} - B_{n-1,ji})`` and symmetrically;
+- ``regression`` stage: the non-orthogonal multi-sensor extension
+  (:mod:`magcal.ac.nonorthogonal`).
+
+The corrected field of one stage replaces the raw field in the next. Every corrected
+field stays a linear combination ``sum_k W[k] @ B0_k`` of the raw sensors; the chain
+tracks these weight matrices alongside the data, so the constant upload matrices of
+Eqs. 28-30 are the weights of the target and sum to the identity (Eq. 33).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+
+from magcal.ac.core import correction_matrix, fit_first_order
+from magcal.ac.scan import ScanResult, ScanSummary, scan_first_order, summarize_scan
+from magcal.errors import InputError
+
+Weights = dict  # sensor -> (3, 3) ndarray
+
+
+@dataclass(frozen=True)
+class Order:
+    """How one correction order is fitted.
+
+    ``interval`` (start, end) in the time base of the data (seconds) restricts the fit;
+    ``window_s`` selects the sliding-window scan; with neither the whole input is used.
+    """
+
+    window_s: float | None = None
+    interval: tuple[float, float] | None = None
+    cone_deg: float = 2.5
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One stage of a plan (see the module docstring for the kinds)."""
+
+    kind: str
+    sensors: tuple[str, ...]
+    reference: str | None = None
+    references: tuple[str, ...] = ()
+    orders: tuple[Order, ...] = (Order(),)
+
+    def __post_init__(self):
+        if self.kind not in ("reference", "pair", "regression"):
+            raise InputError(f"unknown stage kind {self.kind!r}")
+        if self.kind == "pair" and len(self.sensors) != 2:
+            raise InputError(f"a pair stage needs exactly two sensors, got {list(self.sensors)}")
+        if self.kind == "reference" and (self.reference is None or not self.sensors):
+            raise InputError("a reference stage needs a reference and at least one sensor")
+        if self.kind == "reference" and self.reference in self.sensors:
+            raise InputError(f"sensor {self.reference!r} cannot be cleaned against itself")
+        if self.kind == "regression" and (not self.references or not self.sensors):
+            raise InputError("a regression stage needs sensors and references")
+        if not self.orders:
+            raise InputError("a stage needs at least one order")
+
+    @property
+    def involved(self) -> tuple[str, ...]:
+        extra = (self.reference,) if self.reference else ()
+        return tuple(self.sensors) + extra + tuple(self.references)
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Target sensor and the stages that clean it."""
+
+    target: str
+    stages: tuple[Stage, ...]
+
+    @property
+    def sensors(self) -> list[str]:
+        out = [self.target]
+        for st in self.stages:
+            for s in st.involved:
+                if s not in out:
+                    out.append(s)
+        return out
+
+
+@dataclass(frozen=True)
+class Step:
+    """One fitted correction (one row of PARAMS.json ``steps``)."""
+
+    stage: int
+    order: int
+    i: str
+    j: str
+    alpha: float
+    direction_i: np.ndarray
+    direction_ij: np.ndarray
+    window_s: float | None
+    A: np.ndarray
+    alpha_variance: float = float("nan")
+    correlation: float = float("nan")
+    n_used: int = 0
+    interval: tuple | None = None
+    scan: dict | None = None
+    kind: str = "picog"
+
+    def to_dict(self) -> dict:
+        d = {"stage": self.stage, "order": self.order, "i": self.i, "j": self.j,
+             "alpha": self.alpha, "direction_i": np.asarray(self.direction_i).tolist(),
+             "direction_ij": np.asarray(self.direction_ij).tolist(), "window_s": self.window_s,
+             "A": np.asarray(self.A).tolist(), "alpha_variance": self.alpha_variance,
+             "correlation": self.correlation, "n_used": self.n_used, "kind": self.kind}
+        if self.interval is not None:
+            d["interval"] = list(self.interval)
+        if self.scan is not None:
+            d["scan"] = self.scan
+        return d
+
+
+@dataclass(frozen=True)
+class ChainResult:
+    """Outcome of running a plan on data."""
+
+    target: str
+    M: dict                   #: raw sensor -> (3, 3) upload matrix (Eq. 28)
+    G: np.ndarray             #: DC offset of the correction (Eq. 31), nT
+    steps: tuple[Step, ...]
+    corrected: np.ndarray     #: iteratively corrected target, (n, 3)
+    weights: dict = field(default_factory=dict)   #: every cleaned sensor -> Weights
+    scans: dict = field(default_factory=dict)     #: (stage, order, i) -> (ScanResult, ScanSummary)
+
+    @property
+    def identity_error(self) -> float:
+        """max |sum_k M_k - I| (Eq. 33; zero up to rounding)."""
+        return float(np.max(np.abs(sum(self.M.values()) - np.eye(3))))
+
+
+def _wcombine(w_i: Weights, w_j: Weights, A: np.ndarray) -> Weights:
+    keys = list(dict.fromkeys([*w_i, *w_j]))
+    z = np.zeros((3, 3))
+    return {k: w_i.get(k, z) + A @ (w_i.get(k, z) - w_j.get(k, z)) for k in keys}
+
+
+def apply_weights(data: Mapping[str, np.ndarray], weights: Mapping[str, np.ndarray]) -> np.ndarray:
+    """One-step linear combination ``sum_k W[k] @ B_k`` (Eq. 28); NaN where a needed
+    sensor is NaN.
+
+    Examples
+    --------
+    >>> b = {"a": np.ones((2, 3)), "b": np.zeros((2, 3))}
+    >>> apply_weights(b, {"a": 0.5 * np.eye(3), "b": 0.5 * np.eye(3)}).tolist()
+    [[0.5, 0.5, 0.5], [0.5, 0.5, 0.5]]
+    """
+    out = None
+    for k, m in weights.items():
+        if k not in data:
+            raise InputError(f"sensor {k!r} needed by the correction is missing", column=f"{k}_x")
+        term = np.asarray(data[k], dtype=float) @ np.asarray(m, dtype=float).T
+        out = term if out is None else out + term
+    return out
+
+
+def dc_offset(data: Mapping[str, np.ndarray], target: str, M: Mapping[str, np.ndarray],
+              mask: np.ndarray | None = None) -> np.ndarray:
+    """DC offset of the correction, Eq. 31: ``<B0_target> - <sum_k M_k B0_k>``."""
+    corrected = apply_weights(data, M)
+    raw = np.asarray(data[target], dtype=float)
+    ok = np.all(np.isfinite(corrected), axis=1) & np.all(np.isfinite(raw), axis=1)
+    if mask is not None:
+        ok &= mask
+    if not ok.any():
+        raise InputError("no sample where all sensors of the correction are valid")
+    return raw[ok].mean(axis=0) - corrected[ok].mean(axis=0)
+
+
+def sample_period_s(t_s: np.ndarray) -> float:
+    """Median sample spacing (s)."""
+    t_s = np.asarray(t_s, dtype=float)
+    if t_s.size < 2:
+        raise InputError("need at least two samples")
+    dt = float(np.median(np.diff(t_s)))
+    if not dt > 0:
+        raise InputError("times must be strictly increasing")
+    return dt
+
+
+def fit_order(b_i: np.ndarray, b_j: np.ndarray, t_s: np.ndarray, order: Order, *,
+              dt_s: float | None = None, alpha_method: str = "decorrelate",
+              keep_scan: bool = False):
+    """Fit one correction order of ``b_i`` with ``b_j``.
+
+    Returns
+    -------
+    (alpha, direction_i, direction_ij, info) where ``info`` holds ``alpha_variance``,
+    ``correlation``, ``n_used`` and, for scans, ``scan`` (summary numbers) and
+    ``scan_objects`` (ScanResult, ScanSummary) when ``keep_scan``.
+    """
+    t_s = np.asarray(t_s, dtype=float)
+    mask = None
+    if order.interval is not None:
+        t0, t1 = order.interval
+        mask = (t_s >= t0) & (t_s < t1)
+        if not mask.any():
+            raise InputError(f"interval {order.interval} contains no sample")
+    if order.window_s is None:
+        fit = fit_first_order(b_i, b_j, mask=mask, alpha_method=alpha_method)
+        return fit.alpha, fit.direction_i, fit.direction_ij, {
+            "alpha_variance": fit.alpha_variance, "correlation": fit.correlation,
+            "n_used": fit.n_used}
+    dt = sample_period_s(t_s) if dt_s is None else dt_s
+    window_n = int(round(order.window_s / dt))
+    bi, bj = (b_i, b_j) if mask is None else (b_i[mask], b_j[mask])
+    if window_n > bi.shape[0]:
+        raise InputError(f"window_s = {order.window_s} s ({window_n} samples) is longer "
+                         f"than the data ({bi.shape[0]} samples)")
+    scan = scan_first_order(bi, bj, window_n)
+    summ = summarize_scan(scan, cone_deg=order.cone_deg,
+                          alpha_kind="alpha" if alpha_method == "decorrelate" else "alpha_variance")
+    sel = summ.selected
+    info = {"alpha_variance": float(np.mean(scan.alpha_variance[sel])),
+            "correlation": float(np.mean(scan.correlation[sel])),
+            "n_used": int(np.all(np.isfinite(bi - bj), axis=1).sum()),
+            "scan": {"window_n": window_n, "n_windows": summ.n_windows,
+                     "n_selected": summ.n_selected, "alpha_std": summ.alpha_std,
+                     "cone_deg": summ.cone_deg,
+                     "direction_i_mode": summ.direction_i_mode.tolist(),
+                     "direction_ij_mode": summ.direction_ij_mode.tolist()}}
+    if keep_scan:
+        info["scan_objects"] = (scan, summ)
+    return summ.alpha, summ.direction_i, summ.direction_ij, info
+
+
+def run_chain(data: Mapping[str, np.ndarray], t_s: np.ndarray, plan: Plan, *,
+              alpha_method: str = "decorrelate", keep_scans: bool = False,
+              fixed_steps: Mapping | None = None) -> ChainResult:
+    """Fit and apply a plan iteratively; collapse it into upload matrices.
+
+    Parameters
+    ----------
+    data : mapping sensor -> ndarray (n, 3)
+        Raw fields of all sensors in one frame (nT), NaN for missing samples.
+    t_s : ndarray (n,)
+        Sample times in seconds (any origin; intervals use the same origin).
+    plan : Plan
+    alpha_method : {"decorrelate", "variance"}
+    keep_scans : bool
+        Keep per-window scan results (for Fig.-3-style plots).
+    fixed_steps : mapping, optional
+        ``(stage, order, i) -> A`` to reuse instead of fitting (used to re-run a fitted
+        chain on new data, e.g. for stability checks).
+
+    Returns
+    -------
+    ChainResult
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> s = rng.normal(size=(1000, 1)); amb = np.array([100.0, -20.0, 40.0])
+    >>> u = np.array([0.0, 0.6, 0.8])
+    >>> data = {"o": amb + 2 * s * u, "a": amb + 40 * s * u}
+    >>> plan = Plan("o", (Stage("reference", ("o",), reference="a"),))
+    >>> res = run_chain(data, np.arange(1000.0), plan)
+    >>> bool(np.allclose(res.corrected, amb, atol=1e-9)), res.identity_error < 1e-12
+    (True, True)
+    """
+    from magcal.ac.nonorthogonal import fit_regression_stage
+
+    t_s = np.asarray(t_s, dtype=float)
+    names = plan.sensors
+    for s in names:
+        if s not in data:
+            raise InputError(f"sensor {s!r} from the plan is missing from the data",
+                             column=f"{s}_x")
+    n = np.asarray(data[names[0]]).shape[0]
+    for s in names:
+        if np.asarray(data[s]).shape != (n, 3):
+            raise InputError(f"sensor {s!r} must be an (n, 3) array, got "
+                             f"{np.asarray(data[s]).shape}")
+    dt = sample_period_s(t_s)
+    cur = {s: np.asarray(data[s], dtype=float).copy() for s in names}
+    w = {s: {s: np.eye(3)} for s in names}
+    steps: list[Step] = []
+    scans: dict = {}
+    fixed = dict(fixed_steps or {})
+
+    def one(stage_no, order_no, order, i, j):
+        key = (stage_no, order_no, i)
+        if key in fixed:
+            A = np.asarray(fixed[key], dtype=float)
+            return A, Step(stage_no, order_no, i, j, float("nan"), np.full(3, np.nan),
+                           np.full(3, np.nan), order.window_s, A, kind="fixed")
+        alpha, e_i, e_ij, info = fit_order(cur[i], cur[j], t_s, order, dt_s=dt,
+                                           alpha_method=alpha_method, keep_scan=keep_scans)
+        if "scan_objects" in info:
+            scans[key] = info.pop("scan_objects")
+        A = correction_matrix(alpha, e_i, e_ij)
+        return A, Step(stage_no, order_no, i, j, float(alpha), np.asarray(e_i),
+                       np.asarray(e_ij), order.window_s, A,
+                       alpha_variance=info["alpha_variance"],
+                       correlation=info["correlation"], n_used=info["n_used"],
+                       interval=order.interval, scan=info.get("scan"))
+
+    for k, stage in enumerate(plan.stages, start=1):
+        if stage.kind == "reference":
+            ref = stage.reference
+            for n_o, order in enumerate(stage.orders, start=1):
+                for s in stage.sensors:
+                    A, step = one(k, n_o, order, s, ref)
+                    cur[s] = cur[s] + (cur[s] - cur[ref]) @ A.T
+                    w[s] = _wcombine(w[s], w[ref], A)
+                    steps.append(step)
+        elif stage.kind == "pair":
+            i, j = stage.sensors
+            for n_o, order in enumerate(stage.orders, start=1):
+                A_ij, st_ij = one(k, n_o, order, i, j)
+                A_ji, st_ji = one(k, n_o, order, j, i)
+                d = cur[i] - cur[j]
+                cur[i], cur[j] = cur[i] + d @ A_ij.T, cur[j] - d @ A_ji.T
+                w[i], w[j] = _wcombine(w[i], w[j], A_ij), _wcombine(w[j], w[i], A_ji)
+                steps += [st_ij, st_ji]
+        else:  # regression
+            for n_o, order in enumerate(stage.orders, start=1):
+                for s in stage.sensors:
+                    refs = list(stage.references)
+                    mats, info = fit_regression_stage(cur[s], [cur[r] for r in refs], t_s,
+                                                      interval=order.interval)
+                    cur[s] = cur[s] + sum((cur[s] - cur[r]) @ m.T for r, m in zip(refs, mats))
+                    new = {key: val.copy() for key, val in w[s].items()}
+                    for r, m in zip(refs, mats):
+                        for key in set(w[s]) | set(w[r]):
+                            z = np.zeros((3, 3))
+                            new[key] = new.get(key, z) + m @ (w[s].get(key, z) - w[r].get(key, z))
+                    w[s] = new
+                    for r, m in zip(refs, mats):
+                        steps.append(Step(k, n_o, s, r, float("nan"), np.full(3, np.nan),
+                                          np.full(3, np.nan), None, m, n_used=info["n_used"],
+                                          interval=order.interval, kind="regression"))
+    target = plan.target
+    M = {key: val for key, val in w[target].items()}
+    G = dc_offset({s: np.asarray(data[s], dtype=float) for s in M}, target, M)
+    return ChainResult(target=target, M=M, G=G, steps=tuple(steps), corrected=cur[target],
+                       weights=w, scans=scans)

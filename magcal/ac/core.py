@@ -1,0 +1,330 @@
+"""PiCoG variance analysis and the first-order correction (Constantinescu et al. 2020, §3).
+
+Everything here works on plain arrays: ``b_i`` and ``b_j`` are ``(n, 3)`` field samples
+of two sensors in one common frame (nT). The difference ``d = b_i - b_j`` holds only the
+spacecraft disturbances (Eq. 9). The first-order correction of sensor ``i`` with
+sensor ``j`` (Eqs. 13-17) is
+
+    B1_i = B0_i + A d,    A = -alpha e_i e_ij^T,
+
+where ``e_i`` is the maximum-variance direction of ``b_i`` (x axis of its variance
+principal system, VPS), ``e_ij`` the maximum-variance direction of ``d`` and ``alpha``
+the scaling factor. ``alpha`` starts from the amplitude ratio of Eq. 14 with the sign
+that removes the disturbance (the sign of the covariance of the two principal
+components) and is refined by making the corrected component uncorrelated with the
+difference component, which has the closed form ``alpha = cov(x, d_x) / var(d_x)``.
+
+The moment-based function :func:`first_order_from_moments` is batched over leading
+axes, so the sliding-window scan (:mod:`magcal.ac.scan`) and the single-interval fit
+share one implementation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from magcal.errors import InputError
+
+#: Relative size below which the difference variance counts as zero (no disturbance).
+DEGENERATE_RTOL = 1e-12
+
+
+def canonical_sign(v: np.ndarray, reference: np.ndarray | None = None) -> np.ndarray:
+    """Fix the arbitrary sense of axial unit vectors.
+
+    Parameters
+    ----------
+    v : ndarray, shape (..., 3)
+        Unit vectors (directions defined up to sign).
+    reference : ndarray, shape (3,), optional
+        With a reference, each vector is flipped to have a non-negative projection on
+        it; without, the component of largest magnitude is made positive.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+
+    Examples
+    --------
+    >>> canonical_sign(np.array([0.0, -1.0, 0.2])).tolist()
+    [-0.0, 1.0, -0.2]
+    """
+    v = np.asarray(v, dtype=float)
+    if reference is not None:
+        s = np.sign(v @ np.asarray(reference, dtype=float))
+    else:
+        idx = np.argmax(np.abs(v), axis=-1)
+        s = np.sign(np.take_along_axis(v, idx[..., None], axis=-1)[..., 0])
+    s = np.where(s == 0, 1.0, s)
+    return v * s[..., None]
+
+
+def direction_angles_deg(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Elevation ``theta`` (from the x-y plane) and azimuth ``phi`` of unit vectors, deg.
+
+    Examples
+    --------
+    >>> th, ph = direction_angles_deg(np.array([0.0, 1.0, 0.0]))
+    >>> float(th), float(ph)
+    (0.0, 90.0)
+    """
+    v = np.asarray(v, dtype=float)
+    theta = np.degrees(np.arcsin(np.clip(v[..., 2], -1.0, 1.0)))
+    phi = np.degrees(np.arctan2(v[..., 1], v[..., 0]))
+    return theta, phi
+
+
+def unit_from_angles_deg(theta_deg, phi_deg) -> np.ndarray:
+    """Unit vector(s) from elevation and azimuth in degrees (inverse of
+    :func:`direction_angles_deg`).
+
+    Examples
+    --------
+    >>> np.round(unit_from_angles_deg(0.0, 90.0), 12).tolist()
+    [0.0, 1.0, 0.0]
+    """
+    th = np.radians(np.asarray(theta_deg, dtype=float))
+    ph = np.radians(np.asarray(phi_deg, dtype=float))
+    return np.stack([np.cos(th) * np.cos(ph), np.cos(th) * np.sin(ph), np.sin(th)], axis=-1)
+
+
+def variance_system(b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Variance principal system (VPS) of a vector series.
+
+    Parameters
+    ----------
+    b : ndarray, shape (n, 3)
+        Vector samples; rows with NaN are ignored.
+
+    Returns
+    -------
+    eigenvalues : ndarray, shape (3,)
+        Variances along the VPS axes, largest first (nT^2).
+    rotation : ndarray, shape (3, 3)
+        Rows are the VPS axes (x: maximum, z: minimum variance) in the input frame;
+        ``rotation @ v`` transforms a vector into the VPS. Right-handed.
+
+    Examples
+    --------
+    >>> t = np.arange(100.0)
+    >>> b = np.c_[0.1 * np.cos(t), 5 * np.sin(t), np.zeros(100)]
+    >>> lam, r = variance_system(b)
+    >>> np.abs(np.round(r[0], 3)).tolist()
+    [0.0, 1.0, 0.0]
+    """
+    b = np.asarray(b, dtype=float)
+    ok = np.all(np.isfinite(b), axis=1)
+    if ok.sum() < 3:
+        raise InputError(f"variance analysis needs at least 3 valid samples, got {ok.sum()}")
+    c = np.cov(b[ok].T)
+    w, v = np.linalg.eigh(c)
+    r = v[:, ::-1].T.copy()
+    r[0] = canonical_sign(r[0])
+    r[1] = canonical_sign(r[1])
+    r[2] = np.cross(r[0], r[1])
+    return w[::-1], r
+
+
+def correction_matrix(alpha: float, direction_i, direction_ij) -> np.ndarray:
+    """Correction matrix of Eq. 17: ``A = -alpha e_i e_ij^T``.
+
+    Examples
+    --------
+    >>> correction_matrix(2.0, [1, 0, 0], [0, 1, 0]).tolist()
+    [[-0.0, -2.0, -0.0], [-0.0, -0.0, -0.0], [-0.0, -0.0, -0.0]]
+    """
+    return -float(alpha) * np.outer(np.asarray(direction_i, float), np.asarray(direction_ij, float))
+
+
+@dataclass(frozen=True)
+class MomentFit:
+    """Batched first-order estimates from covariance matrices (arrays over windows)."""
+
+    alpha: np.ndarray            #: refined alpha (decorrelation), shape (...)
+    alpha_variance: np.ndarray   #: Eq. 14 amplitude ratio with sign, shape (...)
+    direction_i: np.ndarray      #: max-variance direction of sensor i, shape (..., 3)
+    direction_ij: np.ndarray     #: max-variance direction of the difference, (..., 3)
+    eigenvalues_i: np.ndarray    #: variances of sensor i along its VPS, (..., 3)
+    eigenvalues_ij: np.ndarray   #: variances of the difference along its VPS, (..., 3)
+    correlation: np.ndarray      #: correlation of the two principal components, (...)
+    degenerate: np.ndarray       #: True where the difference has no variance, (...)
+
+
+def first_order_from_moments(c_ii: np.ndarray, c_dd: np.ndarray, c_id: np.ndarray, *,
+                             reference_i=None, reference_ij=None) -> MomentFit:
+    """First-order PiCoG estimates from second moments (batched).
+
+    Parameters
+    ----------
+    c_ii : ndarray, shape (..., 3, 3)
+        Covariance of sensor ``i``.
+    c_dd : ndarray, shape (..., 3, 3)
+        Covariance of the difference ``d = b_i - b_j``.
+    c_id : ndarray, shape (..., 3, 3)
+        Cross-covariance ``E[(b_i - mean)(d - mean)^T]``.
+    reference_i, reference_ij : ndarray (3,), optional
+        Hemisphere references fixing the sense of the directions (see
+        :func:`canonical_sign`); by default the largest component is positive.
+
+    Returns
+    -------
+    MomentFit
+
+    Examples
+    --------
+    >>> c_ii = np.diag([4.0, 0.1, 0.1]); c_dd = np.diag([1.0, 0.0, 0.0])
+    >>> c_id = np.diag([2.0, 0.0, 0.0])
+    >>> fit = first_order_from_moments(c_ii, c_dd, c_id)
+    >>> float(fit.alpha), float(fit.alpha_variance)
+    (2.0, 2.0)
+    """
+    c_ii = np.asarray(c_ii, dtype=float)
+    c_dd = np.asarray(c_dd, dtype=float)
+    c_id = np.asarray(c_id, dtype=float)
+    wi, vi = np.linalg.eigh(c_ii)
+    wd, vd = np.linalg.eigh(c_dd)
+    e_i = canonical_sign(vi[..., :, 2], reference_i)
+    e_ij = canonical_sign(vd[..., :, 2], reference_ij)
+    lam_i = wi[..., ::-1]
+    lam_d = wd[..., ::-1]
+    cov_xd = np.einsum("...k,...kl,...l->...", e_i, c_id, e_ij)
+    scale = np.abs(np.trace(c_ii, axis1=-2, axis2=-1)) + np.abs(np.trace(c_dd, axis1=-2, axis2=-1))
+    degenerate = ~(lam_d[..., 0] > DEGENERATE_RTOL * scale)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        safe_d = np.where(degenerate, np.nan, lam_d[..., 0])
+        alpha = cov_xd / safe_d
+        alpha_var = np.sign(cov_xd) * np.sqrt(np.clip(lam_i[..., 0], 0, None) / safe_d)
+        corr = cov_xd / np.sqrt(np.clip(lam_i[..., 0], 0, None) * safe_d)
+    return MomentFit(alpha=alpha, alpha_variance=alpha_var, direction_i=e_i, direction_ij=e_ij,
+                     eigenvalues_i=lam_i, eigenvalues_ij=lam_d, correlation=corr,
+                     degenerate=degenerate)
+
+
+def pair_moments(b_i: np.ndarray, b_j: np.ndarray, mask: np.ndarray | None = None):
+    """Covariances ``(c_ii, c_dd, c_id, n_used)`` of a sensor pair over valid rows."""
+    b_i = np.asarray(b_i, dtype=float)
+    b_j = np.asarray(b_j, dtype=float)
+    if b_i.shape != b_j.shape or b_i.ndim != 2 or b_i.shape[1] != 3:
+        raise InputError(f"sensor arrays must both be (n, 3); got {b_i.shape} and {b_j.shape}")
+    ok = np.all(np.isfinite(b_i), axis=1) & np.all(np.isfinite(b_j), axis=1)
+    if mask is not None:
+        ok &= np.asarray(mask, dtype=bool)
+    n = int(ok.sum())
+    if n < 3:
+        raise InputError(f"too few valid samples to fit ({n}; need at least 3 where both "
+                         "sensors are valid)")
+    x = b_i[ok] - b_i[ok].mean(axis=0)
+    d = b_i[ok] - b_j[ok]
+    d = d - d.mean(axis=0)
+    return x.T @ x / n, d.T @ d / n, x.T @ d / n, n
+
+
+@dataclass(frozen=True)
+class FirstOrderFit:
+    """One first-order PiCoG correction of sensor ``i`` with sensor ``j``.
+
+    Attributes
+    ----------
+    alpha : float
+        Scaling factor used (refined by decorrelation unless ``alpha_method="variance"``).
+    alpha_variance : float
+        Eq. 14 estimate ``sign * sqrt(Var(B_i,x) / Var(dB_x))``.
+    direction_i, direction_ij : ndarray (3,)
+        Maximum-variance directions of sensor ``i`` and of the difference.
+    eigenvalues_i, eigenvalues_ij : ndarray (3,)
+        VPS variances (nT^2), largest first.
+    correlation : float
+        Correlation of the two principal components (near +-1: the disturbance dominates).
+    n_used : int
+        Samples used.
+    """
+
+    alpha: float
+    alpha_variance: float
+    direction_i: np.ndarray
+    direction_ij: np.ndarray
+    eigenvalues_i: np.ndarray
+    eigenvalues_ij: np.ndarray
+    correlation: float
+    n_used: int
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def A(self) -> np.ndarray:  # noqa: N802 - the paper's symbol
+        """Correction matrix (Eq. 17)."""
+        return correction_matrix(self.alpha, self.direction_i, self.direction_ij)
+
+    @property
+    def direction_quality(self) -> float:
+        """Ratio of the largest to the intermediate variance of the difference."""
+        lam = self.eigenvalues_ij
+        return float(lam[0] / lam[1]) if lam[1] > 0 else float("inf")
+
+
+def fit_first_order(b_i, b_j, *, mask=None, alpha_method: str = "decorrelate") -> FirstOrderFit:
+    """Fit the first-order PiCoG correction of ``b_i`` using ``b_j`` (Eqs. 13-17).
+
+    Parameters
+    ----------
+    b_i, b_j : ndarray, shape (n, 3)
+        The sensor to clean and the cleaning sensor, same frame and times (nT). Rows
+        where either has NaN are skipped.
+    mask : ndarray of bool, shape (n,), optional
+        Restrict the fit to these rows (e.g. an interval).
+    alpha_method : {"decorrelate", "variance"}
+        ``"decorrelate"`` (default) refines Eq. 14 so that the corrected principal
+        component is uncorrelated with the difference; ``"variance"`` keeps Eq. 14.
+
+    Returns
+    -------
+    FirstOrderFit
+
+    Raises
+    ------
+    InputError
+        Too few valid samples, or no variance in the difference (identical sensors or
+        no disturbance: alpha is undefined).
+
+    Examples
+    --------
+    One linearly polarised disturber seen 3x stronger by sensor i than by sensor j:
+
+    >>> rng = np.random.default_rng(0)
+    >>> s = rng.normal(size=2000)
+    >>> u = np.array([0.0, 0.6, 0.8])
+    >>> ambient = np.array([100.0, -20.0, 50.0])
+    >>> b_i = ambient + 3 * s[:, None] * u
+    >>> b_j = ambient + 1 * s[:, None] * u
+    >>> fit = fit_first_order(b_i, b_j)
+    >>> round(fit.alpha, 12)  # a / (a - 1) for a = 3 (Eq. 19)
+    1.5
+    >>> cleaned = b_i + (b_i - b_j) @ fit.A.T
+    >>> bool(np.allclose(cleaned, ambient))
+    True
+    """
+    if alpha_method not in ("decorrelate", "variance"):
+        raise InputError(f"alpha_method must be 'decorrelate' or 'variance', got {alpha_method!r}")
+    c_ii, c_dd, c_id, n = pair_moments(b_i, b_j, mask)
+    m = first_order_from_moments(c_ii, c_dd, c_id)
+    if bool(m.degenerate):
+        raise InputError("the difference between the two sensors has no variance (no "
+                         "disturbance to remove): alpha is undefined")
+    alpha = float(m.alpha if alpha_method == "decorrelate" else m.alpha_variance)
+    return FirstOrderFit(alpha=alpha, alpha_variance=float(m.alpha_variance),
+                         direction_i=m.direction_i, direction_ij=m.direction_ij,
+                         eigenvalues_i=m.eigenvalues_i, eigenvalues_ij=m.eigenvalues_ij,
+                         correlation=float(m.correlation), n_used=n)
+
+
+def apply_first_order(b_i, b_j, A) -> np.ndarray:
+    """Corrected field ``b_i + A (b_i - b_j)`` (Eq. 16); NaN where either input is NaN.
+
+    Examples
+    --------
+    >>> apply_first_order(np.ones((1, 3)), np.zeros((1, 3)), -np.eye(3)).tolist()
+    [[0.0, 0.0, 0.0]]
+    """
+    b_i = np.asarray(b_i, dtype=float)
+    return b_i + (b_i - np.asarray(b_j, dtype=float)) @ np.asarray(A, dtype=float).T
