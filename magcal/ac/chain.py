@@ -41,6 +41,7 @@ class Order:
     window_s: float | None = None
     interval: tuple[float, float] | None = None
     cone_deg: float = 2.5
+    detrend_s: float | None = None   #: regression stages: running-mean removal before fitting
 
 
 @dataclass(frozen=True)
@@ -330,7 +331,8 @@ def run_chain(data: Mapping[str, np.ndarray], t_s: np.ndarray, plan: Plan, *,
                 for s in stage.sensors:
                     refs = list(stage.references)
                     mats, info = fit_regression_stage(cur[s], [cur[r] for r in refs], t_s,
-                                                      interval=order.interval)
+                                                      interval=order.interval,
+                                                      detrend_s=order.detrend_s)
                     cur[s] = cur[s] + sum((cur[s] - cur[r]) @ m.T for r, m in zip(refs, mats))
                     new = {key: val.copy() for key, val in w[s].items()}
                     for r, m in zip(refs, mats):

@@ -1,0 +1,159 @@
+"""PLAN.toml for ``magcal picog fit`` (CONTRACTS §1).
+
+::
+
+    target = "fgmo"                  # sensor whose cleaned data is the product
+    alpha_method = "decorrelate"     # optional: or "variance" (Eq. 14 only)
+    [[stage]]                        # first-order cleaning against one reference
+    reference = "amr1"
+    sensors = ["fgmo", "fgmi"]
+    orders = [ { interval = ["2019-03-04T15:10", "2019-03-04T16:15"] } ]
+    [[stage]]                        # iterative cleaning of a pair: i is cleaned with j
+    pair = ["fgmo", "fgmi"]
+    orders = [ { window_s = 100 }, { window_s = 700 }, { window_s = 16000, cone_deg = 2.5 } ]
+    [[stage]]                        # extension: non-orthogonal regression gradiometer
+    regression = ["fgmo"]
+    references = ["fgmi", "amr1"]
+    orders = [ { detrend_s = 3600 } ]
+
+Interval times are ISO-8601 UTC; they become seconds since 1970-01-01 UTC, the time
+base :class:`magcal.ac.estimator.PiCoG` uses.
+"""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from pathlib import Path
+
+import pandas as pd
+
+from magcal.ac.chain import Order, Plan, Stage
+from magcal.errors import InputError
+
+_NAME = re.compile(r"^[a-z0-9_]+$")
+
+
+def to_epoch_s(value, *, file=None) -> float:
+    """ISO-8601 UTC string or Timestamp -> seconds since 1970-01-01 UTC.
+
+    Examples
+    --------
+    >>> to_epoch_s("1970-01-01T00:01:00")
+    60.0
+    """
+    try:
+        ts = pd.Timestamp(value)
+    except (ValueError, TypeError):
+        raise InputError(f"cannot parse time {value!r} as ISO-8601 UTC", file=file) from None
+    if ts.tzinfo is None:
+        ts = ts.tz_localize("UTC")
+    return ts.value / 1e9
+
+
+def _check_name(name, file, where):
+    if not isinstance(name, str) or not _NAME.match(name):
+        raise InputError(f"{where}: sensor name {name!r} must be lowercase letters, digits "
+                         "or '_'", file=file)
+    return name
+
+
+def _order(spec, file, where) -> Order:
+    if not isinstance(spec, dict):
+        raise InputError(f"{where}: each order must be a table like {{ window_s = 100 }}",
+                         file=file)
+    unknown = set(spec) - {"interval", "window_s", "cone_deg", "detrend_s"}
+    if unknown:
+        raise InputError(f"{where}: unknown order key(s) {sorted(unknown)}", file=file)
+    interval = None
+    if "interval" in spec:
+        iv = spec["interval"]
+        if not (isinstance(iv, list) and len(iv) == 2):
+            raise InputError(f"{where}: interval must be [start, end]", file=file)
+        interval = (to_epoch_s(iv[0], file=file), to_epoch_s(iv[1], file=file))
+        if not interval[1] > interval[0]:
+            raise InputError(f"{where}: interval end must be after its start", file=file)
+    window_s = spec.get("window_s")
+    if window_s is not None and not (isinstance(window_s, (int, float)) and window_s > 0):
+        raise InputError(f"{where}: window_s must be a positive number of seconds", file=file)
+    cone = spec.get("cone_deg", 2.5)
+    if not (isinstance(cone, (int, float)) and 0 < cone <= 90):
+        raise InputError(f"{where}: cone_deg must be in (0, 90]", file=file)
+    detrend = spec.get("detrend_s")
+    return Order(window_s=None if window_s is None else float(window_s), interval=interval,
+                 cone_deg=float(cone), detrend_s=None if detrend is None else float(detrend))
+
+
+def plan_from_dict(doc: dict, *, file=None) -> tuple[Plan, dict]:
+    """Build a :class:`Plan` from a parsed TOML document; also return options.
+
+    Examples
+    --------
+    >>> plan, opts = plan_from_dict({"target": "fgmo", "stage": [
+    ...     {"pair": ["fgmo", "fgmi"], "orders": [{"window_s": 100}]}]})
+    >>> plan.stages[0].kind, plan.stages[0].orders[0].window_s
+    ('pair', 100.0)
+    """
+    if "target" not in doc:
+        raise InputError("missing 'target'", file=file)
+    target = _check_name(doc["target"], file, "target")
+    stages = []
+    for k, st in enumerate(doc.get("stage", []), start=1):
+        where = f"stage {k}"
+        orders = tuple(_order(o, file, f"{where} order {n}")
+                       for n, o in enumerate(st.get("orders", [{}]), start=1))
+        kinds = [key for key in ("reference", "pair", "regression") if key in st]
+        if len(kinds) != 1:
+            raise InputError(f"{where}: give exactly one of 'reference' (with 'sensors'), "
+                             "'pair' or 'regression' (with 'references')", file=file)
+        kind = kinds[0]
+        if kind == "reference":
+            sensors = tuple(_check_name(s, file, where) for s in st.get("sensors", []))
+            ref = _check_name(st["reference"], file, where)
+            stages.append(Stage("reference", sensors, reference=ref, orders=orders))
+        elif kind == "pair":
+            pair = st["pair"]
+            if not (isinstance(pair, list) and len(pair) == 2):
+                raise InputError(f"{where}: pair must list two sensors", file=file)
+            stages.append(Stage("pair", tuple(_check_name(s, file, where) for s in pair),
+                                orders=orders))
+        else:
+            sensors = tuple(_check_name(s, file, where) for s in st["regression"])
+            refs = tuple(_check_name(s, file, where) for s in st.get("references", []))
+            stages.append(Stage("regression", sensors, references=refs, orders=orders))
+    if not stages:
+        raise InputError("the plan has no [[stage]]", file=file)
+    plan = Plan(target=target, stages=tuple(stages))
+    if not any(target in st.sensors for st in plan.stages):
+        raise InputError(f"target {target!r} is not cleaned by any stage", file=file)
+    alpha_method = doc.get("alpha_method", "decorrelate")
+    if alpha_method not in ("decorrelate", "variance"):
+        raise InputError("alpha_method must be 'decorrelate' or 'variance'", file=file)
+    return plan, {"alpha_method": alpha_method}
+
+
+def read_plan(path) -> tuple[Plan, dict]:
+    """Read and validate a PLAN.toml file."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError("file not found", file=p)
+    try:
+        doc = tomllib.loads(p.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"not valid TOML: {exc}", file=p) from None
+    return plan_from_dict(doc, file=p)
+
+
+def plan_to_dict(plan: Plan) -> dict:
+    """JSON-ready description of a plan (kept in PARAMS.json)."""
+    stages = []
+    for st in plan.stages:
+        d = {"kind": st.kind, "sensors": list(st.sensors)}
+        if st.reference:
+            d["reference"] = st.reference
+        if st.references:
+            d["references"] = list(st.references)
+        d["orders"] = [{"window_s": o.window_s, "interval": list(o.interval) if o.interval else None,
+                        "cone_deg": o.cone_deg, "detrend_s": o.detrend_s} for o in st.orders]
+        stages.append(d)
+    return {"target": plan.target, "stages": stages}
