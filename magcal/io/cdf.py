@@ -197,11 +197,11 @@ def _clean_values(raw: np.ndarray, cdf_type: str, fillval) -> tuple[np.ndarray, 
         fill |= np.isnan(raw)
         n = int(fill.sum())
         if n:
-            raw = raw.astype(np.float64 if raw.dtype == np.float64 else raw.dtype, copy=True)
+            raw = raw.copy()
             raw[fill] = np.nan
         return raw, n
-    if np.isnan(fv) if isinstance(fv, float) else False:
-        return raw, 0
+    if isinstance(fv, (float, np.floating)) and np.isnan(fv):
+        return raw, 0                                  # integers cannot hold a NaN fill
     fill = raw == fv
     n = int(fill.sum())
     if n:
