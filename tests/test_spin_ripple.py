@@ -1,0 +1,172 @@
+"""Spin-ripple calibration against the simulator's truth (Kivelson et al. 1992, App. 2)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from magcal.errors import InputError
+from magcal.simulate.spinning import SpinningConfig, rotation_z, simulate_spinning
+from magcal.spin.despin import despin
+from magcal.spin.ripple import (DETERMINABLE, PARAM_NAMES, SpinRippleCalibrator,
+                                fit_spin_ripple, spin_tone)
+
+ANGLE_TOL = np.radians(0.01)      # issue 6: better than 0.01 degree
+OFFSET_TOL = 0.05                 # nT
+
+
+def _arrays(res):
+    d = res.data
+    return res.truth.t_s, d[["b1", "b2", "b3"]].to_numpy(), d["phase"].to_numpy()
+
+
+def _priors_from_truth(truth):
+    """Prior C, O whose fixed entries (c11, c12, c33, O3) equal the truth."""
+    c0 = np.eye(3)
+    c0[0] = truth.coupling[0]
+    c0[2, 2] = truth.coupling[2, 2]
+    return c0, np.array([0.0, 0.0, truth.offsets_nT[2]])
+
+
+@pytest.fixture(scope="module")
+def galileo():
+    return simulate_spinning(SpinningConfig.galileo_like(), rng=np.random.default_rng(606))
+
+
+@pytest.fixture(scope="module")
+def galileo_fit(galileo):
+    c0, o0 = _priors_from_truth(galileo.truth)
+    return fit_spin_ripple(*_arrays(galileo), coupling0=c0, offsets0=o0)
+
+
+def test_eight_parameters_recovered(galileo, galileo_fit):
+    cal, tr = galileo_fit, galileo.truth
+    assert cal.determined == DETERMINABLE
+    assert set(cal.fixed) == {"c11", "c12", "c33", "O3"}
+    for name in ("c13", "c21", "c22", "c23", "c31", "c32"):
+        k = PARAM_NAMES.index(name)
+        assert abs(cal.parameter(name) - tr.coupling.ravel()[k]) < ANGLE_TOL, name
+    assert_allclose(cal.offsets_nT[:2], tr.offsets_nT[:2], atol=OFFSET_TOL)
+    # fixed ones kept exactly
+    assert cal.parameter("c12") == tr.coupling[0, 1]
+    assert cal.parameter("O3") == tr.offsets_nT[2]
+    assert cal.converged and cal.n_iterations <= 6
+
+
+def test_reported_uncertainty_covers_error(galileo, galileo_fit):
+    cal, tr = galileo_fit, galileo.truth
+    full = np.concatenate([tr.coupling.ravel(), tr.offsets_nT])
+    for name in DETERMINABLE:
+        err = cal.parameter(name) - full[PARAM_NAMES.index(name)]
+        assert abs(err) < 4 * cal.std[name], (name, err, cal.std[name])
+        assert cal.std[name] > 0
+    assert cal.covariance.shape == (8, 8)
+
+
+def test_spin_tone_below_ambient_noise_after(galileo, galileo_fit):
+    cal = galileo_fit
+    for comp in ("BX", "BY", "BZ"):
+        for h in range(2):
+            assert cal.spin_tone_after_nT[comp][h] < 3 * cal.spin_tone_noise_nT[comp][h]
+    # before: the offsets of about 1 nT show as a 1x tone far above the noise
+    assert cal.spin_tone_before_nT["BX"][0] > 100 * cal.spin_tone_noise_nT["BX"][0]
+    # tone of the calibration error alone, on the noise-free truth field: far below noise
+    t, b, p = _arrays(galileo)
+    err_sc = cal.calibrate(b) - ((b - galileo.truth.offsets_nT) @ galileo.truth.coupling.T)
+    tone = spin_tone(t, err_sc, p)
+    assert np.all(tone.amplitude_nT < np.array([cal.spin_tone_noise_nT[c] for c in ("BX", "BY", "BZ")]))
+
+
+def test_wrong_priors_give_equivalent_calibration(galileo):
+    """With c12 = 0 and c11 = 1 as priors (truth: 0.5 deg turn, gain 1.0012), the fit
+    returns the truth turned about the spin axis and scaled in the spin plane: the
+    4 fixed parameters are exactly what spin tones cannot see."""
+    t, b, p = _arrays(galileo)
+    tr = galileo.truth
+    o0 = np.array([0.0, 0.0, 0.0])              # O3 prior wrong by 0.45 nT
+    cal = fit_spin_ripple(t, b, p, coupling0=np.eye(3), offsets0=o0)
+    m = cal.coupling @ np.linalg.inv(tr.coupling)   # maps true B to fitted B
+    turn = np.degrees(np.arctan2(m[1, 0], m[0, 0]))
+    scale = np.hypot(m[0, 0], m[1, 0])
+    assert_allclose(turn, -0.5, atol=0.01)             # the truth's 0.5 deg turn, undone
+    assert_allclose(scale, 1 / 1.0012, rtol=2e-4)
+    expected = np.diag([scale, scale, 1.0]) @ rotation_z(turn)
+    assert_allclose(m[:2], expected[:2], atol=ANGLE_TOL)
+    # BZ: c31, c32 right, c33 at its prior 1 instead of the true 0.9993
+    assert_allclose(m[2], [0.0, 0.0, 1 / tr.coupling[2, 2]], atol=ANGLE_TOL)
+    # same spin tone as with the correct priors
+    assert cal.spin_tone_after_nT["BX"][0] < 3 * cal.spin_tone_noise_nT["BX"][0]
+
+
+def test_unseen_directions_leave_spin_tone_unchanged(rng):
+    """A turn about the spin axis, a spin-plane gain, O3 (with O1, O2 following) leave a
+    noise-free record without spin tone; changing any determinable parameter does not."""
+    cfg = SpinningConfig.galileo_like(duration_s=1200.0, noise_nT=0.0, turbulence_rms_nT=0.0,
+                                      waves=(), slow_amplitude_nT=(0.0, 0.0, 0.0))
+    res = simulate_spinning(cfg, rng=rng)
+    t, b, p = _arrays(res)
+    c, o = res.truth.coupling, res.truth.offsets_nT
+
+    def tone(cc, oo):
+        return spin_tone(t, (b - oo) @ cc.T, p).amplitude_nT.max()
+
+    assert tone(c, o) < 1e-9
+    assert tone(rotation_z(0.3) @ c, o) < 1e-9
+    assert tone(np.diag([1.01, 1.01, 1.0]) @ c, o) < 1e-9
+    do3 = 0.7
+    o_shift = o + np.concatenate([np.linalg.solve(c[:2, :2], -c[:2, 2] * do3), [do3]])
+    assert tone(c, o_shift) < 1e-9
+    for k in (2, 3, 4, 5, 6, 7):            # c13, c21, c22, c23, c31, c32
+        dc = c.copy().ravel()
+        dc[k] += np.radians(0.01)
+        assert tone(dc.reshape(3, 3), o) > 1e-3, PARAM_NAMES[k]
+    assert tone(c, o + [0.05, 0, 0]) > 0.04
+
+
+def test_estimator_and_json(galileo):
+    t, b, p = _arrays(galileo)
+    c0, o0 = _priors_from_truth(galileo.truth)
+    est = SpinRippleCalibrator(coupling0=c0, offsets0=o0).fit(t[:27000], b[:27000], p[:27000])
+    assert est.coupling0 is c0 and hasattr(est, "result_")
+    despun = est.despun(b[:27000], p[:27000])
+    assert_allclose(despun.mean(axis=0), galileo.truth.b_despun[:27000].mean(axis=0), atol=0.05)
+    doc = json.loads(json.dumps(est.result_.to_json()))
+    for key in ("coupling", "offsets", "determined", "fixed", "spin_tone_before_nT",
+                "spin_tone_after_nT", "schema_version", "magcal_version"):
+        assert key in doc
+    assert len(doc["determined"]) + len(doc["fixed"]) == 12
+    assert len(doc["spin_tone_after_nT"]["BZ"]) == 2
+
+
+def test_slowly_varying_period_and_gaps(rng):
+    cfg = SpinningConfig.galileo_like(duration_s=7200.0, spin_period_drift_s_per_h=0.3,
+                                      gaps_s=((1000.0, 1004.0), (3000.0, 3030.0)))
+    res = simulate_spinning(cfg, rng=rng)
+    c0, o0 = _priors_from_truth(res.truth)
+    cal = fit_spin_ripple(*_arrays(res), coupling0=c0, offsets0=o0)
+    assert cal.n_blocks_dropped_gap >= 2
+    assert any("gaps" in note for note in cal.notes)
+    assert_allclose(cal.offsets_nT[:2], res.truth.offsets_nT[:2], atol=OFFSET_TOL)
+    assert abs(cal.parameter("c21") - res.truth.coupling[1, 0]) < ANGLE_TOL
+
+
+def test_bad_input(rng):
+    res = simulate_spinning(SpinningConfig.galileo_like(duration_s=100.0), rng=rng)
+    t, b, p = _arrays(res)
+    with pytest.raises(InputError, match="complete spins usable"):
+        fit_spin_ripple(t, b, p)
+    with pytest.raises(InputError, match="cannot be determined from spin tones"):
+        fit_spin_ripple(t, b, p, free=("c13", "O3"))
+    with pytest.raises(InputError, match="only one of c11 and c22"):
+        fit_spin_ripple(t, b, p, free=("c11", "c22"))
+    with pytest.raises(InputError, match="too few to resolve"):
+        fit_spin_ripple(t[::10], b[::10], p[::10], n_harmonics=2)
+    with pytest.raises(InputError, match="must increase"):
+        fit_spin_ripple(t, b, -p)
+    bad = b.copy()
+    bad[5, 1] = np.nan
+    with pytest.raises(InputError, match="missing values"):
+        fit_spin_ripple(t, bad, p, min_spins=1)
