@@ -127,6 +127,64 @@ def variance_system(b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return w[::-1], r
 
 
+def sym3_max_eig(c: np.ndarray, rtol_gap: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues (largest first) and the largest eigenvector of symmetric 3x3 matrices.
+
+    Closed form (trigonometric solution of the characteristic cubic, eigenvector from the
+    largest cross product of the rows of ``C - lambda_1 I``), vectorised over leading
+    axes; entries with nearly equal leading eigenvalues fall back to ``numpy.linalg.eigh``.
+
+    Parameters
+    ----------
+    c : ndarray, shape (..., 3, 3)
+    rtol_gap : float
+        Relative gap ``(l1 - l2) / l1`` below which eigh is used instead.
+
+    Returns
+    -------
+    eigenvalues : ndarray (..., 3), descending
+    vector : ndarray (..., 3), unit eigenvector of the largest eigenvalue (sign arbitrary)
+
+    Examples
+    --------
+    >>> lam, v = sym3_max_eig(np.diag([1.0, 3.0, 2.0]))
+    >>> np.round(lam, 12).tolist(), np.abs(v).tolist()
+    ([3.0, 2.0, 1.0], [0.0, 1.0, 0.0])
+    """
+    c = np.asarray(c, dtype=float)
+    shape = c.shape[:-2]
+    a = c.reshape(-1, 3, 3)
+    a00, a11, a22 = a[:, 0, 0], a[:, 1, 1], a[:, 2, 2]
+    a01, a02, a12 = a[:, 0, 1], a[:, 0, 2], a[:, 1, 2]
+    q = (a00 + a11 + a22) / 3.0
+    b00, b11, b22 = a00 - q, a11 - q, a22 - q
+    p2 = (b00 ** 2 + b11 ** 2 + b22 ** 2 + 2.0 * (a01 ** 2 + a02 ** 2 + a12 ** 2)) / 6.0
+    p = np.sqrt(p2)
+    ps = np.where(p > 0, p, 1.0)
+    det = (b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02)
+           + a02 * (a01 * a12 - b11 * a02)) / ps ** 3
+    phi = np.arccos(np.clip(det / 2.0, -1.0, 1.0)) / 3.0
+    l1 = q + 2.0 * p * np.cos(phi)
+    l3 = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+    l2 = 3.0 * q - l1 - l3
+    lam = np.stack([l1, l2, l3], axis=-1)
+    m = a - l1[:, None, None] * np.eye(3)
+    r0, r1, r2 = m[:, 0], m[:, 1], m[:, 2]
+    cands = np.stack([np.cross(r0, r1), np.cross(r0, r2), np.cross(r1, r2)], axis=1)
+    norms = np.einsum("nkj,nkj->nk", cands, cands)
+    best = np.argmax(norms, axis=1)
+    vec = cands[np.arange(a.shape[0]), best]
+    nrm = np.sqrt(norms[np.arange(a.shape[0]), best])
+    scale = np.maximum(np.abs(l1), np.abs(l3))
+    bad = ~(l1 - l2 > rtol_gap * np.where(scale > 0, scale, 1.0)) | ~(nrm > 0)
+    vec = vec / np.where(nrm > 0, nrm, 1.0)[:, None]
+    if bad.any():
+        w, v = np.linalg.eigh(a[bad])
+        lam[bad] = w[:, ::-1]
+        vec[bad] = v[:, :, 2]
+    return lam.reshape(shape + (3,)), vec.reshape(shape + (3,))
+
+
 def correction_matrix(alpha: float, direction_i, direction_ij) -> np.ndarray:
     """Correction matrix of Eq. 17: ``A = -alpha e_i e_ij^T``.
 
@@ -183,12 +241,10 @@ def first_order_from_moments(c_ii: np.ndarray, c_dd: np.ndarray, c_id: np.ndarra
     c_ii = np.asarray(c_ii, dtype=float)
     c_dd = np.asarray(c_dd, dtype=float)
     c_id = np.asarray(c_id, dtype=float)
-    wi, vi = np.linalg.eigh(c_ii)
-    wd, vd = np.linalg.eigh(c_dd)
-    e_i = canonical_sign(vi[..., :, 2], reference_i)
-    e_ij = canonical_sign(vd[..., :, 2], reference_ij)
-    lam_i = wi[..., ::-1]
-    lam_d = wd[..., ::-1]
+    lam_i, vi = sym3_max_eig(c_ii)
+    lam_d, vd = sym3_max_eig(c_dd)
+    e_i = canonical_sign(vi, reference_i)
+    e_ij = canonical_sign(vd, reference_ij)
     cov_xd = np.einsum("...k,...kl,...l->...", e_i, c_id, e_ij)
     scale = np.abs(np.trace(c_ii, axis1=-2, axis2=-1)) + np.abs(np.trace(c_dd, axis1=-2, axis2=-1))
     degenerate = ~(lam_d[..., 0] > DEGENERATE_RTOL * scale)

@@ -239,20 +239,26 @@ def canonical_to(center, directions):
 
 
 def scan_loop_reference(b_i, b_j, window_n: int, *, step: int = 1):
-    """Straightforward per-window loop (baseline for tests and benchmarks).
+    """Straightforward per-window loop with ``numpy.cov`` and ``numpy.linalg.eigh``.
 
-    Returns ``(alpha, direction_i, direction_ij)`` per window with the largest
-    component made positive for both directions.
+    The baseline for tests and the benchmark (independent of the closed-form solver).
+    Returns ``(alpha, direction_i, direction_ij)`` per window, each direction with its
+    largest component positive.
     """
-    from magcal.ac.core import fit_first_order
-
     b_i = np.asarray(b_i, dtype=float)
     b_j = np.asarray(b_j, dtype=float)
     n = b_i.shape[0]
     out_a, out_i, out_ij = [], [], []
     for s in range(0, n - int(window_n) + 1, int(step)):
-        fit = fit_first_order(b_i[s:s + window_n], b_j[s:s + window_n])
-        out_a.append(fit.alpha)
-        out_i.append(fit.direction_i)
-        out_ij.append(fit.direction_ij)
+        x = b_i[s:s + window_n]
+        d = x - b_j[s:s + window_n]
+        c = np.cov(np.concatenate([x, d], axis=1).T)
+        e_i = np.linalg.eigh(c[:3, :3])[1][:, 2]
+        w_d, v_d = np.linalg.eigh(c[3:, 3:])
+        e_ij = v_d[:, 2]
+        e_i = e_i * np.sign(e_i[np.argmax(np.abs(e_i))])
+        e_ij = e_ij * np.sign(e_ij[np.argmax(np.abs(e_ij))])
+        out_a.append(e_i @ c[:3, 3:] @ e_ij / w_d[2])
+        out_i.append(e_i)
+        out_ij.append(e_ij)
     return np.array(out_a), np.array(out_i), np.array(out_ij)
