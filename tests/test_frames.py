@@ -29,7 +29,8 @@ from magcal.frames import (
 def _random_times(rng, n):
     start = pd.Timestamp("2017-01-01T00:00:00Z").value
     stop = pd.Timestamp("2020-12-31T00:00:00Z").value
-    return pd.DatetimeIndex(rng.integers(start, stop, n).astype("datetime64[ns]")).tz_localize("UTC")
+    stamps = rng.integers(start, stop, n).astype("datetime64[ns]")
+    return pd.DatetimeIndex(stamps).tz_localize("UTC")
 
 
 def _random_vectors(rng, n):
@@ -169,8 +170,8 @@ def test_dipole_evaluated_in_gsm_gives_the_same_hpen(rng):
 
 def test_hpen_basis_is_left_handed_and_orthonormal(rng):
     basis = hpen_basis(rng.uniform(-180, 180, 20), rng.uniform(-80, 80, 20))
-    assert_allclose(np.einsum("nij,nkj->nik", basis, basis), np.broadcast_to(np.eye(3), basis.shape),
-                    atol=1e-14)
+    gram = np.einsum("nij,nkj->nik", basis, basis)
+    assert_allclose(gram, np.broadcast_to(np.eye(3), basis.shape), atol=1e-14)
     assert_allclose(np.linalg.det(basis), -1.0, atol=1e-14)
     assert_allclose(np.cross(basis[:, 0], basis[:, 1]), -basis[:, 2], atol=1e-14)
 

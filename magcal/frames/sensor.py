@@ -78,10 +78,10 @@ def check_rotation(matrix, *, atol: float = ROTATION_ATOL, name: str | None = No
 
     Examples
     --------
-    >>> check_rotation(np.diag([1.0, 1.0, 1.01]))
+    >>> check_rotation(np.diag([1.0, 1.0, 1.01]))  # doctest: +ELLIPSIS
     Traceback (most recent call last):
     ...
-    magcal.errors.InputError: column M: matrix is not orthonormal: max |M M^T - I| = 0.0201 > 1e-06; pass orthonormal=False for a general calibration matrix
+    magcal.errors.InputError: column M: matrix is not orthonormal: max |M M^T - I| = 0.0201 ...
     """
     m = _matrix(matrix, name)
     dev = float(np.abs(m @ m.T - np.eye(3)).max())

@@ -11,7 +11,8 @@ What the files hold (checked on GOES-16 ``dr_...v1_0_1`` and ``dn_...v2_0_0`` fi
   earthward, P perpendicular to the orbital plane (north) and N = E x P (east). The
   reader returns it as ``Hp, He, Hn = P, E, N`` (the Hpen order of CONTRACTS §0).
   Checked against the files' own GSE: after rotating ``b_gse`` into Hpen at the
-  position in ``orbit_llr_geo`` the difference is below 0.34 nT on every sample;
+  position in ``orbit_llr_geo`` the difference is below 0.35 nT on every sample (GSM
+  likewise);
   the residual is a small longitude offset (the file's EPN axes follow the actual
   orbit, while ``orbit_llr_geo`` holds -89.5 deg).
 * ``b_gse``, ``b_gsm``, ``b_eci`` (combined field), ``b_total``.
@@ -303,7 +304,8 @@ def read_goes_mag(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> pd.
         repairs.append({"what": "fill value replaced by NaN", "column": "orbit_llr_geo",
                         "count": orbit_fill})
 
-    index = pd.DatetimeIndex(t_sorted[keep].astype("datetime64[ns]"), name="time").tz_localize("UTC")
+    index = pd.DatetimeIndex(t_sorted[keep].astype("datetime64[ns]"), name="time")
+    index = index.tz_localize("UTC")
     frame = pd.DataFrame({c: v[order] for c, v in data.items()}, index=index)
     frame.attrs["source"] = [str(p) for p in files]
     frame.attrs["repairs"] = repairs
