@@ -90,3 +90,12 @@ def test_provenance_sidecar(tmp_path):
     path = write_csv_frame(tmp_path / "p.csv", pd.DataFrame({"x": [1.0, 2.0]}, index=t),
                            provenance={"step": "test"})
     assert (tmp_path / "p.csv.provenance.json").read_text().count('"step": "test"') == 1
+
+
+def test_compressed_output_is_really_compressed(tmp_path):
+    t = pd.date_range("2019-01-01", periods=500, freq="1s", tz="UTC")
+    df = pd.DataFrame({"x": np.zeros(500)}, index=t)
+    path = write_csv_frame(tmp_path / "z.csv.gz", df)
+    assert path.read_bytes()[:2] == b"\x1f\x8b"  # gzip magic
+    np.testing.assert_array_equal(read_csv_frame(path)["x"].to_numpy(), np.zeros(500))
+    assert oct(path.stat().st_mode & 0o777) != oct(0o600)  # not left private by mkstemp

@@ -23,12 +23,18 @@ def atomic_path(path: str | os.PathLike):
     """
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part",
+    # Keep the target's suffixes so writers that infer the format from the name
+    # (pandas compression, cdflib's .cdf) treat the temporary file like the target.
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.",
+                                    suffix=".part" + "".join(target.suffixes),
                                     dir=target.parent)
     os.close(fd)
     tmp = Path(tmp_name)
     try:
         yield tmp
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; products are ordinary files
         os.replace(tmp, target)
     finally:
         if tmp.exists():
