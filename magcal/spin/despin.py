@@ -76,7 +76,8 @@ def phase_from_period(t_s, period_s: float, t0_s: float | None = None) -> np.nda
     return TWO_PI * (t - t0) / float(period_s)
 
 
-def phase_from_data(t_s, b1, b2, *, degree: int = 2) -> tuple[np.ndarray, dict]:
+def phase_from_data(t_s, b1, b2, *, degree: int = 2,
+                    max_rms_rad: float = 0.5) -> tuple[np.ndarray, dict]:
     """Derive the spin phase from the rotation of the spin-plane sensor readings.
 
     The spin-plane field seen in the rotating frame turns at minus the spin rate, so
@@ -94,6 +95,8 @@ def phase_from_data(t_s, b1, b2, *, degree: int = 2) -> tuple[np.ndarray, dict]:
         rotating spin-plane field must dominate them).
     degree : int
         Degree of the phase polynomial (1 = constant period, 2 = linear drift).
+    max_rms_rad : float
+        Largest accepted scatter of the raw angle about the polynomial.
 
     Returns
     -------
@@ -132,6 +135,12 @@ def phase_from_data(t_s, b1, b2, *, degree: int = 2) -> tuple[np.ndarray, dict]:
     rate0 = np.polynomial.polynomial.polyval(0.0, np.polynomial.polynomial.polyder(coef)) / scale
     rate1 = np.polynomial.polynomial.polyval(1.0, np.polynomial.polynomial.polyder(coef)) / scale
     phase = fitted - fitted[0]
+    rms = float(np.sqrt(np.mean(resid ** 2)))
+    if rms > max_rms_rad:
+        raise InputError(
+            f"cannot derive the spin phase from the data: the spin-plane field angle "
+            f"scatters by {rms:.2f} rad about a smooth spin (more than {max_rms_rad} rad); "
+            "give a phase column or --spin-period")
     info = {
         "spin_period_s": float(TWO_PI * tc[-1] / (fitted[ok][-1] - fitted[ok][0])),
         "period_start_s": float(TWO_PI / rate0),
