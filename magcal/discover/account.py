@@ -1,0 +1,101 @@
+"""The human-readable account of a discovery: what the gap looked like, what was added.
+
+One line for the initial gap, one per added effect ("Hp residual had an 8.1 nT
+peak-to-peak local-time variation peaking at 12 LT; added diurnal (2 harmonics) on
+Hp; RMS 4.2 -> 1.1 nT"), one for the stop.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def _comps(components) -> str:
+    return ", ".join(components)
+
+
+def _symptom(fe) -> str:
+    """What the residual before an effect showed, in the terms of that effect."""
+    gap = fe.gap_before or {}
+    by = gap.get("by_component", {})
+    name = fe.name
+    comps = [c for c in fe.components if c in by] or list(by)
+    parts = []
+    if name == "diurnal":
+        for c in comps:
+            e = by[c]
+            if "lt_peak_to_peak_nT" in e:
+                parts.append(f"{c} residual had a {e['lt_peak_to_peak_nT']:.1f} nT peak-to-peak "
+                             f"local-time variation peaking at {e['lt_peak_h']:.0f} LT")
+    elif name == "offset":
+        parts = [f"{c} residual had a mean of {by[c]['mean_nT']:+.1f} nT" for c in comps]
+    elif name == "drift":
+        parts = [f"{c} residual trended by {by[c].get('trend_nT_per_day', np.nan):+.2f} nT/day"
+                 for c in comps]
+    elif name in ("temperature", "activity"):
+        keys = ("temperature",) if name == "temperature" else ("kp", "dst")
+        for c in comps:
+            corr = by[c].get("corr", {})
+            txt = ", ".join(f"r = {corr[k]:+.2f} with {k}" for k in keys if k in corr
+                            and np.isfinite(corr[k]))
+            if txt:
+                parts.append(f"{c} residual correlated with the covariate ({txt})")
+    elif name == "scale":
+        parts = [f"{c} residual followed the model field ({100 * by[c]['scale_explained']:.0f}% "
+                 "of its variance)" for c in comps if np.isfinite(by[c].get("scale_explained",
+                                                                            np.nan))]
+    elif name == "rotation" and "rotation_explained" in gap:
+        parts = [f"the residual followed w x B_model ({100 * gap['rotation_explained']:.0f}% of "
+                 "its variance)"]
+    elif name == "step" and "largest_step" in gap:
+        st = gap["largest_step"]
+        sizes = ", ".join(f"{c} {st['size_nT'][c]:+.1f} nT" for c in comps)
+        parts = [f"the residual jumped at {st['time']} ({sizes})"]
+    elif name in ("periodic", "spin_tone"):
+        derived = fe.parameters.get("derived", {})
+        label = (f"a {fe.effect.period_s / 3600:.2f} h tone" if name == "periodic"
+                 else "a tone at the spin frequency")
+        amps = ", ".join(f"{c} {list(v.values())[0]:.2f} nT" for c, v in derived.items())
+        parts = [f"the residual carried {label} ({amps})"]
+    return "; ".join(parts) if parts else f"{_comps(comps)} residual"
+
+
+def _what(fe) -> str:
+    p = fe.parameters
+    name = fe.name
+    if name == "diurnal":
+        return f"diurnal ({p['harmonics']} harmonic{'s' if p['harmonics'] > 1 else ''})"
+    if name == "periodic":
+        return f"periodic ({p['period_h']:.2f} h)"
+    if name == "step":
+        return f"step at {p['time']}"
+    if name == "rotation":
+        angles = ", ".join(f"{v:+.2f}" for v in p["angles_deg"].values())
+        return f"rotation ({angles} deg)"
+    if name == "activity":
+        return f"activity ({', '.join(p['indices'])})"
+    return name
+
+
+def account_lines(result) -> list[str]:
+    """Lines of the account of a :class:`~magcal.discover.loop.DiscoveryResult`."""
+    g0 = result.gap_initial
+    by = g0.get("by_component", {})
+    per = ", ".join(f"{c} {by[c]['rms_nT']:.2f}" for c in result.components if c in by)
+    lines = [f"gap: RMS {g0['rms_nT']:.2f} nT over all components ({per} nT)"]
+    for fe in result.effects:
+        line = (f"{_symptom(fe)}; added {_what(fe)} on {_comps(fe.components)}; "
+                f"RMS {fe.rms_before_nT:.2f} -> {fe.rms_after_nT:.2f} nT "
+                f"(z = {fe.evidence['z']:.1f})")
+        amb = fe.evidence.get("ambiguous_with") or []
+        if amb:
+            line += (f"; ambiguous: {' and '.join(amb)} fit the data as well "
+                     f"(confounded, the data cannot tell them apart)")
+        told = fe.evidence.get("preferred_over") or {}
+        if told:
+            line += "; preferred over " + ", ".join(
+                f"{k} (z = {v['z_vs_winner']:.1f})" for k, v in told.items())
+        lines.append(line)
+    lines.append(f"final gap: RMS {result.gap_final['rms_nT']:.2f} nT; "
+                 f"stopped: {result.stopped_because}")
+    return lines

@@ -1,0 +1,558 @@
+"""The discovery loop: measure the gap, name the missing effect, add it, refit, repeat.
+
+Each round fits every candidate of the vocabulary (:mod:`magcal.discover.effects`)
+jointly with the effects already added, scores it by leave-one-block-out
+cross-validation (:mod:`magcal.discover.selection`) and adds the candidate with the
+largest cross-validated gain among those whose per-block gains are significant
+(``z >= z_min``). Per-component terms are restricted to the components where they earn
+their parameters. Candidates whose fitted signals are strongly correlated with the
+winner (``|corr| >= confound_corr``) are reported as ``ambiguous_with`` when the data
+cannot tell them apart (paired ``z < z_ambiguous``), and as ``preferred_over``
+otherwise. The loop stops when no candidate earns its parameters or after
+``max_effects`` effects.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from magcal.discover.effects import (
+    DAY_S, EFFECT_NAMES, Activity, Diurnal, Drift, Effect, EffectInputs, Offset, Periodic,
+    Rotation, Scale, SpinTone, Step, Temperature, available, make_activity)
+from magcal.discover.gap import profile_gap, rms
+from magcal.discover.scan import scan_periods, scan_step
+from magcal.discover.selection import (
+    BlockedGram, Comparison, CVScore, compare, delta_bic_eff, integrated_autocorr_time,
+    time_blocks)
+from magcal.io.jsonio import product_dict
+
+
+@dataclass(frozen=True)
+class DiscoverySettings:
+    """Thresholds of the discovery loop (defaults tuned on simulated months).
+
+    Parameters
+    ----------
+    max_effects : int
+        Most effects to add.
+    z_min : float
+        Per-block t-statistic of the cross-validated gain an effect needs to be added.
+    z_component : float
+        Same, for including one component of a per-component effect.
+    z_variant : float
+        A richer variant (more diurnal harmonics) must beat the simpler one by this.
+    z_ambiguous : float
+        Confounded candidates closer than this to the winner are reported as ambiguous.
+    confound_corr : float
+        Correlation of fitted signals above which two candidates count as confounded.
+    block_s : float
+        Length of the held-out blocks (one day).
+    diurnal_harmonics : tuple of int
+        Diurnal variants tried.
+    spin_harmonics : int
+        Harmonics of the spin tone.
+    n_periods : int
+        Periodogram peaks tried as ``periodic`` candidates per round.
+    vocabulary : tuple of str
+        Effect names to try (subset of :data:`EFFECT_NAMES`).
+    """
+
+    max_effects: int = 8
+    z_min: float = 3.0
+    z_component: float = 2.0
+    z_variant: float = 2.0
+    z_ambiguous: float = 2.0
+    confound_corr: float = 0.7
+    block_s: float = DAY_S
+    diurnal_harmonics: tuple[int, ...] = (1, 2, 3)
+    spin_harmonics: int = 2
+    n_periods: int = 3
+    vocabulary: tuple[str, ...] = EFFECT_NAMES
+
+    def as_dict(self) -> dict:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
+
+
+@dataclass(frozen=True)
+class FittedEffect:
+    """One added effect with its final (jointly refitted) parameters.
+
+    Attributes
+    ----------
+    effect : Effect
+        The term (name, components, hyper-parameters).
+    beta, beta_std : ndarray
+        Coefficients of its columns and their block-jackknife standard errors.
+    rms_before_nT, rms_after_nT : float
+        RMS of the residual over all components before and after it was added.
+    evidence : dict
+        Cross-validation gain and t-statistic, ESS-corrected BIC, runner-up,
+        confounded alternatives.
+    gap_before : dict
+        :func:`~magcal.discover.gap.profile_gap` of the residual it was fitted to.
+    """
+
+    effect: Effect
+    beta: np.ndarray
+    beta_std: np.ndarray
+    rms_before_nT: float
+    rms_after_nT: float
+    evidence: dict
+    gap_before: dict = field(default_factory=dict, repr=False, compare=False)
+
+    @property
+    def name(self) -> str:
+        return self.effect.name
+
+    @property
+    def components(self) -> tuple[str, ...]:
+        return self.effect.components
+
+    @property
+    def parameters(self) -> dict:
+        return self.effect.describe(self.beta, self.beta_std)
+
+    def to_dict(self) -> dict:
+        comps = list(self.effect.components)
+        return {"name": self.name, "components": comps, "parameters": self.parameters,
+                "rms_before_nT": self.rms_before_nT, "rms_after_nT": self.rms_after_nT,
+                "evidence": self.evidence}
+
+
+@dataclass(frozen=True)
+class DiscoveryResult:
+    """What the discovery loop found (CONTRACTS §5).
+
+    Use :meth:`to_json` for REPORT.json, :meth:`account` for the human-readable lines,
+    :meth:`augmented_model` to evaluate ``model + effects`` on new data and
+    :func:`magcal.discover.plots.plot_gap` for the before/after figure.
+    """
+
+    components: tuple[str, ...]
+    gap_initial: dict
+    effects: tuple[FittedEffect, ...]
+    gap_final: dict
+    stopped_because: str
+    settings: dict
+    longitude_deg: float | None = None
+    rounds: tuple[dict, ...] = ()
+    provenance: dict = field(default_factory=dict)
+    times_s: np.ndarray = field(default=None, repr=False, compare=False)
+    local_time_h: np.ndarray | None = field(default=None, repr=False, compare=False)
+    residual_initial: np.ndarray = field(default=None, repr=False, compare=False)
+    residual_final: np.ndarray = field(default=None, repr=False, compare=False)
+
+    @property
+    def names(self) -> list[str]:
+        """Effect names in the order they were added."""
+        return [e.name for e in self.effects]
+
+    def effect(self, name: str) -> FittedEffect:
+        """The first added effect called ``name``."""
+        for e in self.effects:
+            if e.name == name:
+                return e
+        raise KeyError(f"no effect {name!r} was added (added: {', '.join(self.names) or 'none'})")
+
+    def to_json(self) -> dict:
+        """REPORT.json content: schema_version, gap_initial, effects, gap_final, ..."""
+        return product_dict({
+            "components": list(self.components),
+            "gap_initial": self.gap_initial,
+            "effects": [e.to_dict() for e in self.effects],
+            "gap_final": self.gap_final,
+            "stopped_because": self.stopped_because,
+            "account": self.account(),
+            "settings": self.settings,
+            "longitude_deg": self.longitude_deg,
+            "rounds": list(self.rounds),
+            "provenance": self.provenance,
+        })
+
+    def account(self) -> list[str]:
+        """Short human-readable account of the discovery, one line per step."""
+        from magcal.discover.account import account_lines
+
+        return account_lines(self)
+
+    def with_provenance(self, provenance: dict) -> "DiscoveryResult":
+        import dataclasses
+
+        return dataclasses.replace(self, provenance=dict(provenance))
+
+    def effects_sum(self, inputs: EffectInputs) -> np.ndarray:
+        """Sum of the added effects on some inputs, shape (n, m)."""
+        out = np.zeros((inputs.n, inputs.m))
+        for e in self.effects:
+            out += e.effect.evaluate(inputs, e.beta)
+        return out
+
+    def augmented_model(self, times, model, covariates=None, longitude_deg=None):
+        """Evaluate ``model + effects`` on new times and covariates.
+
+        Parameters
+        ----------
+        times : pandas.DatetimeIndex, array of datetime64, or array of float
+            Sample times (floats are seconds since 1970-01-01 UTC); ``None`` to use the
+            index of a DataFrame ``model``.
+        model : pandas.DataFrame or ndarray (n, m)
+            Model field with the result's components.
+        covariates : pandas.DataFrame or mapping, optional
+            Covariates the effects need (``temperature``, ``kp``, ``dst``, ``phase``,
+            ``lon_deg``), on ``times`` or interpolated onto them.
+        longitude_deg : float, optional
+            Longitude for local time; defaults to the one used in the discovery.
+
+        Returns
+        -------
+        Same type as ``model``: the augmented model.
+        """
+        from magcal.discover.inputs import build_inputs
+
+        lon = self.longitude_deg if longitude_deg is None else longitude_deg
+        inputs, index = build_inputs(times, model, self.components, covariates, lon)
+        total = inputs.model + self.effects_sum(inputs)
+        if index is not None:
+            import pandas as pd
+
+            return pd.DataFrame(total, index=index, columns=list(self.components))
+        return total
+
+
+# ----------------------------------------------------------------------------------
+@dataclass
+class _Candidate:
+    effect: Effect
+    columns: tuple[int, ...]
+    score: CVScore
+    comparison: Comparison
+    component_z: dict
+    family: str
+
+    @property
+    def name(self) -> str:
+        return self.effect.name
+
+
+def _static_families(inputs: EffectInputs, settings: DiscoverySettings):
+    """(family name, variants) with each variant a list of (effect on one component)."""
+    t = inputs.times_s
+    comps = inputs.components
+    fam = []
+    vocab = settings.vocabulary
+    if "offset" in vocab:
+        fam.append(("offset", [[Offset(components=(c,)) for c in comps]]))
+    if "drift" in vocab:
+        t_ref = float(0.5 * (t[0] + t[-1]))
+        fam.append(("drift", [[Drift(components=(c,), t_ref_s=t_ref) for c in comps]]))
+    if "diurnal" in vocab and available(Diurnal, inputs):
+        fam.append(("diurnal", [[Diurnal(components=(c,), harmonics=k) for c in comps]
+                                for k in settings.diurnal_harmonics]))
+    if "temperature" in vocab and available(Temperature, inputs):
+        ref = float(np.nanmean(inputs.covariates["temperature"]))
+        fam.append(("temperature", [[Temperature(components=(c,), t_ref_degC=ref)
+                                     for c in comps]]))
+    if "scale" in vocab:
+        fam.append(("scale", [[Scale(components=(c,)) for c in comps]]))
+    if "rotation" in vocab and available(Rotation, inputs):
+        fam.append(("rotation", [[Rotation(components=comps)]]))
+    if "activity" in vocab and available(Activity, inputs):
+        fam.append(("activity", [[make_activity(inputs, (c,)) for c in comps]]))
+    if "spin_tone" in vocab and available(SpinTone, inputs):
+        fam.append(("spin_tone", [[SpinTone(components=(c,), harmonics=k) for c in comps]
+                                  for k in range(1, settings.spin_harmonics + 1)]))
+    return fam
+
+
+def _merge(effects: list[Effect]) -> Effect:
+    comps = tuple(c for e in effects for c in e.components)
+    return effects[0].with_components(comps)
+
+
+class _Loop:
+    """State of one discovery run (private; use :func:`discover`)."""
+
+    def __init__(self, inputs: EffectInputs, y: np.ndarray, settings: DiscoverySettings):
+        self.inputs = inputs
+        self.settings = settings
+        self.blocks = time_blocks(inputs.times_s, settings.block_s)
+        self.gram = BlockedGram(y, self.blocks)
+        self.cols: dict[Effect, tuple[int, ...]] = {}
+        self.families = _static_families(inputs, settings)
+        for _, variants in self.families:
+            for variant in variants:
+                for eff in variant:
+                    self.cols[eff] = self.gram.add(eff.columns(inputs))
+        self.added: list[tuple[Effect, tuple[int, ...]]] = []
+        self.covered: dict[str, set] = {}
+
+    # -- scoring ---------------------------------------------------------------------
+    @property
+    def base_cols(self) -> list[int]:
+        return [c for _, cols in self.added for c in cols]
+
+    def _variant(self, family: str, effects: list[Effect], base: CVScore):
+        base_cols = self.base_cols
+        comp_cmp = {}
+        chosen = []
+        for eff in effects:
+            if eff.coupled:
+                chosen.append(eff)
+                continue
+            comp = eff.components[0]
+            if comp in self.covered.get(family, set()):
+                continue
+            s = self.gram.score(base_cols + list(self.cols[eff]))
+            cmp = compare(base, s)
+            comp_cmp[comp] = cmp.z
+            if cmp.gain > 0 and cmp.z >= self.settings.z_component:
+                chosen.append(eff)
+        if not chosen:
+            return None
+        cols = tuple(c for e in chosen for c in self.cols[e])
+        score = self.gram.score(base_cols + list(cols))
+        return _Candidate(_merge(chosen), cols, score, compare(base, score), comp_cmp, family)
+
+    def _family(self, family: str, variants, base: CVScore):
+        if family in ("rotation",) and family in self.covered:
+            return None
+        cands = [c for c in (self._variant(family, v, base) for v in variants) if c is not None]
+        if not cands:
+            return None
+        passing = [c for c in cands if c.comparison.gain > 0 and c.comparison.z >= self.settings.z_min]
+        if not passing:
+            return max(cands, key=lambda c: c.comparison.z)
+        pick = passing[0]
+        for richer in passing[1:]:
+            if compare(pick.score, richer.score).z >= self.settings.z_variant:
+                pick = richer
+        return pick
+
+    def _dynamic(self, residual: np.ndarray, base: CVScore):
+        """Step and periodic candidates whose hyper-parameters are scanned now."""
+        inputs = self.inputs
+        out = []
+        base_cols = self.base_cols
+        vocab = self.settings.vocabulary
+        fams = []
+        if "step" in vocab:
+            t_step, _, _ = scan_step(inputs.times_s, residual)
+            if t_step is not None:
+                fams.append(("step", [Step(components=(c,), t_step_s=t_step)
+                                      for c in inputs.components]))
+        if "periodic" in vocab:
+            peaks = scan_periods(inputs.times_s, residual,
+                                 exclude_daily=inputs.local_time_h is not None,
+                                 n_peaks=self.settings.n_periods)
+            for period_s, _ in peaks:
+                fams.append(("periodic", [Periodic(components=(c,), period_s=period_s)
+                                          for c in inputs.components]))
+        for family, effects in fams:
+            for eff in effects:
+                self.cols[eff] = self.gram.add(eff.columns(inputs), against=base_cols)
+            cand = self._variant(family, effects, base)
+            if cand is not None:
+                out.append(cand)
+        return out
+
+    def _signal(self, cand: _Candidate) -> np.ndarray:
+        k = len(self.base_cols)
+        return self.gram.fitted(cand.columns, cand.score.beta[k:])
+
+    def _n_eff(self, residual: np.ndarray) -> float:
+        total = 0.0
+        for i in range(residual.shape[1]):
+            x = residual[:, i]
+            n = np.isfinite(x).sum()
+            if n:
+                total += n / integrated_autocorr_time(x)
+        return float(total)
+
+    # -- the loop ----------------------------------------------------------------------
+    def run(self):
+        s = self.settings
+        gram = self.gram
+        n_valid = gram.n_valid
+        base = gram.score([])
+        residual = gram.residual([], [])
+        effects_log = []
+        rounds = []
+        stopped = None
+        while True:
+            if len(self.added) >= s.max_effects:
+                stopped = f"max_effects ({s.max_effects}) reached"
+                break
+            cands = []
+            for family, variants in self.families:
+                c = self._family(family, variants, base)
+                if c is not None:
+                    cands.append(c)
+            cands += self._dynamic(residual, base)
+            rounds.append({"round": len(rounds) + 1, "candidates": [
+                {"name": c.name, "components": list(c.effect.components),
+                 "n_params": len(c.columns), **c.comparison.as_dict()}
+                for c in sorted(cands, key=lambda c: -c.comparison.gain)]})
+            passing = [c for c in cands if c.comparison.gain > 0 and c.comparison.z >= s.z_min]
+            if not passing:
+                if cands:
+                    best = max(cands, key=lambda c: c.comparison.z)
+                    stopped = (f"no candidate earns its parameters (best remaining: {best.name}, "
+                               f"z = {best.comparison.z:.1f} < {s.z_min:g})")
+                else:
+                    stopped = "no candidate earns its parameters"
+                break
+            win = max(passing, key=lambda c: c.comparison.gain)
+            evidence = self._evidence(win, cands, base, residual, n_valid)
+            gap_before = profile_gap(self.inputs, residual)
+            rms_before = float(np.sqrt(base.sse_in / n_valid))
+            self.added.append((win.effect, win.columns))
+            if not win.effect.coupled:
+                self.covered.setdefault(win.family, set()).update(win.effect.components)
+            else:
+                self.covered.setdefault(win.family, set()).add("all")
+            base = win.score
+            residual = gram.residual(self.base_cols, base.beta)
+            rms_after = float(np.sqrt(base.sse_in / n_valid))
+            effects_log.append((win.effect, win.columns, rms_before, rms_after, evidence,
+                                gap_before))
+        if stopped is None:  # pragma: no cover - the loop always sets it
+            stopped = "stopped"
+        fitted = []
+        k = 0
+        for eff, cols, rb, ra, ev, gb in effects_log:
+            q = len(cols)
+            fitted.append(FittedEffect(eff, base.beta[k:k + q], base.beta_std[k:k + q],
+                                       rb, ra, ev, gb))
+            k += q
+        return fitted, residual, stopped, rounds
+
+    def _evidence(self, win: _Candidate, cands, base: CVScore, residual, n_valid) -> dict:
+        s = self.settings
+        n_eff = self._n_eff(residual)
+        ev = {"criterion": "leave-one-block-out cross-validation",
+              "block_s": s.block_s,
+              **win.comparison.as_dict(),
+              "cv_rms_before_nT": float(np.sqrt(base.sse_cv / n_valid)),
+              "cv_rms_after_nT": float(np.sqrt(win.score.sse_cv / n_valid)),
+              "n_params": len(win.columns),
+              "n_eff": n_eff,
+              "delta_bic_eff": delta_bic_eff(base.sse_in, win.score.sse_in, len(win.columns),
+                                             n_eff),
+              "component_z": win.component_z,
+              "ambiguous": False, "ambiguous_with": [], "preferred_over": {}}
+        others = sorted((c for c in cands if c is not win),
+                        key=lambda c: -c.comparison.gain)
+        if others:
+            ru = others[0]
+            ev["runner_up"] = {"name": ru.name, "components": list(ru.effect.components),
+                               **ru.comparison.as_dict()}
+        f_win = self._signal(win)
+        n_win = np.sqrt(f_win.reshape(-1) @ f_win.reshape(-1))
+        for c in others:
+            if c.name == win.name or c.comparison.gain <= 0:
+                continue
+            f_c = self._signal(c)
+            n_c = np.sqrt(f_c.reshape(-1) @ f_c.reshape(-1))
+            if n_win == 0 or n_c == 0:
+                continue
+            corr = float(f_win.reshape(-1) @ f_c.reshape(-1) / (n_win * n_c))
+            if abs(corr) < s.confound_corr:
+                continue
+            z_pair = compare(c.score, win.score).z
+            if z_pair < s.z_ambiguous:
+                if c.name not in ev["ambiguous_with"]:
+                    ev["ambiguous_with"].append(c.name)
+                    ev.setdefault("ambiguous_detail", {})[c.name] = {
+                        "signal_corr": corr, "z_vs_winner": z_pair}
+            else:
+                prev = ev["preferred_over"].get(c.name)
+                if prev is None or z_pair < prev["z_vs_winner"]:
+                    ev["preferred_over"][c.name] = {"signal_corr": corr, "z_vs_winner": z_pair}
+        ev["ambiguous"] = bool(ev["ambiguous_with"])
+        return ev
+
+
+def discover(inputs: EffectInputs, measured, settings: DiscoverySettings | None = None,
+             longitude_deg: float | None = None) -> DiscoveryResult:
+    """Run the discovery loop on arrays.
+
+    Parameters
+    ----------
+    inputs : EffectInputs
+        Times, model field, components, covariates, local time.
+    measured : ndarray, shape (n, m)
+        Measured field in nT on the same samples (NaN where missing).
+    settings : DiscoverySettings, optional
+    longitude_deg : float, optional
+        Kept in the result for :meth:`DiscoveryResult.augmented_model`.
+
+    Returns
+    -------
+    DiscoveryResult
+    """
+    settings = settings or DiscoverySettings()
+    y = np.asarray(measured, dtype=float) - inputs.model
+    loop = _Loop(inputs, y, settings)
+    residual0 = loop.gram.residual([], [])
+    fitted, residual, stopped, rounds = loop.run()
+    gap0 = profile_gap(inputs, residual0)
+    gap1 = profile_gap(inputs, residual)
+    return DiscoveryResult(
+        components=tuple(inputs.components), gap_initial=gap0, effects=tuple(fitted),
+        gap_final=gap1, stopped_because=stopped, settings=settings.as_dict(),
+        longitude_deg=longitude_deg, rounds=tuple(rounds), times_s=inputs.times_s,
+        local_time_h=inputs.local_time_h, residual_initial=residual0,
+        residual_final=residual)
+
+
+def discover_gap(measured, model, covariates=None, longitude_deg=None, max_effects: int = 8,
+                 rng=None, settings: DiscoverySettings | None = None) -> DiscoveryResult:
+    """Find, name and add what a model is missing (CONTRACTS §5).
+
+    Parameters
+    ----------
+    measured, model : pandas.DataFrame
+        UTC time index and the same component columns (e.g. ``Hp, He, Hn``); joined
+        on their common times.
+    covariates : pandas.DataFrame, optional
+        Any of ``temperature`` (deg C), ``kp``, ``dst`` (nT), ``lon_deg``, ``phase`` (rad),
+        on the measured times or interpolated onto them.
+    longitude_deg : float, optional
+        Spacecraft east longitude for local time (else the ``lon_deg`` covariate).
+    max_effects : int
+        Most effects to add.
+    rng : numpy.random.Generator, optional
+        Not used: the loop is deterministic. Accepted for a uniform call signature.
+    settings : DiscoverySettings, optional
+        Thresholds; ``max_effects`` overrides its field.
+
+    Returns
+    -------
+    DiscoveryResult
+
+    Examples
+    --------
+    >>> import pandas as pd
+    >>> t = pd.date_range("2019-11-01", periods=14 * 1440, freq="1min", tz="UTC")
+    >>> g = np.random.default_rng(0)
+    >>> model = pd.DataFrame({"Hp": 100.0 + 0 * t.hour, "He": 0.0 * t.hour}, index=t)
+    >>> lt = (t.hour + t.minute / 60 + 128.2 / 15) % 24
+    >>> meas = model + np.column_stack([3 * np.cos(2 * np.pi * (lt - 12) / 24),
+    ...                                 0 * lt]) + g.normal(0, 1, (len(t), 2))
+    >>> res = discover_gap(meas, model, longitude_deg=128.2)
+    >>> res.names[0], res.effect("diurnal").components
+    ('diurnal', ('Hp',))
+    """
+    import dataclasses
+
+    from magcal.discover.inputs import align_frames, build_inputs
+
+    settings = dataclasses.replace(settings or DiscoverySettings(), max_effects=int(max_effects))
+    meas, mod, comps = align_frames(measured, model)
+    lon = longitude_deg
+    inputs, _ = build_inputs(meas.index, mod, comps, covariates, lon)
+    result = discover(inputs, meas[list(comps)].to_numpy(dtype=float), settings,
+                      longitude_deg=lon)
+    return result

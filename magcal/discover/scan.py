@@ -1,0 +1,166 @@
+"""Scans that fix the non-linear hyper-parameters of ``step`` and ``periodic`` candidates.
+
+Both work on the current residual (measured minus model minus effects so far):
+
+* :func:`scan_step` - the split time that maximises the between-segment sum of squares
+  (a multi-component CUSUM), away from the ends of the record;
+* :func:`scan_periods` - peaks of the periodogram summed over components, ranked by
+  their height over the local (red-noise) background, excluding the longest periods
+  (a trend) and the diurnal harmonics (the ``diurnal`` term's job).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+DAY_S = 86400.0
+
+
+def scan_step(times_s, residual, margin_s: float = 0.25 * DAY_S):
+    """Best single step time in a residual.
+
+    Parameters
+    ----------
+    times_s : array_like, shape (n,)
+        Increasing sample times in seconds.
+    residual : array_like, shape (n, m)
+        Residual in nT; NaN entries are ignored.
+    margin_s : float
+        No step closer than this to either end.
+
+    Returns
+    -------
+    t_step_s : float or None
+        Time of the first sample after the step (None if the record is too short).
+    size_nT : ndarray (m,)
+        Mean after minus mean before, per component.
+    statistic : float
+        Between-segment sum of squares (nT^2) summed over components.
+
+    Examples
+    --------
+    >>> t = np.arange(1000.0) * 60
+    >>> r = np.where(t >= 30000, 2.0, 0.0)[:, None]
+    >>> ts, size, _ = scan_step(t, r, margin_s=600)
+    >>> ts, size.round(6)
+    (30000.0, array([2.]))
+    """
+    t = np.asarray(times_s, dtype=float)
+    r = np.asarray(residual, dtype=float)
+    if r.ndim == 1:
+        r = r[:, None]
+    ok = np.isfinite(r)
+    v = np.where(ok, r, 0.0)
+    cn = np.cumsum(ok, axis=0).astype(float)
+    cs = np.cumsum(v, axis=0)
+    tot_n = cn[-1]
+    tot_s = cs[-1]
+    n1 = cn[:-1]
+    n2 = tot_n - n1
+    s1 = cs[:-1]
+    s2 = tot_s - s1
+    with np.errstate(invalid="ignore", divide="ignore"):
+        between = n1 * n2 / np.maximum(tot_n, 1) * (s1 / n1 - s2 / n2) ** 2
+    between = np.where(np.isfinite(between), between, 0.0).sum(axis=1)
+    after = t[1:]
+    allowed = (after - t[0] >= margin_s) & (t[-1] - after >= margin_s)
+    if not allowed.any():
+        return None, np.zeros(r.shape[1]), 0.0
+    between = np.where(allowed, between, -1.0)
+    k = int(np.argmax(between))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        size = s2[k] / n2[k] - s1[k] / n1[k]
+    return float(after[k]), np.nan_to_num(size), float(between[k])
+
+
+def _uniform_grid(times_s, residual):
+    t = np.asarray(times_s, dtype=float)
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+    idx = np.round((t - t[0]) / dt).astype(int)
+    r = np.asarray(residual, dtype=float)
+    if r.ndim == 1:
+        r = r[:, None]
+    grid = np.zeros((idx[-1] + 1, r.shape[1]))
+    ok = np.isfinite(r)
+    centred = np.where(ok, r - np.nanmean(np.where(ok, r, np.nan), axis=0), 0.0)
+    grid[idx] = centred
+    return grid, dt
+
+
+def periodogram(times_s, residual, oversample: int = 4):
+    """Amplitude periodogram of a residual on its median-cadence grid.
+
+    Returns
+    -------
+    freq_hz : ndarray (k,)
+    amplitude_nT : ndarray (k, m)
+        Amplitude of a sinusoid that would produce each peak (NaN gaps count as zero).
+
+    Examples
+    --------
+    >>> t = np.arange(0, 86400 * 4, 60.0)
+    >>> f, a = periodogram(t, 3 * np.cos(2 * np.pi * t / 21600.0)[:, None])
+    >>> round(float(1 / f[np.argmax(a[:, 0])]) / 3600, 3), round(float(a.max()), 2)
+    (6.0, 3.0)
+    """
+    grid, dt = _uniform_grid(times_s, residual)
+    n = grid.shape[0]
+    nfft = int(oversample) * n
+    spec = np.fft.rfft(grid, nfft, axis=0)
+    freq = np.fft.rfftfreq(nfft, dt)
+    amp = 2 * np.abs(spec) / n
+    return freq[1:], amp[1:]
+
+
+def scan_periods(times_s, residual, *, exclude_daily: bool = True, n_peaks: int = 3,
+                 min_cycles: float = 3.0, background_bins: int = 40):
+    """Candidate periods: periodogram peaks that stand out of the local background.
+
+    Parameters
+    ----------
+    times_s, residual
+        As in :func:`scan_step`.
+    exclude_daily : bool
+        Skip the neighbourhood of 1..8 cycles per day (the diurnal term covers them).
+    n_peaks : int
+        How many candidates to return.
+    min_cycles : float
+        Longest period considered, as a fraction of the record: span / min_cycles.
+    background_bins : int
+        Half-width (in oversampled bins) of the running median used as the background.
+
+    Returns
+    -------
+    list of (period_s, ratio)
+        Best first; ``ratio`` is the summed power over the local median power.
+    """
+    t = np.asarray(times_s, dtype=float)
+    span = t[-1] - t[0]
+    if span <= 0:
+        return []
+    freq, amp = periodogram(t, residual)
+    power = (amp ** 2).sum(axis=1)
+    ok = freq >= min_cycles / span
+    if exclude_daily:
+        for k in range(1, 9):
+            ok &= np.abs(freq - k / DAY_S) > 2.0 / span
+    # local background: median in a sliding window (log-spaced data are not needed here)
+    from scipy.ndimage import median_filter
+
+    background = median_filter(power, size=2 * background_bins + 1, mode="nearest")
+    ratio = np.where(ok & (background > 0), power / np.where(background > 0, background, 1), 0)
+    # local maxima only
+    peak = np.zeros_like(ratio, dtype=bool)
+    peak[1:-1] = (ratio[1:-1] >= ratio[:-2]) & (ratio[1:-1] >= ratio[2:]) & (ratio[1:-1] > 0)
+    cand = np.flatnonzero(peak)
+    cand = cand[np.argsort(ratio[cand])[::-1]]
+    out = []
+    resolution = 1.0 / span
+    for k in cand:
+        f = freq[k]
+        if any(abs(f - 1.0 / p) < 2 * resolution for p, _ in out):
+            continue
+        out.append((float(1.0 / f), float(ratio[k])))
+        if len(out) >= n_peaks:
+            break
+    return out
