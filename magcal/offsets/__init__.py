@@ -1,1 +1,26 @@
-"""Placeholder: this stage is being built."""
+"""DC offsets of AC-cleaned data against a field model on quiet days.
+
+* :mod:`magcal.offsets.averaging` - :func:`average_to_cadence` (1-min means, never
+  across gaps);
+* :mod:`magcal.offsets.windows` - :func:`window_grid`, :func:`window_statistics` (the
+  28-day / 7-day sliding-window medians);
+* :mod:`magcal.offsets.estimator` - :class:`OffsetEstimator` and :func:`fit_offsets`
+  (data minus model, Kp <= kp_max selection);
+* :mod:`magcal.offsets.apply` - :func:`interpolate_offsets`, :func:`apply_offsets`;
+* :mod:`magcal.offsets.table` - :class:`OffsetTable` and the ``OFFSETS.csv`` reader and
+  writer;
+* :mod:`magcal.offsets.diagnostics` - residual versus local time per month (Fig. 19);
+* :mod:`magcal.offsets.plots` - the Fig. 19 and Fig. 20 style plots.
+"""
+
+from magcal.offsets.apply import FLAG_MEANING, apply_offsets, interpolate_offsets
+from magcal.offsets.averaging import average_to_cadence
+from magcal.offsets.diagnostics import local_time_hours, residual_by_local_time
+from magcal.offsets.estimator import OffsetEstimator, fit_offsets, quiet_mask
+from magcal.offsets.table import OffsetTable, read_offsets_csv, write_offsets_csv
+from magcal.offsets.windows import window_grid, window_statistics
+
+__all__ = ["FLAG_MEANING", "OffsetEstimator", "OffsetTable", "apply_offsets",
+           "average_to_cadence", "fit_offsets", "interpolate_offsets", "local_time_hours",
+           "quiet_mask", "read_offsets_csv", "residual_by_local_time", "window_grid",
+           "window_statistics", "write_offsets_csv"]

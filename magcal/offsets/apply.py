@@ -1,0 +1,87 @@
+"""Apply offsets: linear interpolation between window centres, end values held."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from magcal.errors import InputError
+
+#: ``offset_flag`` values of corrected data.
+FLAG_INTERPOLATED = 0
+FLAG_HELD_BEFORE = 1
+FLAG_HELD_AFTER = 2
+FLAG_NO_OFFSET = 3
+FLAG_MEANING = {FLAG_INTERPOLATED: "interpolated between window centres",
+                FLAG_HELD_BEFORE: "before the first window centre: first offset held",
+                FLAG_HELD_AFTER: "after the last window centre: last offset held",
+                FLAG_NO_OFFSET: "no valid offset: data left NaN"}
+
+
+def interpolate_offsets(times, centers, offsets_nT):
+    """Offsets at ``times``: linear between valid window centres, end values held.
+
+    Parameters
+    ----------
+    times : array_like of datetime64, shape (n,)
+    centers : array_like of datetime64, shape (k,)
+        Window centres, increasing.
+    offsets_nT : array_like, shape (k, m)
+        Offsets per window; windows with any NaN component are skipped.
+
+    Returns
+    -------
+    offsets : ndarray, shape (n, m)
+    flag : ndarray of int8, shape (n,)
+        :data:`FLAG_MEANING` codes.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> c = np.array(["2019-11-08", "2019-11-15"], dtype="datetime64[ns]")
+    >>> t = np.array(["2019-11-01", "2019-11-11T12", "2019-11-20"], dtype="datetime64[ns]")
+    >>> off, flag = interpolate_offsets(t, c, [[10.0], [17.0]])
+    >>> off[:, 0], flag
+    (array([10. , 13.5, 17. ]), array([1, 0, 2], dtype=int8))
+    """
+    t = np.asarray(times).astype("datetime64[ns]").astype(np.int64).astype(float)
+    c = np.asarray(centers).astype("datetime64[ns]").astype(np.int64).astype(float)
+    off = np.asarray(offsets_nT, dtype=float)
+    off = off[:, None] if off.ndim == 1 else off
+    if off.shape[0] != c.size:
+        raise InputError(f"{off.shape[0]} offsets for {c.size} window centres")
+    ok = np.all(np.isfinite(off), axis=1)
+    c, off = c[ok], off[ok]
+    if c.size > 1 and np.any(np.diff(c) <= 0):
+        raise InputError("window centres must be strictly increasing")
+    out = np.full((t.size, off.shape[1]), np.nan)
+    flag = np.full(t.size, FLAG_NO_OFFSET, dtype=np.int8)
+    if c.size == 0:
+        return out, flag
+    for j in range(off.shape[1]):
+        out[:, j] = np.interp(t, c, off[:, j])
+    flag[:] = FLAG_INTERPOLATED
+    flag[t < c[0]] = FLAG_HELD_BEFORE
+    flag[t > c[-1]] = FLAG_HELD_AFTER
+    return out, flag
+
+
+def apply_offsets(times, data_hpen, table):
+    """Subtract interpolated offsets from Hpen data.
+
+    Parameters
+    ----------
+    times : array_like of datetime64, shape (n,)
+    data_hpen : array_like, shape (n, 3)
+    table : OffsetTable
+
+    Returns
+    -------
+    corrected : ndarray, shape (n, 3)
+    offsets : ndarray, shape (n, 3)
+    flag : ndarray of int8, shape (n,)
+    """
+    data = np.asarray(data_hpen, dtype=float)
+    off, flag = interpolate_offsets(times, table.center, table.offset_nT)
+    if data.shape != off.shape:
+        raise InputError(f"data shape {data.shape} does not match {off.shape}")
+    return data - off, off, flag

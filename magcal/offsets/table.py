@@ -1,0 +1,160 @@
+"""The offset product: one row per sliding window (CONTRACTS §2 ``OFFSETS.csv``).
+
+Columns, in this order: ``center,start,end,Hp,He,Hn,Hp_std,He_std,Hn_std,n_used,
+fraction_used`` (the contract), then ``Hp_mad,He_mad,Hn_mad`` (median absolute
+deviation scaled to a standard deviation), ``n_available`` (samples with data and model
+in the window) and ``reason`` (empty when the window is valid, else why it is NaN).
+Provenance is written beside the CSV as ``<file>.provenance.json``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field as dc_field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from magcal.errors import InputError
+from magcal.io.atomic import atomic_path
+from magcal.io.jsonio import product_dict, to_jsonable
+
+COMPONENTS = ("Hp", "He", "Hn")
+CONTRACT_COLUMNS = ("center", "start", "end", "Hp", "He", "Hn", "Hp_std", "He_std", "Hn_std",
+                    "n_used", "fraction_used")
+EXTRA_COLUMNS = ("Hp_mad", "He_mad", "Hn_mad", "n_available", "reason")
+
+
+@dataclass(frozen=True)
+class OffsetTable:
+    """DC offsets per sliding window.
+
+    Attributes
+    ----------
+    center, start, end : ndarray of datetime64[ns], shape (k,)
+        Window centre and bounds ``[start, end)``.
+    offset_nT, std_nT, mad_nT : ndarray, shape (k, 3)
+        Median of data minus model (Hp, He, Hn), its standard deviation and scaled MAD
+        over the selected samples; NaN for windows with too little data.
+    n_used, n_available : ndarray of int, shape (k,)
+    fraction_used : ndarray, shape (k,)
+    reason : tuple of str
+        '' for valid windows.
+    parameters : dict
+    provenance : dict
+    """
+
+    center: np.ndarray
+    start: np.ndarray
+    end: np.ndarray
+    offset_nT: np.ndarray
+    std_nT: np.ndarray
+    mad_nT: np.ndarray
+    n_used: np.ndarray
+    n_available: np.ndarray
+    fraction_used: np.ndarray
+    reason: tuple = ()
+    parameters: dict = dc_field(default_factory=dict)
+    provenance: dict = dc_field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return int(self.center.size)
+
+    @property
+    def valid(self) -> np.ndarray:
+        """True for windows with a finite offset in all three components."""
+        return np.all(np.isfinite(self.offset_nT), axis=1)
+
+    def to_frame(self) -> pd.DataFrame:
+        """The product as a DataFrame with the CSV columns (times as datetime64)."""
+        cols = {"center": self.center, "start": self.start, "end": self.end}
+        for j, c in enumerate(COMPONENTS):
+            cols[c] = self.offset_nT[:, j]
+        for j, c in enumerate(COMPONENTS):
+            cols[f"{c}_std"] = self.std_nT[:, j]
+        cols["n_used"] = self.n_used
+        cols["fraction_used"] = self.fraction_used
+        for j, c in enumerate(COMPONENTS):
+            cols[f"{c}_mad"] = self.mad_nT[:, j]
+        cols["n_available"] = self.n_available
+        cols["reason"] = list(self.reason) if len(self.reason) else [""] * len(self)
+        return pd.DataFrame(cols)
+
+    def to_json(self) -> dict:
+        """JSON product: the windows as records, parameters and provenance."""
+        frame = self.to_frame()
+        for c in ("center", "start", "end"):
+            frame[c] = np.datetime_as_string(frame[c].to_numpy(dtype="datetime64[s]"))
+        return product_dict({"windows": frame.to_dict(orient="records"),
+                             "parameters": self.parameters, "provenance": self.provenance})
+
+
+def write_offsets_csv(path, table: OffsetTable, float_format: str = "%.4f") -> Path:
+    """Write ``OFFSETS.csv`` (and ``<path>.provenance.json``) atomically."""
+    frame = table.to_frame()
+    for c in ("center", "start", "end"):
+        frame[c] = np.datetime_as_string(frame[c].to_numpy(dtype="datetime64[s]"), unit="s")
+    side = Path(str(path) + ".provenance.json")
+    with atomic_path(path) as tmp:
+        frame.to_csv(tmp, index=False, float_format=float_format, na_rep="NaN")
+        with atomic_path(side) as tmp_side:
+            payload = {"parameters": table.parameters, "provenance": table.provenance}
+            tmp_side.write_text(json.dumps(product_dict(to_jsonable(payload)), indent=2) + "\n")
+    return Path(path)
+
+
+def read_offsets_csv(path) -> OffsetTable:
+    """Read an ``OFFSETS.csv`` (contract columns required, extras optional).
+
+    Raises
+    ------
+    InputError
+        Missing file or column, unparsable time or number (naming the line), or
+        centres not strictly increasing.
+    """
+    from magcal.io.csv import parse_times
+
+    p = Path(path)
+    if not p.is_file():
+        raise InputError("file not found", file=p)
+    try:
+        raw = pd.read_csv(p, dtype=str, keep_default_na=False)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise InputError(f"not a CSV offsets table ({exc})", file=p) from None
+    missing = [c for c in CONTRACT_COLUMNS if c not in raw.columns]
+    if missing:
+        raise InputError(f"missing column(s) {', '.join(missing)} (expected "
+                         f"{','.join(CONTRACT_COLUMNS)})", file=p, column=missing[0])
+    times = {}
+    for c in ("center", "start", "end"):
+        idx = parse_times(raw[c], file=p, column=c)
+        times[c] = idx.tz_convert("UTC").tz_localize(None).to_numpy().astype("datetime64[ns]")
+    if times["center"].size > 1 and np.any(np.diff(times["center"].astype(np.int64)) <= 0):
+        bad = int(np.flatnonzero(np.diff(times["center"].astype(np.int64)) <= 0)[0]) + 1
+        raise InputError("window centres not strictly increasing", file=p, row=bad + 2,
+                         column="center")
+
+    def num(col, default=np.nan):
+        if col not in raw.columns:
+            return np.full(len(raw), default, dtype=float)
+        values = raw[col].str.strip().replace({"": "nan", "null": "nan", "NULL": "nan"})
+        out = pd.to_numeric(values, errors="coerce").to_numpy(dtype=float)
+        bad = np.isnan(out) & ~values.str.lower().isin(["nan"]).to_numpy()
+        if bad.any():
+            row = int(np.flatnonzero(bad)[0])
+            raise InputError(f"not a number: {raw[col].iloc[row]!r}", file=p, row=row + 2,
+                             column=col)
+        return out
+
+    offset = np.stack([num(c) for c in COMPONENTS], axis=1)
+    std = np.stack([num(f"{c}_std") for c in COMPONENTS], axis=1)
+    mad = np.stack([num(f"{c}_mad") for c in COMPONENTS], axis=1)
+    n_used = np.nan_to_num(num("n_used"), nan=0).astype(np.int64)
+    n_av = np.nan_to_num(num("n_available", -1), nan=-1).astype(np.int64)
+    reason = tuple(raw["reason"]) if "reason" in raw.columns else ("",) * len(raw)
+    return OffsetTable(center=times["center"], start=times["start"], end=times["end"],
+                       offset_nT=offset, std_nT=std, mad_nT=mad, n_used=n_used,
+                       n_available=n_av, fraction_used=num("fraction_used"), reason=reason,
+                       parameters={"source": os.fspath(p)})

@@ -1,0 +1,145 @@
+"""Sliding-window statistics of data minus model (the core of the offset estimate).
+
+Windows of ``window_days`` stepped by ``step_days`` (28 and 7 in the SOSMAG paper). Per
+window and component: median (the offset), standard deviation, and the median absolute
+deviation scaled to a standard deviation (x 1.4826), over the selected (quiet) samples
+in ``[start, end)``. The times are sorted once and every window is a pair of
+``searchsorted`` bounds, so a year of 1-min data takes a fraction of a second.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from magcal.errors import InputError
+
+DAY_NS = 86_400 * 10**9
+#: MAD -> standard deviation of a normal distribution.
+MAD_TO_STD = 1.482602218505602
+
+
+def window_grid(first_ns: int, last_ns: int, window_days: float = 28.0,
+                step_days: float = 7.0, origin_ns: int | None = None):
+    """Start and end times (int64 ns) of the sliding windows covering ``[first, last]``.
+
+    Windows start at ``origin_ns`` (default: midnight UTC of the first sample) and every
+    ``step_days`` after it; the last window is the first whose end passes ``last_ns``, so
+    every sample lies in at least one window.
+
+    Examples
+    --------
+    >>> s, e = window_grid(0, 30 * DAY_NS - 1, 28, 7)
+    >>> (s // DAY_NS).tolist(), (e // DAY_NS).tolist()
+    ([0, 7], [28, 35])
+    """
+    if window_days <= 0 or step_days <= 0:
+        raise InputError("window_days and step_days must be positive")
+    win = int(round(window_days * DAY_NS))
+    step = int(round(step_days * DAY_NS))
+    origin = (first_ns // DAY_NS) * DAY_NS if origin_ns is None else int(origin_ns)
+    if origin > first_ns:
+        raise InputError("the window origin must not be after the first sample")
+    span = last_ns - origin
+    k = max(0, math.ceil((span + 1 - win) / step)) if span + 1 > win else 0
+    starts = origin + step * np.arange(k + 1, dtype=np.int64)
+    return starts, starts + win
+
+
+def window_statistics(t_ns, diff, selected, starts_ns, ends_ns, min_used: int = 720,
+                      local_time_h=None, lt_bins: int = 24, min_per_bin: int = 5) -> dict:
+    """Per-window median, std and scaled MAD of ``diff`` over the selected samples.
+
+    Parameters
+    ----------
+    t_ns : array_like of int64, shape (n,)
+        Sample times in ns, non-decreasing.
+    diff : array_like, shape (n, m)
+        Data minus model; rows with any NaN are not available.
+    selected : array_like of bool, shape (n,)
+        Samples allowed into the statistics (e.g. Kp <= kp_max).
+    starts_ns, ends_ns : array_like of int64, shape (k,)
+        Window bounds ``[start, end)``.
+    min_used : int
+        Windows with fewer selected samples get NaN statistics and a reason.
+    local_time_h : array_like, shape (n,), optional
+        If given, the offset is *local-time balanced*: the mean over ``lt_bins``
+        local-time bins of the per-bin medians, so an uneven spread of quiet samples over
+        local time does not leak a local-time field into the offset. Windows with a bin
+        holding fewer than ``min_per_bin`` selected samples get NaN and a reason. The
+        default (None) is the plain median of CONTRACTS §2.
+
+    Returns
+    -------
+    dict
+        ``median, std, mad`` (k, m); ``n_used, n_available`` (k,) int; ``fraction_used``
+        (k,) = n_used / n_available; ``reason`` list of str ('' when fine).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> t = np.arange(10) * DAY_NS
+    >>> d = np.arange(10.0)[:, None]
+    >>> st = window_statistics(t, d, np.arange(10) % 2 == 0, [0, 5 * DAY_NS],
+    ...                        [5 * DAY_NS, 10 * DAY_NS], min_used=2)
+    >>> st["median"][:, 0], st["n_used"], st["fraction_used"]
+    (array([2., 7.]), array([3, 2]), array([0.6, 0.4]))
+    """
+    t = np.asarray(t_ns, dtype=np.int64)
+    d = np.asarray(diff, dtype=float)
+    d = d[:, None] if d.ndim == 1 else d
+    sel = np.asarray(selected, dtype=bool)
+    if not (t.shape[0] == d.shape[0] == sel.shape[0]):
+        raise InputError("times, differences and selection differ in length")
+    if t.size > 1 and np.any(np.diff(t) < 0):
+        raise InputError("times must be sorted")
+    starts = np.asarray(starts_ns, dtype=np.int64)
+    ends = np.asarray(ends_ns, dtype=np.int64)
+    avail = np.all(np.isfinite(d), axis=1)
+    t_av = t[avail]
+    use = sel[avail]
+    t_use, d_use = t_av[use], d[avail][use]
+    if local_time_h is not None:
+        lt = np.asarray(local_time_h, dtype=float)
+        if lt.shape[0] != t.shape[0]:
+            raise InputError("local_time_h differs in length from the times")
+        lt_bin = np.minimum((np.mod(lt[avail][use], 24.0) / 24.0 * lt_bins).astype(int),
+                            lt_bins - 1)
+    n_av = np.searchsorted(t_av, ends) - np.searchsorted(t_av, starts)
+    lo, hi = np.searchsorted(t_use, starts), np.searchsorted(t_use, ends)
+    n_used = hi - lo
+    k, m = starts.size, d.shape[1]
+    median = np.full((k, m), np.nan)
+    std = np.full((k, m), np.nan)
+    mad = np.full((k, m), np.nan)
+    reasons = []
+    for i in range(k):
+        if n_av[i] == 0:
+            reasons.append("no data in window")
+            continue
+        if n_used[i] < max(int(min_used), 1):
+            reasons.append(f"too few quiet samples: n_used={int(n_used[i])} < "
+                           f"min_used={int(min_used)}")
+            continue
+        x = d_use[lo[i]:hi[i]]
+        med = np.median(x, axis=0)
+        if local_time_h is not None:
+            b = lt_bin[lo[i]:hi[i]]
+            counts = np.bincount(b, minlength=lt_bins)
+            if counts.min() < min_per_bin:
+                reasons.append(f"local-time coverage too poor: {int(np.sum(counts < min_per_bin))}"
+                               f" of {lt_bins} bins with < {min_per_bin} quiet samples")
+                continue
+            order = np.argsort(b, kind="stable")
+            groups = np.split(x[order], np.cumsum(counts)[:-1])
+            median[i] = np.mean([np.median(g, axis=0) for g in groups], axis=0)
+        else:
+            median[i] = med
+        std[i] = np.std(x, axis=0, ddof=1) if n_used[i] > 1 else 0.0
+        mad[i] = MAD_TO_STD * np.median(np.abs(x - med), axis=0)
+        reasons.append("")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac = np.where(n_av > 0, n_used / np.maximum(n_av, 1), np.nan)
+    return {"median": median, "std": std, "mad": mad, "n_used": n_used.astype(np.int64),
+            "n_available": n_av.astype(np.int64), "fraction_used": frac, "reason": reasons}
