@@ -230,7 +230,7 @@ def local_time_field(lt_h: np.ndarray, pp_nT) -> np.ndarray:
 
     Examples
     --------
-    >>> f = local_time_field(np.linspace(0, 24, 2401), (8.0, 5.0, 1.5))
+    >>> f = local_time_field(np.linspace(0, 24, 2400, endpoint=False), (8.0, 5.0, 1.5))
     >>> (f.max(axis=0) - f.min(axis=0)).round(3), f.mean(axis=0).round(3) + 0.0
     (array([8. , 5. , 1.5]), array([0., 0., 0.]))
     """
