@@ -104,7 +104,7 @@ def spin_blocks(phase_rad, *, spins_per_block: int = 1, max_gap_rad: float = np.
 
 
 def block_harmonics(t_s, phase_rad, signals, blocks: SpinBlocks, *,
-                    n_harmonics: int = 2, trend_degree: int = 1) -> np.ndarray:
+                    n_harmonics: int = 2, trend_degree: int = 1, extra=None) -> np.ndarray:
     """Least-squares spin-harmonic coefficients of each signal in each block.
 
     Parameters
@@ -119,11 +119,15 @@ def block_harmonics(t_s, phase_rad, signals, blocks: SpinBlocks, *,
         Highest spin harmonic ``H``.
     trend_degree : int
         Degree of the nuisance polynomial in time per block (1: constant and trend).
+    extra : array_like, shape (n, e), optional
+        Further regressors fitted in each block; their coefficients follow the
+        harmonics in the result.
 
     Returns
     -------
-    ndarray, shape (n_blocks, 2 H, m)
-        Coefficients of ``cos p, sin p, cos 2p, sin 2p, ...`` in each block.
+    ndarray, shape (n_blocks, 2 H + e, m)
+        Coefficients of ``cos p, sin p, cos 2p, sin 2p, ...`` (then of the ``extra``
+        regressors) in each block.
 
     Examples
     --------
@@ -154,9 +158,11 @@ def block_harmonics(t_s, phase_rad, signals, blocks: SpinBlocks, *,
     for h in range(1, n_harmonics + 1):
         cols.append(np.cos(h * p))
         cols.append(np.sin(h * p))
+    if extra is not None:
+        ex = np.asarray(extra, dtype=float)
+        cols.extend(ex.reshape(ex.shape[0], -1)[used].T)
     a = np.column_stack(cols)                       # (n, K)
-    k = a.shape[1]
     gram = np.add.reduceat(a[:, :, None] * a[:, None, :], starts, axis=0)   # (nb, K, K)
     rhs = np.add.reduceat(a[:, :, None] * s[:, None, :], starts, axis=0)    # (nb, K, m)
     coef = np.linalg.solve(gram, rhs)
-    return coef[:, trend_degree + 1:k, :]
+    return coef[:, trend_degree + 1:, :]
