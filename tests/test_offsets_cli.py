@@ -67,3 +67,29 @@ def test_bad_input_exit_2_and_no_output(files, capsys):
     assert main(["offsets", "apply", str(d / "DATA.csv"), "--offsets", str(bad),
                  "-o", str(out)]) == 2
     assert "missing column" in capsys.readouterr().err and not out.exists()
+
+
+@pytest.mark.slow
+def test_monthly_offsets_workflow(tmp_path):
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "workflows" / "monthly_offsets.py"
+    spec = importlib.util.spec_from_file_location("monthly_offsets", script)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    assert mod.main(["--simulate-days", "30", "--seed", "4", "-o", str(tmp_path)]) == 0
+    for name in ("OFFSETS.csv", "OFFSETS.cdf", "CORRECTED.csv", "summary.json",
+                 "fig19_residual_local_time.png", "fig20_offsets.png"):
+        assert (tmp_path / name).stat().st_size > 0, name
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    # the simulated local-time field: 8 / 5 / 1.5 nT peak-to-peak, seen in the residuals
+    assert_allclose(summary["local_time_peak_to_peak_nT"]["Hp"][0], 8.0, atol=1.0)
+    assert_allclose(summary["local_time_peak_to_peak_nT"]["He"][0], 5.0, atol=1.0)
+    import cdflib
+
+    cdf = cdflib.CDF(str(tmp_path / "OFFSETS.cdf"))
+    off = pd.read_csv(tmp_path / "OFFSETS.csv")
+    assert_allclose(cdf.varget("offset_hpen"), off[["Hp", "He", "Hn"]].to_numpy(), atol=1e-4)
+    assert "Provenance" in cdf.globalattsget()

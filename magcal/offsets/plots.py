@@ -1,0 +1,58 @@
+"""Plots of the offset stage: residual vs local time per month (paper Fig. 19) and the
+offset time series with spreads (Fig. 20). matplotlib is imported only when called."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from magcal.offsets.diagnostics import residual_by_local_time
+from magcal.offsets.table import COMPONENTS
+
+
+def plot_residual_local_time(path, times, diff, lon_deg, selected=None, title=None):
+    """Save data minus model vs local time, one curve per month, one panel per component.
+
+    Returns the peak-to-peak per month and component (array (months, 3)).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    months, lt, means, _ = residual_by_local_time(times, diff, lon_deg, selected)
+    fig, axes = plt.subplots(3, 1, figsize=(7, 8), sharex=True)
+    for j, ax in enumerate(axes):
+        for i, m in enumerate(months):
+            ax.plot(lt, means[i, :, j], marker=".", label=m)
+        ax.set_ylabel(f"{COMPONENTS[j]} data - model (nT)")
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("local time at the spacecraft (h)")
+    axes[-1].set_xlim(0, 24)
+    axes[0].legend(fontsize=7, ncol=4)
+    fig.suptitle(title or "Data minus model vs local time (one curve per month)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    with np.errstate(invalid="ignore"):
+        return np.nanmax(means, axis=1) - np.nanmin(means, axis=1)
+
+
+def plot_offsets(path, table, title=None):
+    """Save the window offsets with their standard deviations (error bars) per component."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(3, 1, figsize=(7, 8), sharex=True)
+    for j, ax in enumerate(axes):
+        ax.errorbar(table.center, table.offset_nT[:, j], yerr=table.std_nT[:, j], fmt="o-",
+                    capsize=3)
+        ax.set_ylabel(f"{COMPONENTS[j]} offset (nT)")
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("window centre (UTC)")
+    fig.autofmt_xdate()
+    fig.suptitle(title or "DC offsets per sliding window (error bars: std of selected data)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
