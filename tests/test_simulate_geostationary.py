@@ -344,3 +344,17 @@ def test_gk2a_like_equals_default_and_replace():
     assert a.disturbers == b.disturbers
     c = a.replace(ulf=False, shadow=ShadowPhase(duration_s=1800.0))
     assert c.ulf is False and c.shadow.duration_s == 1800.0 and a.ulf is True
+
+
+def test_measurements_round_trip_through_the_contract_csv(tmp_path):
+    from magcal.io.csv import read_csv_frame, write_csv_frame
+
+    res = simulate_geostationary(_short(duration_s=120.0, cadence_s=0.5),
+                                 rng=np.random.default_rng(6))
+    path = tmp_path / "sim.csv"
+    write_csv_frame(path, res.measurements)
+    back = read_csv_frame(path, required=list(res.measurements.columns))
+    assert list(back.columns) == list(res.measurements.columns)
+    assert_array_equal(back.index.asi8, res.times.asi8)
+    # the writer's default format keeps 0.1 pT: half a unit of the last digit
+    assert_allclose(back.to_numpy(), res.measurements.to_numpy(), rtol=0, atol=5.0001e-5)
