@@ -1,0 +1,130 @@
+"""Result object of an alignment fit (closed form or posterior)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from magcal.alignment.noise import COMPONENTS, OUNoise
+from magcal.io.jsonio import product_dict
+
+
+def _by_component(values):
+    if values is None:
+        return None
+    return {c: float(v) for c, v in zip(COMPONENTS, values)}
+
+
+@dataclasses.dataclass(frozen=True)
+class AlignmentResult:
+    """Rotation (and offset, scale) of data against a reference, with uncertainties.
+
+    Convention: ``data ~= scale * R(w) @ ref + offset`` with ``w`` the rotation vector
+    about (Hp, He, Hn) (CONTRACTS §3). Angles are in degrees.
+
+    Attributes
+    ----------
+    angles_deg : ndarray, shape (3,)
+        Rotation vector in degrees (zeros when the rotation was not fitted).
+    cov_deg2 : ndarray, shape (3, 3)
+        Covariance of the angles (deg^2); NaN when not fitted.
+    ci95_deg : ndarray, shape (3, 2)
+        95 % interval per angle.
+    offset_nT, offset_std_nT : ndarray, shape (3,) or None
+    scale, scale_std : float or None
+    n_used : int
+        Samples used (both series finite).
+    method : str
+        ``"wahba+ou-gls"`` (closed form with correlated-noise generalised least squares)
+        or ``"emcee"`` (posterior sampling).
+    noise : OUNoise
+        Fitted residual noise model.
+    residual_rms_nT : ndarray, shape (3,)
+    param_names : tuple of str
+    param_cov : ndarray, shape (p, p)
+        Covariance of all fitted parameters (angles in rad).
+    dof_deg : ndarray, shape (3,) or None
+        Degrees of freedom of each angle variance (Satterthwaite, from the uncertainty
+        of the fitted noise model); the 95 % interval uses Student t with these.
+    converged, autocorr_steps : bool or None, float or None
+        Only for ``method="emcee"``: chain longer than 50 integrated autocorrelation
+        times, and the largest autocorrelation time in steps.
+    mcmc : dict or None
+        Sampler details (steps, walkers, burn-in, acceptance, per-parameter tau).
+    samples : ndarray or None
+        Flattened posterior samples in ``param_names`` order (angles in degrees); not
+        written to JSON.
+    provenance : dict or None
+    """
+
+    angles_deg: np.ndarray
+    cov_deg2: np.ndarray
+    ci95_deg: np.ndarray
+    offset_nT: np.ndarray | None
+    offset_std_nT: np.ndarray | None
+    scale: float | None
+    scale_std: float | None
+    n_used: int
+    method: str
+    noise: OUNoise
+    residual_rms_nT: np.ndarray
+    param_names: tuple
+    param_cov: np.ndarray
+    dof_deg: np.ndarray | None = None
+    converged: bool | None = None
+    autocorr_steps: float | None = None
+    mcmc: dict | None = None
+    samples: np.ndarray | None = dataclasses.field(default=None, repr=False)
+    provenance: dict | None = None
+
+    @property
+    def std_deg(self) -> np.ndarray:
+        """Standard deviation of each angle (degrees)."""
+        return np.sqrt(np.diag(self.cov_deg2))
+
+    @property
+    def rotvec_rad(self) -> np.ndarray:
+        """The rotation vector in radians."""
+        return np.deg2rad(self.angles_deg)
+
+    def significant(self, n_std: float = 2.0) -> np.ndarray:
+        """Which angles differ from zero by more than ``n_std`` standard deviations."""
+        return np.abs(self.angles_deg) > n_std * self.std_deg
+
+    def with_provenance(self, provenance: dict) -> "AlignmentResult":
+        """Copy of the result carrying a provenance record."""
+        return dataclasses.replace(self, provenance=provenance)
+
+    def to_json(self) -> dict:
+        """JSON-ready product dictionary (CONTRACTS §3 keys first)."""
+        out = {
+            "angles_deg": _by_component(self.angles_deg),
+            "std_deg": _by_component(self.std_deg),
+            "ci95_deg": {c: [float(lo), float(hi)]
+                         for c, (lo, hi) in zip(COMPONENTS, self.ci95_deg)},
+            "n_used": int(self.n_used),
+            "method": self.method,
+        }
+        if self.method == "emcee":
+            out["converged"] = bool(self.converged)
+            out["autocorr_steps"] = self.autocorr_steps
+        out.update({
+            "convention": "data ~= scale * R(w) @ reference + offset; w = rotation vector "
+                          "about (Hp, He, Hn), scipy Rotation.from_rotvec",
+            "covariance_deg2": self.cov_deg2,
+            "significant_2std": {c: bool(s) for c, s in zip(COMPONENTS, self.significant())},
+            "offset_nT": _by_component(self.offset_nT),
+            "offset_std_nT": _by_component(self.offset_std_nT),
+            "scale": self.scale,
+            "scale_std": self.scale_std,
+            "noise": self.noise.to_dict(),
+            "residual_rms_nT": _by_component(self.residual_rms_nT),
+            "dof": _by_component(self.dof_deg),
+            "parameters": list(self.param_names),
+        })
+        if self.mcmc is not None:
+            out["mcmc"] = self.mcmc
+        if self.provenance is not None:
+            out["provenance"] = self.provenance
+        return product_dict(out)
