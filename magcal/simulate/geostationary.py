@@ -101,6 +101,13 @@ class GeostationaryConfig:
     shadow : ShadowPhase or None
         Daily boom shadow driving temperature offsets; None switches them off.
 
+    Notes
+    -----
+    The substorm dip is a disturbed-ambient case: its 25 nT Hp variation dominates
+    the variance in long windows (the paper's 16,000 s third order), which is where
+    PiCoG is "susceptible to the influence of the ambient magnetic field" (Constantinescu
+    et al. 2020 §4.2). ``replace(substorm=False)`` gives the quiet day of the paper.
+
     Examples
     --------
     >>> cfg = GeostationaryConfig.gk2a_like(duration_s=3600.0, ulf=False)
