@@ -22,10 +22,10 @@ from magcal.discover.effects import (
     DAY_S, EFFECT_NAMES, Activity, Diurnal, Drift, Effect, EffectInputs, Offset, Periodic,
     Rotation, Scale, SpinTone, Step, Temperature, available, make_activity)
 from magcal.discover.gap import profile_gap, rms
-from magcal.discover.scan import scan_periods, scan_step
+from magcal.discover.scan import n_period_trials, n_step_trials, scan_periods, scan_step
 from magcal.discover.selection import (
     BlockedGram, Comparison, CVScore, compare, delta_bic_eff, integrated_autocorr_time,
-    time_blocks)
+    paired_z, time_blocks, wald_z)
 from magcal.io.jsonio import product_dict
 
 
@@ -230,10 +230,24 @@ class _Candidate:
     comparison: Comparison
     component_z: dict
     family: str
+    z_needed: float = 0.0
 
     @property
     def name(self) -> str:
         return self.effect.name
+
+    @property
+    def passes(self) -> bool:
+        return self.comparison.gain > 0 and self.comparison.z >= self.z_needed
+
+
+def _look_elsewhere(z: float, trials: float) -> float:
+    """z threshold after a Bonferroni correction for ``trials`` scanned hyper-parameters."""
+    if trials <= 1:
+        return float(z)
+    from scipy import stats
+
+    return float(stats.norm.isf(stats.norm.sf(z) / trials))
 
 
 def _static_families(inputs: EffectInputs, settings: DiscoverySettings):
@@ -293,7 +307,9 @@ class _Loop:
     def base_cols(self) -> list[int]:
         return [c for _, cols in self.added for c in cols]
 
-    def _variant(self, family: str, effects: list[Effect], base: CVScore):
+    def _variant(self, family: str, effects: list[Effect], base: CVScore, trials: float = 1.0):
+        z_comp, z_need = _look_elsewhere(self.settings.z_component, trials), \
+            _look_elsewhere(self.settings.z_min, trials)
         base_cols = self.base_cols
         comp_cmp = {}
         chosen = []
@@ -307,13 +323,14 @@ class _Loop:
             s = self.gram.score(base_cols + list(self.cols[eff]))
             cmp = compare(base, s)
             comp_cmp[comp] = cmp.z
-            if cmp.gain > 0 and cmp.z >= self.settings.z_component:
+            if cmp.gain > 0 and cmp.z >= z_comp:
                 chosen.append(eff)
         if not chosen:
             return None
         cols = tuple(c for e in chosen for c in self.cols[e])
         score = self.gram.score(base_cols + list(cols))
-        return _Candidate(_merge(chosen), cols, score, compare(base, score), comp_cmp, family)
+        return _Candidate(_merge(chosen), cols, score, compare(base, score), comp_cmp, family,
+                          z_need)
 
     def _family(self, family: str, variants, base: CVScore):
         if family in ("rotation",) and family in self.covered:
@@ -321,12 +338,17 @@ class _Loop:
         cands = [c for c in (self._variant(family, v, base) for v in variants) if c is not None]
         if not cands:
             return None
-        passing = [c for c in cands if c.comparison.gain > 0 and c.comparison.z >= self.settings.z_min]
+        passing = [c for c in cands if c.passes]
         if not passing:
             return max(cands, key=lambda c: c.comparison.z)
         pick = passing[0]
+        k = len(self.base_cols)
         for richer in passing[1:]:
-            if compare(pick.score, richer.score).z >= self.settings.z_variant:
+            # the richer variant's extra coefficients (e.g. higher harmonics) must be significant
+            have = set(pick.effect.labels())
+            extra = [k + i for i, lab in enumerate(richer.effect.labels()) if lab not in have]
+            if richer.comparison.gain > pick.comparison.gain and \
+                    wald_z(richer.score, extra) >= self.settings.z_variant:
                 pick = richer
         return pick
 
@@ -335,31 +357,40 @@ class _Loop:
         inputs = self.inputs
         out = []
         base_cols = self.base_cols
+        span = float(inputs.times_s[-1] - inputs.times_s[0])
         vocab = self.settings.vocabulary
         fams = []
         if "step" in vocab:
             t_step, _, _ = scan_step(inputs.times_s, residual)
             if t_step is not None:
                 fams.append(("step", [Step(components=(c,), t_step_s=t_step)
-                                      for c in inputs.components]))
+                                      for c in inputs.components], n_step_trials(span)))
         if "periodic" in vocab:
             peaks = scan_periods(inputs.times_s, residual,
                                  exclude_daily=inputs.local_time_h is not None,
                                  n_peaks=self.settings.n_periods)
             for period_s, _ in peaks:
                 fams.append(("periodic", [Periodic(components=(c,), period_s=period_s)
-                                          for c in inputs.components]))
-        for family, effects in fams:
-            for eff in effects:
-                self.cols[eff] = self.gram.add(eff.columns(inputs), against=base_cols)
-            cand = self._variant(family, effects, base)
+                                          for c in inputs.components], n_period_trials(span)))
+        for family, effects, trials in fams:
+            # one chunk per family so that its components are crossed with each other
+            blocks = [eff.columns(inputs) for eff in effects]
+            idx = self.gram.add(np.concatenate(blocks, axis=0), against=base_cols)
+            start = 0
+            for eff, blk in zip(effects, blocks):
+                self.cols[eff] = idx[start:start + len(blk)]
+                start += len(blk)
+            cand = self._variant(family, effects, base, trials)
             if cand is not None:
                 out.append(cand)
         return out
 
     def _signal(self, cand: _Candidate) -> np.ndarray:
         k = len(self.base_cols)
-        return self.gram.fitted(cand.columns, cand.score.beta[k:])
+        f = self.gram.fitted(cand.columns, cand.score.beta[k:])
+        mask = self.gram.mask
+        mean = np.where(mask, f, 0).sum(axis=0) / np.maximum(mask.sum(axis=0), 1)
+        return np.where(mask, f - mean, 0.0)  # centred: offsets do not make signals alike
 
     def _n_eff(self, residual: np.ndarray) -> float:
         total = 0.0
@@ -394,17 +425,22 @@ class _Loop:
                 {"name": c.name, "components": list(c.effect.components),
                  "n_params": len(c.columns), **c.comparison.as_dict()}
                 for c in sorted(cands, key=lambda c: -c.comparison.gain)]})
-            passing = [c for c in cands if c.comparison.gain > 0 and c.comparison.z >= s.z_min]
+            passing = [c for c in cands if c.passes]
             if not passing:
                 if cands:
-                    best = max(cands, key=lambda c: c.comparison.z)
+                    best = max(cands, key=lambda c: c.comparison.z - c.z_needed)
                     stopped = (f"no candidate earns its parameters (best remaining: {best.name}, "
-                               f"z = {best.comparison.z:.1f} < {s.z_min:g})")
+                               f"z = {best.comparison.z:.1f} < {best.z_needed:.1f})")
                 else:
                     stopped = "no candidate earns its parameters"
                 break
             win = max(passing, key=lambda c: c.comparison.gain)
             evidence = self._evidence(win, cands, base, residual, n_valid)
+            if win.family in ("step", "periodic"):
+                # scanned candidates were crossed with the base only: add them in full
+                cols = gram.add(win.effect.columns(self.inputs))
+                win = _Candidate(win.effect, cols, gram.score(self.base_cols + list(cols)),
+                                 win.comparison, win.component_z, win.family, win.z_needed)
             gap_before = profile_gap(self.inputs, residual)
             rms_before = float(np.sqrt(base.sse_in / n_valid))
             self.added.append((win.effect, win.columns))
@@ -436,6 +472,7 @@ class _Loop:
               **win.comparison.as_dict(),
               "cv_rms_before_nT": float(np.sqrt(base.sse_cv / n_valid)),
               "cv_rms_after_nT": float(np.sqrt(win.score.sse_cv / n_valid)),
+              "z_needed": win.z_needed,
               "n_params": len(win.columns),
               "n_eff": n_eff,
               "delta_bic_eff": delta_bic_eff(base.sse_in, win.score.sse_in, len(win.columns),
@@ -451,7 +488,8 @@ class _Loop:
         f_win = self._signal(win)
         n_win = np.sqrt(f_win.reshape(-1) @ f_win.reshape(-1))
         for c in others:
-            if c.name == win.name or c.comparison.gain <= 0:
+            if c.name == win.name or c.comparison.gain <= 0 or \
+                    c.comparison.z < s.z_component:
                 continue
             f_c = self._signal(c)
             n_c = np.sqrt(f_c.reshape(-1) @ f_c.reshape(-1))
@@ -460,7 +498,7 @@ class _Loop:
             corr = float(f_win.reshape(-1) @ f_c.reshape(-1) / (n_win * n_c))
             if abs(corr) < s.confound_corr:
                 continue
-            z_pair = compare(c.score, win.score).z
+            z_pair = paired_z(c.score, win.score)
             if z_pair < s.z_ambiguous:
                 if c.name not in ev["ambiguous_with"]:
                     ev["ambiguous_with"].append(c.name)

@@ -16,6 +16,17 @@ import numpy as np
 DAY_S = 86400.0
 
 
+def n_period_trials(span_s: float, min_period_s: float = 3600.0,
+                    min_cycles: float = 3.0) -> float:
+    """Number of independent frequencies :func:`scan_periods` searches (look-elsewhere)."""
+    return max(span_s / min_period_s - min_cycles, 1.0)
+
+
+def n_step_trials(span_s: float, resolution_s: float = 6 * 3600.0) -> float:
+    """Effective number of independent step times a scan tries (look-elsewhere)."""
+    return max(span_s / resolution_s, 1.0)
+
+
 def scan_step(times_s, residual, margin_s: float = 0.25 * DAY_S):
     """Best single step time in a residual.
 
@@ -113,7 +124,8 @@ def periodogram(times_s, residual, oversample: int = 4):
 
 
 def scan_periods(times_s, residual, *, exclude_daily: bool = True, n_peaks: int = 3,
-                 min_cycles: float = 3.0, background_bins: int = 40):
+                 min_cycles: float = 3.0, min_period_s: float = 3600.0,
+                 background_bins: int = 40):
     """Candidate periods: periodogram peaks that stand out of the local background.
 
     Parameters
@@ -126,6 +138,8 @@ def scan_periods(times_s, residual, *, exclude_daily: bool = True, n_peaks: int 
         How many candidates to return.
     min_cycles : float
         Longest period considered, as a fraction of the record: span / min_cycles.
+    min_period_s : float
+        Shortest period considered (faster signals are ULF waves or spin tones).
     background_bins : int
         Half-width (in oversampled bins) of the running median used as the background.
 
@@ -140,7 +154,7 @@ def scan_periods(times_s, residual, *, exclude_daily: bool = True, n_peaks: int 
         return []
     freq, amp = periodogram(t, residual)
     power = (amp ** 2).sum(axis=1)
-    ok = freq >= min_cycles / span
+    ok = (freq >= min_cycles / span) & (freq <= 1.0 / min_period_s)
     if exclude_daily:
         for k in range(1, 9):
             ok &= np.abs(freq - k / DAY_S) > 2.0 / span
