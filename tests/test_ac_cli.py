@@ -100,3 +100,26 @@ def test_bad_inputs(tmp_path, three_sensor_csv, capsys):
     assert "--target" in capsys.readouterr().err
     assert main(["picog", "fit", str(path), "-o", str(out)]) == 2
     assert not out.exists()
+
+
+def test_auto_fit_reports_choices(tmp_path, three_sensor_csv):
+    path, _, amb = three_sensor_csv
+    params = tmp_path / "auto.json"
+    assert main(["picog", "fit", str(path), "--target", "fgmo", "--auto",
+                 "-o", str(params)]) == 0
+    doc = json.loads(params.read_text())
+    auto = doc["auto"]
+    assert auto["choices"] and auto["method"] in ("picog", "regression")
+    # amr1 sees the step 40x stronger with no extra noise: the best first-order reference
+    refs = {r["reference"]: r for r in auto["reference_candidates"]}
+    assert max(refs, key=lambda k: refs[k]["gain"]) == "amr1"
+    assert_allclose(sum(np.array(m) for m in doc["M"].values()), np.eye(3), atol=1e-12)
+    out = tmp_path / "clean.csv"
+    assert main(["picog", "apply", str(path), "--params", str(params), "-o", str(out)]) == 0
+    clean = pd.read_csv(out)
+    ok = clean["flag"].to_numpy() == 0
+    resid = clean[["x", "y", "z"]].to_numpy()[ok] - amb[ok]
+    resid -= resid.mean(0)
+    raw = pd.read_csv(path)[["fgmo_x", "fgmo_y", "fgmo_z"]].to_numpy()[ok] - amb[ok]
+    raw -= raw.mean(0)
+    assert np.sum(raw ** 2) / np.sum(resid ** 2) > 100
