@@ -435,6 +435,9 @@ class _Loop:
                     stopped = "no candidate earns its parameters"
                 break
             win = max(passing, key=lambda c: c.comparison.gain)
+            if not self.added:
+                # the level comes first: every other term is judged with the offset free
+                win = next((c for c in passing if c.name == "offset"), win)
             evidence = self._evidence(win, cands, base, residual, n_valid)
             if win.family in ("step", "periodic"):
                 # scanned candidates were crossed with the base only: add them in full

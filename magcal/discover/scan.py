@@ -22,7 +22,7 @@ def n_period_trials(span_s: float, min_period_s: float = 3600.0,
     return max(span_s / min_period_s - min_cycles, 1.0)
 
 
-def n_step_trials(span_s: float, resolution_s: float = 6 * 3600.0) -> float:
+def n_step_trials(span_s: float, resolution_s: float = 3 * 3600.0) -> float:
     """Effective number of independent step times a scan tries (look-elsewhere)."""
     return max(span_s / resolution_s, 1.0)
 

@@ -1,0 +1,328 @@
+"""Test months for the discovery loop: model + hidden effects + benign variability.
+
+Built on :func:`magcal.simulate.month.simulate_month` (T89 model field, Kp, Dst, boom
+temperature, local time, ULF waves and white noise). The benign variability that no
+vocabulary term should explain is: the simulator's ULF waves (stronger at high Kp) and
+white noise, bipolar substorm signatures on the night side at high Kp (growth-phase dip
+then dipolarisation overshoot, zero mean), and a slowly varying red "model error"
+(Ornstein-Uhlenbeck, 2 h correlation). The hidden effects are added from their exact
+truth, so the noise floor (RMS of the residual left when the truth is removed) is known.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+import pandas as pd
+
+COMPONENTS = ("Hp", "He", "Hn")
+LON_DEG = 128.2
+
+
+@lru_cache(maxsize=4)
+def base_month(seed: int = 7, n_days: float = 30.0):
+    from magcal.simulate.month import MonthConfig, simulate_month
+
+    cfg = MonthConfig(n_days=n_days, n_disturbed_days=3, storm_coupling=(0.0, 0.0, 0.0),
+                      local_time_pp_nT=(0.0, 0.0, 0.0), n_jobs=1)
+    return simulate_month(cfg, rng=np.random.default_rng(seed))
+
+
+def _ou(rng, n, dt_s, tau_s, std):
+    a = np.exp(-dt_s / tau_s)
+    e = rng.standard_normal((n, 3)) * std * np.sqrt(1 - a * a)
+    out = np.empty((n, 3))
+    out[0] = rng.standard_normal(3) * std
+    # vectorised AR(1) via lfilter
+    from scipy.signal import lfilter
+
+    out = lfilter([1.0], [1.0, -a], e, axis=0)
+    return out
+
+
+def _bipolar_substorms(rng, t_s, kp, lt_h):
+    n = t_s.size
+    out = np.zeros((n, 3))
+    hour = (t_s // 3600).astype(np.int64)
+    first = np.r_[True, hour[1:] != hour[:-1]]
+    night = (lt_h >= 20) | (lt_h < 4)
+    cand = np.flatnonzero(first & night & (kp >= 3.0))
+    onsets = cand[rng.random(cand.size) < 0.35]
+    tau = np.arange(0, 240.0)  # minutes, 1-min cadence
+    shape = -np.exp(-0.5 * ((tau - 30) / 12) ** 2) + 0.5 * np.exp(-0.5 * ((tau - 75) / 24) ** 2)
+    shape -= shape.mean()
+    for i0 in onsets:
+        depth = 6.0 * (kp[i0] - 2.0) * rng.uniform(0.6, 1.4)
+        seg = slice(i0, min(n, i0 + tau.size))
+        k = seg.stop - seg.start
+        out[seg, 0] += depth * shape[:k]
+        out[seg, 1:] += rng.standard_normal((k, 2)) * 0.2 * depth * np.abs(shape[:k, None])
+    return out
+
+
+@dataclass(frozen=True)
+class Case:
+    measured: pd.DataFrame
+    model: pd.DataFrame
+    covariates: pd.DataFrame
+    truth: np.ndarray        # hidden effects (n, 3), excluding the offset
+    offset_nT: np.ndarray    # constant offset (3,)
+    benign: np.ndarray       # what no effect should explain (n, 3)
+    month: object
+
+    @property
+    def noise_floor_nT(self) -> float:
+        return float(np.sqrt(np.nanmean(self.benign ** 2)))
+
+
+def make_case(hidden: dict | None = None, *, seed: int = 7, offset_nT=(4.0, -3.0, 2.0),
+              red_std_nT: float = 2.0, phase: bool = False, temperature_C=None) -> Case:
+    """A month with the hidden effects ``hidden`` (name -> (n, 3) array or callable)."""
+    m = base_month(seed)
+    n = m.times.size
+    rng = np.random.default_rng(seed + 1000)
+    t_s = (m.times - m.times[0]).astype("timedelta64[ns]").astype(np.int64) / 1e9
+    benign = (m.ulf_nT + m.noise_nT + _bipolar_substorms(rng, t_s, m.kp, m.local_time_h)
+              + _ou(rng, n, 60.0, 7200.0, red_std_nT))
+    truth = np.zeros((n, 3))
+    for value in (hidden or {}).values():
+        truth += value
+    meas = m.model_nT + np.asarray(offset_nT)[None, :] + truth + benign
+    index = pd.DatetimeIndex(m.times, name="time").tz_localize("UTC")
+    cov = {"temperature": m.temperature_C if temperature_C is None else temperature_C,
+           "kp": m.kp, "dst": m.dst}
+    if phase:
+        cov["phase"] = spin_phase(t_s)
+    return Case(measured=pd.DataFrame(meas, index=index, columns=list(COMPONENTS)),
+                model=pd.DataFrame(m.model_nT, index=index, columns=list(COMPONENTS)),
+                covariates=pd.DataFrame(cov, index=index), truth=truth,
+                offset_nT=np.asarray(offset_nT, dtype=float), benign=benign, month=m)
+
+
+def spin_phase(t_s, period_s: float = 6.283):
+    """Spin phase (rad) of a slowly spinning body sampled at 1 min (not commensurate)."""
+    return np.mod(2 * np.pi * t_s / period_s, 2 * np.pi)
+
+
+def lt_of(case: Case) -> np.ndarray:
+    return case.month.local_time_h
+
+
+# ------------------------------------------------------------------------- the tests
+import pytest  # noqa: E402
+from numpy.testing import assert_allclose  # noqa: E402
+
+from magcal.discover import discover_gap  # noqa: E402
+
+
+def _axes():
+    m = base_month()
+    n = m.times.size
+    t_s = np.arange(n) * 60.0
+    return m, t_s, t_s / 86400.0, 2 * np.pi * m.local_time_h / 24.0
+
+
+def _run(case: Case):
+    return discover_gap(case.measured, case.model, case.covariates, longitude_deg=LON_DEG)
+
+
+def _first_new(res, skip=("offset",)):
+    names = [n for n in res.names if n not in skip]
+    return names[0] if names else None
+
+
+def _signal_error(res, case: Case, name: str) -> float:
+    """RMS of (fitted contribution of ``name`` - hidden truth), demeaned per component."""
+    from magcal.discover.inputs import build_inputs
+
+    inputs, _ = build_inputs(case.measured.index, case.model, COMPONENTS, case.covariates, LON_DEG)
+    fit = sum(e.effect.evaluate(inputs, e.beta) for e in res.effects if e.name == name)
+    d = (fit - case.truth)
+    d = d - d.mean(axis=0)
+    return float(np.sqrt(np.mean(d ** 2)))
+
+
+def _check_floor(res, case: Case):
+    floor = case.noise_floor_nT
+    assert abs(res.gap_final["rms_nT"] / floor - 1) < 0.2, (res.gap_final["rms_nT"], floor)
+
+
+def test_hidden_effects_are_small_against_raw_residual():
+    m, t_s, day, phi = _axes()
+    case = make_case({"d": np.column_stack([-1.5 * np.cos(phi), 1.0 * np.cos(phi), 0 * phi])})
+    raw = (case.measured - case.model).to_numpy()
+    assert np.var(case.truth[:, 0]) < 0.2 * np.var(raw[:, 0])  # under a fifth of the variance
+
+
+def test_no_hidden_effect_adds_only_offset():
+    case = make_case()
+    res = _run(case)
+    assert res.names == ["offset"], res.account()
+    assert_allclose([res.effects[0].parameters["values"][c]["offset_nT"] for c in COMPONENTS],
+                    case.offset_nT, atol=0.6)
+    _check_floor(res, case)
+
+
+def test_offset_recovered():
+    case = make_case(offset_nT=(5.0, -3.0, 2.0))
+    res = _run(case)
+    assert res.names[0] == "offset"
+    assert_allclose([res.effects[0].parameters["values"][c]["offset_nT"] for c in COMPONENTS],
+                    [5.0, -3.0, 2.0], atol=0.6)
+    _check_floor(res, case)
+
+
+def test_drift():
+    m, t_s, day, phi = _axes()
+    case = make_case({"drift": np.outer(day - 15, [0.25, -0.15, 0.0])})
+    res = _run(case)
+    assert _first_new(res) == "drift", res.account()
+    v = res.effect("drift").parameters["values"]
+    assert_allclose([v["Hp"]["rate_nT_per_day"], v["He"]["rate_nT_per_day"]], [0.25, -0.15],
+                    atol=0.06)
+    _check_floor(res, case)
+
+
+def test_diurnal_sosmag_like():
+    m, t_s, day, phi = _axes()
+    hidden = np.column_stack([-1.5 * np.cos(phi), 1.0 * np.cos(phi - 2 * np.pi * 23 / 24),
+                              0 * phi])
+    case = make_case({"diurnal": hidden})
+    res = _run(case)
+    assert _first_new(res) == "diurnal", res.account()
+    d = res.effect("diurnal").parameters["derived"]
+    assert_allclose(d["Hp"]["peak_to_peak_nT"], 3.0, atol=0.6)
+    assert abs(d["Hp"]["peak_lt_h"] - 12.0) < 2.0
+    assert_allclose(d["He"]["peak_to_peak_nT"], 2.0, atol=0.6)
+    assert _signal_error(res, case, "diurnal") < 0.35
+    _check_floor(res, case)
+    assert any("peak-to-peak local-time variation" in line for line in res.account())
+
+
+def test_temperature_told_apart_from_diurnal():
+    """Confounded case 1: temperature follows the day but also varies from day to day."""
+    m, t_s, day, phi = _axes()
+    temp = m.temperature_C + 20 * np.sin(2 * np.pi * day / 9.3)
+    case = make_case({"t": np.outer(temp - temp.mean(), [0.03, 0.0, -0.02])},
+                     temperature_C=temp)
+    res = _run(case)
+    assert _first_new(res) == "temperature", res.account()
+    eff = res.effect("temperature")
+    v = eff.parameters["values"]
+    assert_allclose(v["Hp"]["coefficient_nT_per_degC"], 0.03, atol=0.006)
+    assert_allclose(v["Hn"]["coefficient_nT_per_degC"], -0.02, atol=0.006)
+    assert not eff.evidence["ambiguous"]
+    assert "diurnal" in eff.evidence["preferred_over"]
+    assert "diurnal" not in res.names
+    _check_floor(res, case)
+
+
+def test_temperature_locked_to_local_time_is_ambiguous():
+    """Confounded case 2: temperature is a function of local time only."""
+    m, t_s, day, phi = _axes()
+    temp = 20.0 + 15.0 * np.cos(phi - 2 * np.pi * 14 / 24)
+    case = make_case({"t": np.outer(temp - 20.0, [0.12, 0.0, 0.0])}, temperature_C=temp)
+    res = _run(case)
+    first = _first_new(res)
+    assert first in ("temperature", "diurnal"), res.account()
+    ev = res.effect(first).evidence
+    other = "diurnal" if first == "temperature" else "temperature"
+    assert ev["ambiguous"] and other in ev["ambiguous_with"], ev
+    assert any("ambiguous" in line for line in res.account())
+    assert _signal_error(res, case, first) < 0.35
+    _check_floor(res, case)
+
+
+def test_scale():
+    m, t_s, day, phi = _axes()
+    case = make_case({"scale": m.model_nT * np.array([0.08, 0.08, 0.0])})
+    res = _run(case)
+    assert _first_new(res) == "scale", res.account()
+    v = res.effect("scale").parameters["values"]
+    assert_allclose([v["Hp"]["scale"], v["He"]["scale"]], [0.08, 0.08], atol=0.015)
+    _check_floor(res, case)
+
+
+def test_rotation():
+    m, t_s, day, phi = _axes()
+    w = np.deg2rad([0.0, 3.0, -3.0])
+    case = make_case({"rot": np.cross(w, m.model_nT)})
+    res = _run(case)
+    assert _first_new(res) == "rotation", res.account()
+    a = res.effect("rotation").parameters["angles_deg"]
+    # Hp is nearly along the field: only the He and Hn angles are well determined
+    assert_allclose([a["He"], a["Hn"]], [3.0, -3.0], atol=1.0)
+    _check_floor(res, case)
+
+
+def test_activity():
+    m, t_s, day, phi = _axes()
+    case = make_case({"act": np.outer(m.dst, [0.15, 0.05, 0.0])})
+    res = _run(case)
+    assert _first_new(res) == "activity", res.account()
+    truth_rms = np.sqrt(np.mean((case.truth - case.truth.mean(axis=0)) ** 2))
+    assert _signal_error(res, case, "activity") < 0.3 * truth_rms
+    _check_floor(res, case)
+
+
+def test_spin_tone():
+    m, t_s, day, phi = _axes()
+    p = spin_phase(t_s)
+    hidden = np.column_stack([0 * p, np.cos(p), 0.5 * np.sin(2 * p)])
+    case = make_case({"spin": hidden}, phase=True)
+    res = _run(case)
+    assert _first_new(res) == "spin_tone", res.account()
+    d = res.effect("spin_tone").parameters["derived"]
+    assert_allclose(d["He"]["amplitude1_nT"], 1.0, atol=0.05)
+    assert_allclose(d["Hn"]["amplitude2_nT"], 0.5, atol=0.05)
+    _check_floor(res, case)
+
+
+def test_step():
+    m, t_s, day, phi = _axes()
+    case = make_case({"step": np.outer(day >= 17.3, [3.0, -2.0, 0.0])})
+    res = _run(case)
+    assert _first_new(res) == "step", res.account()
+    p = res.effect("step").parameters
+    t_true = pd.Timestamp("2019-11-01T00:00:00Z") + pd.Timedelta(days=17.3)
+    assert abs(pd.Timestamp(p["time"]) - t_true) < pd.Timedelta(hours=6)
+    assert_allclose([p["values"]["Hp"]["size_nT"], p["values"]["He"]["size_nT"]], [3.0, -2.0],
+                    atol=0.7)
+    _check_floor(res, case)
+
+
+def test_periodic():
+    m, t_s, day, phi = _axes()
+    hidden = np.outer(np.cos(2 * np.pi * t_s / (7.7 * 3600) + 0.3), [1.0, 0.0, 0.7])
+    case = make_case({"per": hidden})
+    res = _run(case)
+    assert _first_new(res) == "periodic", res.account()
+    p = res.effect("periodic").parameters
+    assert_allclose(p["period_h"], 7.7, rtol=0.01)
+    assert_allclose(p["derived"]["Hp"]["amplitude_nT"], 1.0, atol=0.2)
+    assert_allclose(p["derived"]["Hn"]["amplitude_nT"], 0.7, atol=0.2)
+    _check_floor(res, case)
+
+
+def test_two_hidden_effects_and_augmented_model():
+    m, t_s, day, phi = _axes()
+    hidden_d = np.column_stack([-1.5 * np.cos(phi), 0 * phi, 0 * phi])
+    hidden_a = np.outer(m.dst, [0.15, 0.0, 0.0])
+    case = make_case({"d": hidden_d, "a": hidden_a})
+    res = _run(case)
+    assert {"diurnal", "activity"} <= set(res.names), res.account()
+    _check_floor(res, case)
+    aug = res.augmented_model(case.measured.index, case.model, case.covariates)
+    resid = (case.measured - aug).to_numpy()
+    assert_allclose(np.sqrt(np.mean(resid ** 2)), res.gap_final["rms_nT"], rtol=1e-9)
+    # the augmented model evaluates on new times (the last 5 days only)
+    tail = case.measured.index[-7200:]
+    aug_tail = res.augmented_model(tail, case.model.loc[tail], case.covariates.loc[tail])
+    assert_allclose(aug_tail.to_numpy(), aug.loc[tail].to_numpy(), atol=1e-9)
+    doc = res.to_json()
+    assert doc["gap_initial"]["rms_nT"] > doc["gap_final"]["rms_nT"]
+    assert [e["name"] for e in doc["effects"]] == res.names
+    for e in doc["effects"]:
+        assert e["rms_after_nT"] <= e["rms_before_nT"]
