@@ -1,0 +1,288 @@
+"""Full posterior of the alignment with emcee.
+
+Parameters: the three angles, optionally the offset vector and a scale factor, and the
+noise model (per component the OU standard deviation and correlation time), so that the
+noise uncertainty is propagated instead of fixed. Priors: uniform angles within
++/- 45 degrees, flat offsets, uniform scale in [0.5, 2], log-uniform noise standard
+deviation and correlation time (correlation time between a tenth of the smallest
+sample spacing and the record length).
+
+The likelihood is the exact OU likelihood. For every walker it is evaluated from lag
+statistics (:class:`magcal.alignment.noise.LagStats`) of ``[data_c, ref, 1]``, so one
+vectorised call over all walkers costs ``O(walkers x spacing groups)``, independent of
+the number of samples. :func:`log_likelihood_direct` is the plain per-sample version,
+kept as the reference in tests and the benchmark baseline.
+
+Convergence is judged by the integrated autocorrelation time: the chain counts as
+converged only when it is longer than ``min_autocorr_times`` (default 50) times the
+largest autocorrelation time of any parameter. An unconverged chain is returned with
+``converged=False`` and a message, never as converged.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from magcal.alignment.gls import fit_alignment, param_names, prepare, summarize, unpack
+from magcal.alignment.noise import COMPONENTS, LagStats, lag_stats, noise_from_fits
+from magcal.alignment.result import AlignmentResult
+
+NOISE_NAMES = tuple(f"log_std_{c}" for c in COMPONENTS) + tuple(f"log_tau_{c}" for c in COMPONENTS)
+MAX_ANGLE_RAD = np.pi / 4
+
+
+class AlignmentPosterior:
+    """Vectorised log-posterior of the alignment model.
+
+    Parameters
+    ----------
+    times_s : ndarray, shape (n,)
+    data, ref : ndarray, shape (n, 3)
+        Finite, matched samples.
+    names : tuple of str
+        Model parameter names (see :func:`magcal.alignment.gls.param_names`); the six
+        noise parameters :data:`NOISE_NAMES` follow them in the parameter vector.
+    """
+
+    def __init__(self, times_s, data, ref, names):
+        self.times_s = np.asarray(times_s, dtype=float)
+        self.data = np.asarray(data, dtype=float)
+        self.ref = np.asarray(ref, dtype=float)
+        self.names = tuple(names)
+        self.all_names = self.names + NOISE_NAMES
+        ones = np.ones((self.ref.shape[0], 1))
+        self.stats: list[LagStats] = [
+            lag_stats(np.concatenate([self.data[:, c:c + 1], self.ref, ones], axis=1),
+                      self.times_s) for c in range(3)]
+        # stacked per component: [first, m00 (g), m01 (g), m11 (g)] -> (3, 1 + 3g, 5, 5)
+        self._stack = np.stack([np.concatenate([st.first[None], st.m00, st.m01, st.m11])
+                                for st in self.stats])
+        self._dt = self.stats[0].dt_s
+        self._count = self.stats[0].count
+        self.n = self.data.shape[0]
+        idx = {name: i for i, name in enumerate(self.names)}
+        self._iw = [idx[k] for k in ("w_Hp", "w_He", "w_Hn")] if "w_Hp" in idx else None
+        self._io = [idx[k] for k in ("o_Hp", "o_He", "o_Hn")] if "o_Hp" in idx else None
+        self._is = idx.get("scale")
+        self.log_tau_bounds = (np.log(0.1 * float(np.min(self.stats[0].dt_s))),
+                               np.log(max(float(self.times_s[-1] - self.times_s[0]),
+                                          float(np.min(self.stats[0].dt_s)))))
+
+    @property
+    def ndim(self) -> int:
+        return len(self.all_names)
+
+    def _split(self, theta):
+        p = len(self.names)
+        nw = theta.shape[0]
+        w = theta[:, self._iw] if self._iw is not None else np.zeros((nw, 3))
+        o = theta[:, self._io] if self._io is not None else np.zeros((nw, 3))
+        s = theta[:, self._is] if self._is is not None else np.ones(nw)
+        return w, o, s, theta[:, p:p + 3], theta[:, p + 3:p + 6]
+
+    def log_prior(self, theta) -> np.ndarray:
+        """Log-prior (0 or -inf) for parameters of shape (w, ndim)."""
+        theta = np.atleast_2d(np.asarray(theta, dtype=float))
+        w, _, s, log_std, log_tau = self._split(theta)
+        ok = ((np.abs(w).max(axis=1) < MAX_ANGLE_RAD) & (s > 0.5) & (s < 2.0)
+              & (log_std.min(axis=1) > np.log(1e-3)) & (log_std.max(axis=1) < np.log(1e5))
+              & (log_tau.min(axis=1) > self.log_tau_bounds[0])
+              & (log_tau.max(axis=1) < self.log_tau_bounds[1]))
+        return np.where(ok, 0.0, -np.inf)
+
+    def log_likelihood(self, theta) -> np.ndarray:
+        """Exact OU log-likelihood (constants dropped) for parameters of shape (w, ndim)."""
+        theta = np.atleast_2d(np.asarray(theta, dtype=float))
+        w, o, s, log_std, log_tau = self._split(theta)
+        rot = _rotation_matrices(w) * s[:, None, None]  # (w, 3, 3)
+        tau = np.exp(log_tau)
+        nw = theta.shape[0]
+        gamma = np.concatenate([np.ones((nw, 3, 1)), -rot, -o[:, :, None]], axis=2)  # (w,3,5)
+        q = np.einsum("wci,cmij,wcj->wcm", gamma, self._stack, gamma)  # (w, 3, 1+3g)
+        g = self._dt.size
+        phi = np.exp(-self._dt / tau[:, :, None])  # (w, 3, g)
+        k2 = 1.0 - phi ** 2
+        rss = q[:, :, 0] + np.sum((q[:, :, 1:1 + g] - 2.0 * phi * q[:, :, 1 + g:1 + 2 * g]
+                                   + phi ** 2 * q[:, :, 1 + 2 * g:]) / k2, axis=2)
+        return np.sum(-0.5 * rss * np.exp(-2.0 * log_std) - self.n * log_std
+                      - 0.5 * np.sum(self._count * np.log(k2), axis=2), axis=1)
+
+    def __call__(self, theta) -> np.ndarray:
+        """Log-posterior, vectorised over walkers (emcee ``vectorize=True``)."""
+        theta = np.atleast_2d(theta)
+        lp = self.log_prior(theta)
+        good = np.isfinite(lp)
+        if np.any(good):
+            lp[good] += self.log_likelihood(theta[good])
+        return lp
+
+
+def _rotation_matrices(w) -> np.ndarray:
+    """Rotation matrices from rotation vectors (Rodrigues), shape (m, 3) -> (m, 3, 3)."""
+    angle = np.sqrt(np.sum(w ** 2, axis=1))
+    small = angle < 1e-8
+    safe = np.where(small, 1.0, angle)
+    a = np.where(small, 1.0 - angle ** 2 / 6.0, np.sin(angle) / safe)
+    b = np.where(small, 0.5 - angle ** 2 / 24.0, (1.0 - np.cos(angle)) / safe ** 2)
+    k = np.zeros((w.shape[0], 3, 3))
+    k[:, 0, 1], k[:, 0, 2] = -w[:, 2], w[:, 1]
+    k[:, 1, 0], k[:, 1, 2] = w[:, 2], -w[:, 0]
+    k[:, 2, 0], k[:, 2, 1] = -w[:, 1], w[:, 0]
+    return np.eye(3) + a[:, None, None] * k + b[:, None, None] * (k @ k)
+
+
+def log_likelihood_direct(theta, times_s, data, ref, names) -> float:
+    """Same log-likelihood as :meth:`AlignmentPosterior.log_likelihood`, sample by sample.
+
+    The straightforward implementation (residuals of all samples, whitened per
+    component) for one parameter vector: the reference in tests and the baseline of
+    the benchmark.
+    """
+    theta = np.asarray(theta, dtype=float)
+    p = len(names)
+    w, o, s = unpack(theta[:p], names)
+    resid = data - s * Rotation.from_rotvec(w).apply(ref) - o
+    dt = np.diff(times_s)
+    total = 0.0
+    for c in range(3):
+        sigma = np.exp(theta[p + c])
+        phi = np.exp(-dt / np.exp(theta[p + 3 + c]))
+        k = np.sqrt(1.0 - phi ** 2)
+        u = np.concatenate([[resid[0, c]], (resid[1:, c] - phi * resid[:-1, c]) / k])
+        total += -0.5 * np.sum(u ** 2) / sigma ** 2 - data.shape[0] * np.log(sigma) - np.sum(
+            np.log(k))
+    return float(total)
+
+
+def _initial_walkers(start: AlignmentResult, names, n_walkers, rng, post):
+    p = len(names)
+    center = []
+    w = start.rotvec_rad
+    if "w_Hp" in names:
+        center += list(w)
+    if "o_Hp" in names:
+        center += list(start.offset_nT)
+    if "scale" in names:
+        center += [start.scale]
+    center += list(np.log(start.noise.std_nT)) + list(np.log(start.noise.tau_s))
+    center = np.array(center)
+    cov = np.zeros((len(center), len(center)))
+    cov[:p, :p] = start.param_cov
+    cov[p:, p:] = np.eye(6) * 0.05 ** 2
+    chol = np.linalg.cholesky(cov + 1e-18 * np.eye(len(center)))
+    walkers = center + rng.standard_normal((n_walkers, len(center))) @ chol.T
+    # keep the start inside the prior support
+    lo, hi = post.log_tau_bounds
+    walkers[:, p + 3:] = np.clip(walkers[:, p + 3:], lo + 1e-6, hi - 1e-6)
+    return walkers
+
+
+def sample_posterior(times, data, ref, rng: np.random.Generator, *, fit_offset: bool = True,
+                     fit_scale: bool = False, n_walkers: int = 32,
+                     min_autocorr_times: float = 50.0, max_steps: int = 40000,
+                     first_steps: int = 2000, start: AlignmentResult | None = None,
+                     progress: bool = False) -> AlignmentResult:
+    """Sample the alignment posterior with emcee until converged (or ``max_steps``).
+
+    Parameters
+    ----------
+    times : array_like of datetime64 or float seconds, shape (n,)
+    data, ref : array_like, shape (n, 3)
+    rng : numpy.random.Generator
+        Source of all randomness (walker start and emcee's moves).
+    fit_offset, fit_scale : bool
+        Sample the offset vector and a scale factor as well.
+    n_walkers : int
+    min_autocorr_times : float
+        Converged only if the chain has more steps than this many times the largest
+        integrated autocorrelation time.
+    max_steps : int
+        Stop here even if not converged (then ``converged`` is False).
+    first_steps : int
+        Steps before the first convergence check; the chain then grows by half its
+        length until converged.
+    start : AlignmentResult, optional
+        Closed-form result to start from (computed when omitted).
+    progress : bool
+        Show emcee's tqdm progress bar.
+
+    Returns
+    -------
+    AlignmentResult
+        ``method="emcee"`` with ``converged``, ``autocorr_steps`` and ``mcmc`` details;
+        angles are posterior medians, ``cov_deg2`` the sample covariance and
+        ``ci95_deg`` the 2.5-97.5 percentiles.
+
+    Examples
+    --------
+    >>> from magcal.alignment.synthetic import synthetic_pair
+    >>> case = synthetic_pair(np.random.default_rng(4), n=1500, cadence_s=300.0,
+    ...                       rotvec_deg=(2.0, -1.0, 0.5), noise_tau_s=(1800.0,) * 3)
+    >>> res = sample_posterior(case.times, case.data, case.ref, np.random.default_rng(5))
+    >>> res.converged, bool(np.all(np.abs(res.angles_deg - case.rotvec_deg) < 4 * res.std_deg))
+    (True, True)
+    """
+    import emcee
+
+    t, d, r, _ = prepare(times, data, ref)
+    names = param_names(True, fit_offset, fit_scale)
+    if start is None:
+        start = fit_alignment(t, d, r, fit_offset=fit_offset, fit_scale=fit_scale)
+    post = AlignmentPosterior(t, d, r, names)
+    walkers = _initial_walkers(start, names, n_walkers, rng, post)
+    # Differential-evolution moves mix about 4x faster than the default stretch move on
+    # this correlated posterior. DESnookerMove is deliberately not used: measured here,
+    # it gave angle spreads 20 % narrower than both DEMove and StretchMove.
+    moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.StretchMove(), 0.2)]
+    sampler = emcee.EnsembleSampler(n_walkers, post.ndim, post, vectorize=True, moves=moves)
+    sampler.random_state = np.random.RandomState(
+        int(rng.integers(0, 2 ** 32 - 1))).get_state()
+    state = sampler.run_mcmc(walkers, first_steps, progress=progress)
+    while True:
+        n_steps = sampler.iteration
+        tau = sampler.get_autocorr_time(tol=0, quiet=True)
+        tau_max = float(np.max(tau))
+        converged = bool(np.isfinite(tau_max) and n_steps > min_autocorr_times * tau_max)
+        if converged or n_steps >= max_steps:
+            break
+        more = int(min(max(n_steps // 2, 500), max_steps - n_steps))
+        state = sampler.run_mcmc(state, more, progress=progress)
+    burn = int(min(n_steps // 2, np.ceil(5 * tau_max))) if np.isfinite(tau_max) else n_steps // 2
+    thin = max(1, int(tau_max // 2)) if np.isfinite(tau_max) else 1
+    flat = sampler.get_chain(discard=burn, thin=thin, flat=True)
+    return _summarize_chain(flat, names, post, start, {
+        "n_walkers": n_walkers, "n_steps": int(n_steps), "burn_in": burn, "thin": thin,
+        "n_samples": int(flat.shape[0]), "sample_names": list(post.all_names),
+        "acceptance_fraction": float(np.mean(sampler.acceptance_fraction)),
+        "autocorr_steps_by_parameter": dict(zip(post.all_names, map(float, tau))),
+        "min_autocorr_times": float(min_autocorr_times),
+        "converged": converged,
+        "message": ("chain longer than {:g} autocorrelation times".format(min_autocorr_times)
+                    if converged else
+                    "NOT CONVERGED: chain of {} steps is shorter than {:g} x the "
+                    "autocorrelation time {:.1f} steps; increase max_steps".format(
+                        n_steps, min_autocorr_times, tau_max)),
+        "priors": "angles uniform |w|<45 deg, offsets flat, scale uniform [0.5, 2], "
+                  "noise std and tau log-uniform",
+    }, tau_max, d, r, t)
+
+
+def _summarize_chain(flat, names, post, start, info, tau_max, d, r, t) -> AlignmentResult:
+    p = len(names)
+    theta = np.median(flat[:, :p], axis=0)
+    cov = np.atleast_2d(np.cov(flat[:, :p], rowvar=False))
+    noise_med = np.exp(np.median(flat[:, p:], axis=0))
+    noise = noise_from_fits([(noise_med[c], noise_med[3 + c], False) for c in range(3)], t)
+    w, o, s = unpack(theta, names)
+    resid = d - s * Rotation.from_rotvec(w).apply(r) - o
+    angles = np.rad2deg(flat[:, :3])
+    ci = np.percentile(angles, [2.5, 97.5], axis=0).T
+    samples = flat.copy()
+    samples[:, :3] = angles
+    info = dict(info)
+    info["closed_form_angles_deg"] = dict(zip(COMPONENTS, map(float, start.angles_deg)))
+    info["closed_form_std_deg"] = dict(zip(COMPONENTS, map(float, start.std_deg)))
+    return summarize(theta, cov, names, noise, resid, method="emcee", ci95_deg=ci,
+                     converged=info["converged"], autocorr_steps=tau_max, mcmc=info,
+                     samples=samples)
