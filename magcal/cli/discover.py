@@ -1,0 +1,77 @@
+"""``magcal discover``: find, name and add what the model is missing (CONTRACTS §5)."""
+
+from __future__ import annotations
+
+import sys
+
+from magcal.cli._common import add_output, existing_file
+from magcal.errors import InputError
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "discover", help="find, name and add what the model is missing",
+        description="Fit the vocabulary of gap effects (offset, drift, diurnal, temperature, "
+                    "scale, rotation, activity, spin_tone, step, periodic) to measured - "
+                    "model, add the one with the strongest held-out evidence (days as "
+                    "cross-validation blocks), refit and repeat until no candidate earns "
+                    "its parameters. Writes REPORT.json and prints the account.")
+    p.add_argument("measured", help="MEASURED.csv (time plus component columns, e.g. Hp,He,Hn)")
+    p.add_argument("model", help="MODEL.csv with the same component columns")
+    p.add_argument("--covariates", help="COV.csv: time plus any of temperature (deg C), kp, "
+                                        "dst (nT), lon_deg, phase (rad)")
+    p.add_argument("--longitude", type=float,
+                   help="spacecraft east longitude in deg, for local time (else lon_deg)")
+    p.add_argument("--max-effects", type=int, default=8, help="most effects to add (default 8)")
+    p.add_argument("--plot", help="also write a PNG of the residual before and after")
+    add_output(p, help_text="REPORT.json")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from magcal.discover import discover_gap
+    from magcal.io.csv import read_csv_frame
+    from magcal.io.jsonio import write_json
+    from magcal.provenance import make_provenance
+
+    meas_path = existing_file(args.measured)
+    model_path = existing_file(args.model)
+    measured = read_csv_frame(meas_path)
+    model = read_csv_frame(model_path)
+    shared = [c for c in measured.columns if c in model.columns]
+    if not shared:
+        raise InputError("no component column in common with MODEL.csv "
+                         f"({', '.join(model.columns)})", file=meas_path,
+                         column=",".join(measured.columns))
+    cov = None
+    inputs = [meas_path, model_path]
+    if args.covariates:
+        cov_path = existing_file(args.covariates)
+        cov = read_csv_frame(cov_path)
+        known = {"temperature", "kp", "dst", "lon_deg", "phase"}
+        if not known & set(cov.columns):
+            raise InputError("no covariate column (expected any of temperature, kp, dst, "
+                             "lon_deg, phase)", file=cov_path, column=",".join(cov.columns))
+        inputs.append(cov_path)
+    if args.max_effects < 0:
+        raise InputError(f"--max-effects must be >= 0, got {args.max_effects}")
+    if args.longitude is not None and not -360.0 <= args.longitude <= 360.0:
+        raise InputError(f"--longitude {args.longitude} outside [-360, 360]")
+    try:
+        result = discover_gap(measured, model, cov, longitude_deg=args.longitude,
+                              max_effects=args.max_effects)
+    except InputError as exc:
+        if exc.file is None:
+            raise InputError(exc.message, file=meas_path, row=exc.row,
+                             column=exc.column) from None
+        raise
+    params = {"longitude": args.longitude, "max_effects": args.max_effects}
+    result = result.with_provenance(make_provenance("discover", params, inputs=inputs))
+    if args.plot:
+        from magcal.discover.plots import plot_gap
+
+        plot_gap(result, args.plot)
+    write_json(args.output, result.to_json())
+    for line in result.account():
+        print(line, file=sys.stderr)
+    return 0
