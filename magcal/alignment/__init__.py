@@ -1,1 +1,20 @@
-"""Placeholder: this stage is being built."""
+"""Alignment of calibrated data against a reference, with honest uncertainty.
+
+Convention (CONTRACTS §3): ``data ~= R(w) @ ref`` with ``w`` the rotation vector about
+(Hp, He, Hn). Closed form (:func:`fit_alignment`: Wahba start, generalised least squares
+under a fitted correlated-noise model), full posterior (:func:`sample_posterior`, emcee),
+angles by time window (:func:`angles_by_window`), validation against a reference
+spacecraft in conjunction (:mod:`magcal.alignment.conjunction`).
+"""
+
+from magcal.alignment.estimator import Aligner
+from magcal.alignment.gls import fit_alignment
+from magcal.alignment.noise import OUNoise, fit_noise, fit_ou, simulate_ou
+from magcal.alignment.posterior import sample_posterior
+from magcal.alignment.result import AlignmentResult
+from magcal.alignment.wahba import wahba_rotation
+from magcal.alignment.windows import WindowAngles, angles_by_window
+
+__all__ = ["Aligner", "AlignmentResult", "OUNoise", "WindowAngles", "angles_by_window",
+           "fit_alignment", "fit_noise", "fit_ou", "sample_posterior", "simulate_ou",
+           "wahba_rotation"]
