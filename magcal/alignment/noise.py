@@ -420,7 +420,19 @@ class OUNoise:
             "tau_s": dict(zip(COMPONENTS, map(float, self.tau_s))),
             "effective_n": dict(zip(COMPONENTS, map(float, self.effective_n))),
             "tau_at_bound": dict(zip(COMPONENTS, map(bool, self.tau_at_bound))),
+            "warning": self.warning(),
         }
+
+    def warning(self) -> str | None:
+        """A caution when the noise model cannot be trusted, else None."""
+        if any(self.tau_at_bound):
+            return ("residuals correlated over the whole record: the uncertainty cannot be "
+                    "estimated from these data and is a lower bound")
+        if np.min(self.effective_n) < 30:
+            return ("fewer than 30 independent samples in a component: correlation time "
+                    "and hence the uncertainty are themselves uncertain (measured: 95 % "
+                    "intervals hold the truth in about 92 % of cases at 30)")
+        return None
 
 
 def fit_noise(residuals, times_s, jacobian=None) -> OUNoise:
