@@ -1,0 +1,465 @@
+"""ELFIN fluxgate counts calibrated end to end against IGRF (spinning CubeSat in LEO).
+
+Model, per science zone, in the notation of Kivelson et al. (1992), ``B = C (b - O)``
+with ``b`` the raw counts, extended by slow drifts that the real data need:
+
+* body frame: ``Bx = a1 . b + o1(T)``, ``By = a2 . b + o2(T)`` (constant gains and
+  coupling ``a1, a2`` in nT/count), ``Bz = a3(T) . b + o3(T)``: the spin-axis row may
+  turn slowly (the spin axis moves in the body frame by about a degree per pass), and
+  the offsets ``o(T)`` drift; ``T`` runs from -1 to 1 over the zone and the drifts are
+  polynomials of degree ``axis_degree`` and ``offset_degree`` (0 gives the plain
+  12-parameter model);
+* despun frame (rows of :func:`~magcal.spin.elfin_phase.despun_basis`, ``Z`` = spin
+  axis from the attitude file): ``B_despun = despin(B_body, p)`` (CONTRACTS §4 sense),
+  with the spin phase ``p`` = a quadratic in time plus a cubic spline with knots every
+  ``phase_knot_s``;
+* the target is IGRF at the spacecraft position, rotated into the despun frame.
+
+Given the phase, the model is linear in the calibration parameters (ordinary least
+squares, per component); given the calibration, the phase correction is the spline fit
+of the angle between the calibrated and the IGRF spin-plane field. The two steps
+alternate. The first phase comes from the counts alone
+(:func:`~magcal.spin.elfin_phase.phase_from_counts`); its sense is chosen by the fit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from magcal.errors import InputError
+from magcal.io.jsonio import product_dict
+from magcal.spin.despin import despin, spin
+from magcal.spin.elfin_phase import (TWO_PI, despun_basis, phase_from_counts,
+                                     repair_timestamps, split_zones, wrap)
+
+CREDIT = "ELFIN SOC (PI V. Angelopoulos, UCLA); data: Open Data for Scientific Use"
+_SCALE = 1.0e6  # counts are O(1e6): work with (counts - mean) / 1e6
+
+
+@dataclass(frozen=True)
+class ZoneCalibration:
+    """Calibration of one science zone against IGRF.
+
+    Attributes
+    ----------
+    start, end : str
+        ISO UTC of the first and last sample.
+    n_samples, n_used : int
+        Samples in the zone, and used in the fit (after ``skip_s``).
+    coupling : ndarray (3, 3)
+        ``C`` at mid-zone, nT per count (rows: body X, Y, Z = spin axis).
+    gains_nT_per_count : ndarray (3,)
+        Column norms of ``C``: field per count of each sensor.
+    offsets_counts : ndarray (3,)
+        ``O`` at mid-zone with ``B = C (b - O)``.
+    offsets_nT : ndarray (3,)
+        ``-C O`` at mid-zone (body frame).
+    offset_drift_nT : ndarray (3,)
+        Change of the body-frame offsets from zone start to end.
+    spin_axis_turn_deg : float
+        Angle by which the spin-axis row turns between zone start and end.
+    spin_period_s : float
+        Mean spin period (from the total phase over the zone).
+    spin_period_change_s : float
+        End minus start period of the quadratic phase.
+    phase_wander_rad : float
+        RMS of the spline phase correction about a straight line.
+    phase_jumps_rad : list of float
+        Phase step across each internal data gap (> 1 s), from one spin each side.
+    rms_vector_nT : ndarray (3,)
+        RMS of calibrated minus IGRF per despun component (X, Y, Z).
+    rms_scalar_nT : float
+        RMS of ``|B| - |B_IGRF|``.
+    rms_vector_constant_nT, rms_scalar_constant_nT :
+        The same with the plain 12-parameter model (no drifts, quadratic phase only).
+    spin_sense : int
+        +1 if the phase increases (spin about +Z of the attitude file), -1 otherwise.
+    det_coupling_sign : int
+        Sign of ``det C`` (+1: right-handed sensor triad mapped onto a right-handed frame).
+    attitude_correction_deg : ndarray (2,)
+        Tilt of the spin axis from the attitude file's towards despun X and Y; zero
+        unless ``fit_attitude`` (on the ELFIN data that fit is degenerate: several
+        degrees, both spin senses equally good, so it is off by default).
+    rms_by_sense_nT : list of float
+        Overall vector RMS with the phase sense +1 and -1 (the smaller one is kept).
+    timestamp_anomalies : list of dict
+        From :func:`~magcal.spin.elfin_phase.repair_timestamps`.
+    """
+
+    start: str
+    end: str
+    n_samples: int
+    n_used: int
+    coupling: np.ndarray
+    gains_nT_per_count: np.ndarray
+    offsets_counts: np.ndarray
+    offsets_nT: np.ndarray
+    offset_drift_nT: np.ndarray
+    spin_axis_turn_deg: float
+    spin_period_s: float
+    spin_period_change_s: float
+    phase_wander_rad: float
+    phase_jumps_rad: list
+    rms_vector_nT: np.ndarray
+    rms_scalar_nT: float
+    rms_vector_constant_nT: np.ndarray
+    rms_scalar_constant_nT: float
+    spin_sense: int
+    det_coupling_sign: int
+    attitude_correction_deg: np.ndarray
+    rms_by_sense_nT: list
+    timestamp_anomalies: list = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        """Plain dictionary (JSON-ready after :func:`magcal.io.jsonio.to_jsonable`)."""
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+@dataclass(frozen=True)
+class _ZoneFit:
+    """Internal: fitted model of one zone on all its samples."""
+
+    b_despun: np.ndarray
+    phase: np.ndarray
+    used: np.ndarray
+    summary: ZoneCalibration
+
+
+def _powers(T, degree: int, first: int = 0) -> np.ndarray:
+    return np.column_stack([T ** d for d in range(first, degree + 1)]) if degree >= first \
+        else np.empty((T.size, 0))
+
+
+def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, n_iter,
+             fit_attitude=False):
+    """Alternate calibration (linear) and phase steps; return weights, body field, phase.
+
+    Spin-plane rows: ``[counts, 1, T, .., T^offset_degree]``. Spin-axis row:
+    ``[counts, 1]`` plus the calibrated spin-plane components times ``T^d``
+    (``d = 1..axis_degree``): a slow tilt of the spin axis in the body frame. The
+    spin-axis offset does not drift in the model: with the small range of the
+    spin-axis field in one pass a drifting ``o3`` would trade off against the
+    spin-axis gain. The phase correction is a cubic spline (``knots``) or, without
+    knots, a quadratic.
+    """
+    from scipy.interpolate import make_lsq_spline
+
+    xy = np.column_stack([x, _powers(T, offset_degree)])
+    corr = np.zeros_like(t)
+    spline_knots = None
+    if knots is not None:
+        inner = knots[(knots > t[used][0]) & (knots < t[used][-1])]
+        spline_knots = np.r_[[t[used][0]] * 4, inner, [t[used][-1]] * 4]
+    tu = t[used] - t[used][0]
+
+    def calibrate(phase):
+        tgt = spin(target, phase)
+        wx = np.linalg.lstsq(xy[used], tgt[used, 0], rcond=None)[0]
+        wy = np.linalg.lstsq(xy[used], tgt[used, 1], rcond=None)[0]
+        bx, by = xy @ wx, xy @ wy
+        tilt = _powers(T, axis_degree, first=1)
+        att = -target[:, :2] if fit_attitude else np.zeros((T.size, 2))
+        z = np.column_stack([x, np.ones_like(T), bx[:, None] * tilt, by[:, None] * tilt, att])
+        wz = np.linalg.lstsq(z[used], tgt[used, 2], rcond=None)[0]
+        if not fit_attitude:
+            wz[-2:] = 0.0
+        # the last two columns are the attitude correction: not part of the data
+        return (wx, wy, wz), np.column_stack([bx, by, z[:, :-2] @ wz[:-2]]), tgt
+
+    for _ in range(max(1, n_iter)):
+        _, b_body, tgt = calibrate(base + corr)
+        dphi = wrap(np.arctan2(tgt[:, 1], tgt[:, 0]) - np.arctan2(b_body[:, 1], b_body[:, 0]))
+        if spline_knots is not None:
+            spl = make_lsq_spline(t[used], dphi[used], spline_knots, k=3)
+            corr = corr + spl(np.clip(t, t[used][0], t[used][-1]))
+        else:
+            corr = corr + np.polyval(np.polyfit(tu, dphi[used], 2), t - t[used][0])
+    phase = base + corr
+    w, b_body, _ = calibrate(phase)
+    eps = w[2][-2:]
+    cal = despin(b_body, phase)                  # in the attitude-corrected despun frame
+    cal_file = cal + np.column_stack([eps[0] * cal[:, 2], eps[1] * cal[:, 2],
+                                      -eps[0] * cal[:, 0] - eps[1] * cal[:, 1]])
+    return w, b_body, phase, corr, cal_file
+
+
+def _phase_jumps(t, resid_angle, used, period_s, min_gap_s=1.0) -> list:
+    jumps = []
+    for g in np.flatnonzero(np.diff(t) > min_gap_s):
+        idx = np.arange(t.size)
+        before = used & (idx <= g) & (t > t[g] - period_s)
+        after = used & (idx > g) & (t < t[g + 1] + period_s)
+        if before.sum() >= 5 and after.sum() >= 5:
+            jumps.append(float(np.median(resid_angle[after]) - np.median(resid_angle[before])))
+    return jumps
+
+
+def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: int = 2,
+             axis_degree: int = 2, phase_knot_s: float | None = 30.0, n_iter: int = 8,
+             fit_attitude: bool = False, times_iso=("", ""), timestamp_anomalies=()) -> _ZoneFit:
+    """Calibrate one zone of raw counts against a reference field in the despun frame.
+
+    Parameters
+    ----------
+    t_s : array_like (n,)
+        Sample times, seconds (repaired, increasing).
+    counts : array_like (n, 3)
+        Raw sensor readings.
+    b_despun_nT : array_like (n, 3)
+        Reference field (IGRF) in the despun frame (Z = spin axis) at the samples.
+    skip_s : float
+        Seconds at the start of the zone left out of the fit (instrument turn-on
+        transient: about 1 s of up to 2000 nT error in the ELFIN data).
+    offset_degree, axis_degree : int
+        Polynomial degrees of the offset drift and of the spin-axis row (0, 0: plain
+        12-parameter model).
+    phase_knot_s : float or None
+        Knot spacing of the spline phase correction; None for the quadratic phase only.
+    n_iter : int
+        Alternations of the calibration and phase steps.
+    fit_attitude : bool
+        Also fit a constant tilt of the attitude file's spin axis (two angles).
+
+    Returns
+    -------
+    _ZoneFit
+        ``b_despun`` (calibrated, all samples), ``phase``, ``used`` mask and the
+        :class:`ZoneCalibration` summary.
+    """
+    t = np.asarray(t_s, dtype=float)
+    c = np.asarray(counts, dtype=float)
+    ref = np.asarray(b_despun_nT, dtype=float)
+    used = (t >= t[0] + skip_s) & np.all(np.isfinite(c), axis=1) & np.all(np.isfinite(ref), axis=1)
+    if used.sum() < 200:
+        raise InputError(f"zone {times_iso[0]}: only {int(used.sum())} usable samples")
+    c_mean = c[used].mean(axis=0)
+    x = (c - c_mean) / _SCALE
+    span = t[used][-1] - t[used][0]
+    T = 2.0 * (t - t[used][0]) / span - 1.0
+    raw_phase, _ = phase_from_counts(t[used], c[used])
+    raw = np.interp(t, t[used], raw_phase)
+    knots = None if phase_knot_s is None else np.arange(t[0], t[-1], float(phase_knot_s))
+
+    best, tried = None, []
+    for sense in (1.0, -1.0):
+        coef = np.polyfit(t[used] - t[0], sense * raw[used], 2)
+        base = np.polyval(coef, t - t[0])
+        out = _iterate(t, x, T, ref, base, used, offset_degree=offset_degree,
+                       axis_degree=axis_degree, knots=knots, n_iter=n_iter,
+                       fit_attitude=fit_attitude)
+        fitted = out[4]
+        rms = float(np.sqrt(np.mean((fitted - ref)[used] ** 2)))
+        tried.append(rms)
+        if best is None or rms < best[0]:
+            best = (rms, sense, coef, base, out, fitted)
+    _, sense, coef, base, (w, b_body, phase, corr, _), fitted = best
+    const = _iterate(t, x, T, ref, base, used, offset_degree=0, axis_degree=0, knots=None,
+                     n_iter=n_iter, fit_attitude=False)
+    const_fit = const[4]
+
+    # physical parameters at mid-zone (T = 0) and their drift
+    def body_params(Tv):
+        wx, wy, wz = w
+        po = np.array([Tv ** d for d in range(offset_degree + 1)])
+        tilt = np.array([Tv ** d for d in range(1, axis_degree + 1)])
+        a_xy = np.array([wx[:3], wy[:3]]) / _SCALE
+        o_xy = np.array([wx[3:] @ po, wy[3:] @ po])
+        u, v = wz[4:4 + axis_degree] @ tilt, wz[4 + axis_degree:4 + 2 * axis_degree] @ tilt
+        a3 = wz[:3] / _SCALE + u * a_xy[0] + v * a_xy[1]
+        o3 = wz[3] + u * o_xy[0] + v * o_xy[1]
+        amat = np.vstack([a_xy, a3])
+        return amat, np.r_[o_xy, o3] - amat @ c_mean     # B = amat @ counts + o_nT
+
+    a_mid, o_mid = body_params(0.0)
+    a_beg, o_beg = body_params(-1.0)
+    a_end, o_end = body_params(1.0)
+    axis_beg = np.linalg.solve(a_mid.T, a_beg[2])
+    axis_end = np.linalg.solve(a_mid.T, a_end[2])
+    turn = np.degrees(np.arccos(np.clip(axis_beg @ axis_end / np.linalg.norm(axis_beg)
+                                        / np.linalg.norm(axis_end), -1.0, 1.0)))
+    resid = (fitted - ref)[used]
+    scal = (np.linalg.norm(fitted, axis=1) - np.linalg.norm(ref, axis=1))[used]
+    cres = (const_fit - ref)[used]
+    cscal = (np.linalg.norm(const_fit, axis=1) - np.linalg.norm(ref, axis=1))[used]
+    duration = t[used][-1] - t[used][0]
+    total = phase[used][-1] - phase[used][0]
+    rate0 = np.polyval(np.polyder(coef), 0.0)
+    rate1 = np.polyval(np.polyder(coef), t[-1] - t[0])
+    tc = t[used] - t[used].mean()
+    lin = np.polyfit(tc, corr[used], 1)
+    wander = float(np.std(corr[used] - np.polyval(lin, tc)))
+    period = float(TWO_PI * duration / abs(total))
+    ang_resid = wrap(np.arctan2(spin(ref, phase)[:, 1], spin(ref, phase)[:, 0])
+                     - np.arctan2(b_body[:, 1], b_body[:, 0]))
+    summary = ZoneCalibration(
+        start=times_iso[0], end=times_iso[1], n_samples=int(t.size), n_used=int(used.sum()),
+        coupling=a_mid, gains_nT_per_count=np.linalg.norm(a_mid, axis=0),
+        offsets_counts=-np.linalg.solve(a_mid, o_mid), offsets_nT=o_mid,
+        offset_drift_nT=o_end - o_beg, spin_axis_turn_deg=float(turn),
+        spin_period_s=period,
+        spin_period_change_s=float(TWO_PI / abs(rate1) - TWO_PI / abs(rate0)),
+        phase_wander_rad=wander,
+        phase_jumps_rad=_phase_jumps(t, ang_resid, used, period),
+        rms_vector_nT=np.sqrt(np.mean(resid ** 2, axis=0)),
+        rms_scalar_nT=float(np.sqrt(np.mean(scal ** 2))),
+        rms_vector_constant_nT=np.sqrt(np.mean(cres ** 2, axis=0)),
+        rms_scalar_constant_nT=float(np.sqrt(np.mean(cscal ** 2))),
+        spin_sense=int(np.sign(total)), det_coupling_sign=int(np.sign(np.linalg.det(a_mid))),
+        attitude_correction_deg=np.degrees(w[2][-2:]), rms_by_sense_nT=tried,
+        timestamp_anomalies=list(timestamp_anomalies))
+    return _ZoneFit(b_despun=fitted, phase=phase, used=used, summary=summary)
+
+
+def igrf_gei(times, pos_gei_km) -> np.ndarray:
+    """IGRF (IRBEM through spacepy) in GEI nT at GEI positions in km.
+
+    Examples
+    --------
+    >>> t = np.array(["2022-01-12T15:46:00"], dtype="datetime64[ns]")
+    >>> b = igrf_gei(t, [[-2431.1, 3822.9, 5059.7]])
+    >>> 30000 < float(np.linalg.norm(b)) < 60000
+    True
+    """
+    from magcal.frames.geo import EARTH_RADIUS_KM, convert_vectors
+    from magcal.models.irbem import field_geo
+
+    pos = np.atleast_2d(np.asarray(pos_gei_km, dtype=float))
+    pos_geo = convert_vectors(pos, times, "GEI", "GEO") / EARTH_RADIUS_KM
+    return convert_vectors(field_geo(times, pos_geo, model="IGRF"), times, "GEO", "GEI")
+
+
+@dataclass(frozen=True)
+class ElfinCalibration:
+    """Result of :func:`calibrate_elfin`: per-zone table and the calibrated series.
+
+    ``field`` is a DataFrame (UTC index ``time``) with ``zone``, ``used`` (0/1),
+    calibrated ``bx_gei, by_gei, bz_gei`` and ``bx_despun ... bz_despun``, the IGRF
+    ``igrf_x_gei ...`` and ``igrf_x_despun ...``, and the spin ``phase`` (rad).
+    """
+
+    zones: tuple
+    field: pd.DataFrame
+    parameters: dict
+    provenance: dict = field(default_factory=dict)
+
+    def table(self) -> pd.DataFrame:
+        """One row per zone: residuals, gains, offsets, spin period, phase jumps."""
+        rows = []
+        for z in self.zones:
+            rows.append({
+                "start": z.start, "n_used": z.n_used,
+                "rms_scalar_nT": z.rms_scalar_nT,
+                **{f"rms_{c}_nT": v for c, v in zip("XYZ", z.rms_vector_nT)},
+                "rms_vector_nT": float(np.sqrt(np.mean(z.rms_vector_nT ** 2))),
+                "rms_scalar_constant_nT": z.rms_scalar_constant_nT,
+                "rms_vector_constant_nT": float(np.sqrt(np.mean(z.rms_vector_constant_nT ** 2))),
+                **{f"gain{j + 1}_nT_per_count": g for j, g in enumerate(z.gains_nT_per_count)},
+                **{f"O{j + 1}_counts": o for j, o in enumerate(z.offsets_counts)},
+                **{f"o{c}_nT": o for c, o in zip("xyz", z.offsets_nT)},
+                "spin_period_s": z.spin_period_s, "spin_axis_turn_deg": z.spin_axis_turn_deg,
+                "phase_wander_rad": z.phase_wander_rad,
+                "max_phase_jump_rad": max([abs(j) for j in z.phase_jumps_rad], default=0.0),
+                "n_timestamp_jumps": len(z.timestamp_anomalies),
+            })
+        return pd.DataFrame(rows)
+
+    def to_json(self) -> dict:
+        """JSON payload: parameters, per-zone results, summary, credit, provenance."""
+        tab = self.table()
+        gains = tab[[f"gain{j}_nT_per_count" for j in (1, 2, 3)]].to_numpy()
+        return product_dict({
+            "credit": CREDIT,
+            "model": "B_body = C(T) (b - O(T)); B_despun = despin(B_body, p); target IGRF "
+                     "in the despun frame (Z = attitude spin axis)",
+            "parameters": self.parameters,
+            "zones": [z.as_dict() for z in self.zones],
+            "summary": {
+                "n_zones": len(self.zones),
+                "rms_vector_nT_median": float(tab["rms_vector_nT"].median()),
+                "rms_scalar_nT_median": float(tab["rms_scalar_nT"].median()),
+                "rms_vector_constant_nT_median": float(tab["rms_vector_constant_nT"].median()),
+                "gain_mean_nT_per_count": gains.mean(axis=0),
+                "gain_spread_percent": 100 * gains.std(axis=0) / gains.mean(axis=0),
+                "spin_period_s": [float(tab["spin_period_s"].min()),
+                                  float(tab["spin_period_s"].max())],
+            },
+            "provenance": self.provenance,
+        })
+
+
+def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float = 60.0,
+                    time_shift_s: float = 0.0, repair_times: bool = True,
+                    zones=None, provenance=None, **fit_kw) -> ElfinCalibration:
+    """Calibrate ELFIN FGS counts zone by zone against IGRF at the spacecraft.
+
+    Parameters
+    ----------
+    fgs : DataFrame
+        From :func:`magcal.io.cdf.read_elfin_fgs` (``b1, b2, b3`` counts, UTC index).
+    state : DataFrame
+        From :func:`magcal.io.cdf.read_elfin_state` (GEI position km, spin axis).
+    min_gap_s : float
+        Gaps longer than this separate science zones.
+    time_shift_s : float
+        The reference is evaluated at ``t + time_shift_s`` (to scan for a timing
+        offset between the counts and the orbit).
+    repair_times : bool
+        Undo paired time-stamp jumps (:func:`~magcal.spin.elfin_phase.repair_timestamps`).
+    zones : sequence of int, optional
+        Only these zone numbers (0-based).
+    **fit_kw
+        Passed to :func:`fit_zone`.
+
+    Returns
+    -------
+    ElfinCalibration
+    """
+    from scipy.interpolate import CubicSpline
+
+    if not {"b1", "b2", "b3"} <= set(fgs.columns):
+        raise InputError("FGS frame needs columns b1, b2, b3")
+    t_all = (fgs.index.asi8 - fgs.index.asi8[0]) / 1e9
+    t_ref = fgs.index[0]
+    ts = (state.index.asi8 - fgs.index.asi8[0]) / 1e9
+    pos = state[["pos_gei_x", "pos_gei_y", "pos_gei_z"]].to_numpy()
+    axis = state[["spin_axis_gei_x", "spin_axis_gei_y", "spin_axis_gei_z"]].to_numpy()
+    ranges = split_zones(t_all, min_gap_s)
+    chosen = range(len(ranges)) if zones is None else zones
+    results, frames = [], []
+    for k in chosen:
+        a, b = ranges[k]
+        t = t_all[a:b]
+        anomalies = []
+        if repair_times:
+            t, anomalies = repair_timestamps(t)
+        sel = (ts >= t[0] - 5) & (ts <= t[-1] + 5) & np.all(np.isfinite(axis), axis=1)
+        if sel.sum() < 10:
+            raise InputError(f"no orbit/attitude records for zone {k} ({fgs.index[a]})")
+        b_gei_ref = igrf_gei(state.index[sel], pos[sel])
+        tq = t + time_shift_s
+        ref_gei = CubicSpline(ts[sel], b_gei_ref)(tq)
+        ax = np.column_stack([np.interp(tq, ts[sel], axis[sel, j]) for j in range(3)])
+        basis = despun_basis(ax)
+        ref = np.einsum("nij,nj->ni", basis, ref_gei)
+        iso = (str(fgs.index[a].tz_convert(None)), str(fgs.index[b - 1].tz_convert(None)))
+        fit = fit_zone(t, fgs[["b1", "b2", "b3"]].to_numpy()[a:b], ref, times_iso=iso,
+                       timestamp_anomalies=anomalies, **fit_kw)
+        results.append(fit.summary)
+        cal_gei = np.einsum("nji,nj->ni", basis, fit.b_despun)
+        idx = t_ref + pd.to_timedelta(np.round(t * 1e9).astype("int64"), unit="ns")
+        data = {"zone": np.full(t.size, k), "used": fit.used.astype(int)}
+        for name, arr in (("{}_gei", cal_gei), ("{}_despun", fit.b_despun)):
+            for j, c in enumerate("xyz"):
+                data["b" + name.format(c)] = arr[:, j]
+        for name, arr in (("igrf_{}_gei", ref_gei), ("igrf_{}_despun", ref)):
+            for j, c in enumerate("xyz"):
+                data[name.format(c)] = arr[:, j]
+        data["phase"] = fit.phase
+        frames.append(pd.DataFrame(data, index=pd.DatetimeIndex(idx, name="time")))
+    params = {"min_gap_s": min_gap_s, "time_shift_s": time_shift_s,
+              "repair_times": repair_times, **{k: v for k, v in fit_kw.items()}}
+    return ElfinCalibration(zones=tuple(results), field=pd.concat(frames),
+                            parameters=params, provenance=provenance or {})
