@@ -43,3 +43,26 @@ def test_drift_detected():
     assert_allclose(win.drift_deg_per_day[2], 0.3, atol=3 * win.drift_std_deg_per_day[2])
     assert win.drift_deg_per_day[2] > 5 * win.drift_std_deg_per_day[2]
     assert win.chi2_per_dof[2] > 5.0
+
+
+def test_window_and_corner_plots_render(tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from magcal.alignment.plots import plot_angles_by_window, plot_posterior_corner
+    from magcal.alignment.posterior import sample_posterior
+    from magcal.alignment.synthetic import synthetic_pair
+
+    times, data, ref = _series(3, lambda d: np.tile([1.0, 0.0, 0.0], (d.size, 1)), days=6)
+    win = angles_by_window(times, data, ref, window_s=2 * 86400.0)
+    fig = plot_angles_by_window(win)
+    fig.savefig(tmp_path / "win.png")
+    assert len(fig.axes) == 3
+    case = synthetic_pair(np.random.default_rng(4), n=800, cadence_s=300.0,
+                          noise_tau_s=(1800.0,) * 3)
+    res = sample_posterior(case.times, case.data, case.ref, np.random.default_rng(1),
+                           first_steps=300, max_steps=300)
+    fig = plot_posterior_corner(res)
+    fig.savefig(tmp_path / "corner.png")
+    assert (tmp_path / "corner.png").stat().st_size > 1000
+    assert "NOT converged" in fig._suptitle.get_text()

@@ -14,7 +14,8 @@ from magcal.alignment.posterior import sample_posterior
 from magcal.alignment.result import AlignmentResult
 from magcal.alignment.wahba import wahba_rotation
 from magcal.alignment.windows import WindowAngles, angles_by_window
+from magcal.alignment.plots import plot_angles_by_window, plot_posterior_corner
 
 __all__ = ["Aligner", "AlignmentResult", "OUNoise", "WindowAngles", "angles_by_window",
            "fit_alignment", "fit_noise", "fit_ou", "sample_posterior", "simulate_ou",
-           "wahba_rotation"]
+           "plot_angles_by_window", "plot_posterior_corner", "wahba_rotation"]
