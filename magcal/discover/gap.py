@@ -54,12 +54,15 @@ def local_time_profile(lt_h, residual, bin_h: float = 1.0):
 
 def _corr(a, b) -> float:
     ok = np.isfinite(a) & np.isfinite(b)
-    if ok.sum() < 3:
+    n = int(ok.sum())
+    if n < 3:
         return float("nan")
-    a = a[ok] - a[ok].mean()
-    b = b[ok] - b[ok].mean()
-    den = np.sqrt((a @ a) * (b @ b))
-    return float(a @ b / den) if den > 0 else float("nan")
+    if n < a.size:
+        a, b = a[ok], b[ok]
+    a = a - a.mean()
+    b = b - b.mean()
+    den = np.sqrt(np.dot(a, a) * np.dot(b, b))
+    return float(np.dot(a, b) / den) if den > 0 else float("nan")
 
 
 def _explained(col, r) -> float:
@@ -68,7 +71,8 @@ def _explained(col, r) -> float:
     return float(c * c) if np.isfinite(c) else float("nan")
 
 
-def profile_gap(inputs: EffectInputs, residual, n_peaks: int = 3) -> dict:
+def profile_gap(inputs: EffectInputs, residual, n_peaks: int = 3,
+                spectrum: bool = True) -> dict:
     """Where a residual concentrates (JSON-ready).
 
     Parameters
@@ -79,6 +83,8 @@ def profile_gap(inputs: EffectInputs, residual, n_peaks: int = 3) -> dict:
         Measured minus model (minus effects so far), NaN where missing.
     n_peaks : int
         Number of periodogram peaks to list.
+    spectrum : bool
+        Include the periodogram peaks (the most expensive part).
 
     Returns
     -------
@@ -131,7 +137,7 @@ def profile_gap(inputs: EffectInputs, residual, n_peaks: int = 3) -> dict:
 
         out["largest_step"] = {"time": pd.Timestamp(t_step, unit="s", tz="UTC").isoformat(),
                                "size_nT": {c: float(s) for c, s in zip(comps, size)}}
-    if t.size > 16:
+    if spectrum and t.size > 16:
         freq, amp = periodogram(t, r, oversample=1)
         total = (amp ** 2).sum(axis=1)
         keep = freq >= 3.0 / max(t[-1] - t[0], 1.0)

@@ -3,8 +3,10 @@
 Each round fits every candidate of the vocabulary (:mod:`magcal.discover.effects`)
 jointly with the effects already added, scores it by leave-one-block-out
 cross-validation (:mod:`magcal.discover.selection`) and adds the candidate with the
-largest cross-validated gain among those whose per-block gains are significant
-(``z >= z_min``). Per-component terms are restricted to the components where they earn
+largest cross-validated gain among those that earn their parameters: positive held-out
+gain, block-jackknife Wald ``z >= z_min`` (raised for scanned steps and periods) and a
+negative ESS-corrected BIC difference. The offset, when it earns its parameters, is
+added first so that every other term is judged with the level free. Per-component terms are restricted to the components where they earn
 their parameters. Candidates whose fitted signals are strongly correlated with the
 winner (``|corr| >= confound_corr``) are reported as ``ambiguous_with`` when the data
 cannot tell them apart (paired ``z < z_ambiguous``), and as ``preferred_over``
@@ -24,8 +26,8 @@ from magcal.discover.effects import (
 from magcal.discover.gap import profile_gap, rms
 from magcal.discover.scan import n_period_trials, n_step_trials, scan_periods, scan_step
 from magcal.discover.selection import (
-    BlockedGram, Comparison, CVScore, compare, delta_bic_eff, integrated_autocorr_time,
-    paired_z, time_blocks, wald_z)
+    BlockedGram, Comparison, CVScore, compare, delta_bic_eff,
+    paired_z, regression_n_eff, time_blocks, wald_z)
 from magcal.io.jsonio import product_dict
 
 
@@ -38,7 +40,9 @@ class DiscoverySettings:
     max_effects : int
         Most effects to add.
     z_min : float
-        Per-block t-statistic of the cross-validated gain an effect needs to be added.
+        Significance (block-jackknife Wald test, as a normal z) an effect needs to be added;
+        it must also lower the held-out error and the ESS-corrected BIC. Scanned terms
+        (step, periodic) need more (Bonferroni over the times/periods tried).
     z_component : float
         Same, for including one component of a per-component effect.
     z_variant : float
@@ -231,14 +235,21 @@ class _Candidate:
     component_z: dict
     family: str
     z_needed: float = 0.0
+    delta_bic: float = float("nan")
+    n_eff: float = float("nan")
 
     @property
     def name(self) -> str:
         return self.effect.name
 
     @property
-    def passes(self) -> bool:
+    def significant(self) -> bool:
+        """Positive held-out gain and a significant Wald test (before the BIC check)."""
         return self.comparison.gain > 0 and self.comparison.z >= self.z_needed
+
+    @property
+    def passes(self) -> bool:
+        return self.significant and self.delta_bic < 0
 
 
 def _look_elsewhere(z: float, trials: float) -> float:
@@ -338,7 +349,7 @@ class _Loop:
         cands = [c for c in (self._variant(family, v, base) for v in variants) if c is not None]
         if not cands:
             return None
-        passing = [c for c in cands if c.passes]
+        passing = [c for c in cands if c.significant]
         if not passing:
             return max(cands, key=lambda c: c.comparison.z)
         pick = passing[0]
@@ -392,15 +403,6 @@ class _Loop:
         mean = np.where(mask, f, 0).sum(axis=0) / np.maximum(mask.sum(axis=0), 1)
         return np.where(mask, f - mean, 0.0)  # centred: offsets do not make signals alike
 
-    def _n_eff(self, residual: np.ndarray) -> float:
-        total = 0.0
-        for i in range(residual.shape[1]):
-            x = residual[:, i]
-            n = np.isfinite(x).sum()
-            if n:
-                total += n / integrated_autocorr_time(x)
-        return float(total)
-
     # -- the loop ----------------------------------------------------------------------
     def run(self):
         s = self.settings
@@ -421,16 +423,25 @@ class _Loop:
                 if c is not None:
                     cands.append(c)
             cands += self._dynamic(residual, base)
+            for c in cands:
+                if c.significant:
+                    c.n_eff = regression_n_eff(residual, self._signal(c))
+                    c.delta_bic = delta_bic_eff(base.sse_in, c.score.sse_in, len(c.columns),
+                                                c.n_eff)
+                else:
+                    c.delta_bic = float("nan")
             rounds.append({"round": len(rounds) + 1, "candidates": [
                 {"name": c.name, "components": list(c.effect.components),
-                 "n_params": len(c.columns), **c.comparison.as_dict()}
+                 "n_params": len(c.columns), "delta_bic_eff": c.delta_bic,
+                 **c.comparison.as_dict()}
                 for c in sorted(cands, key=lambda c: -c.comparison.gain)]})
             passing = [c for c in cands if c.passes]
             if not passing:
                 if cands:
                     best = max(cands, key=lambda c: c.comparison.z - c.z_needed)
                     stopped = (f"no candidate earns its parameters (best remaining: {best.name}, "
-                               f"z = {best.comparison.z:.1f} < {best.z_needed:.1f})")
+                               f"z = {best.comparison.z:.1f} (needs {best.z_needed:.1f}), "
+                               f"delta BIC_eff = {best.delta_bic:+.1f} (needs < 0))")
                 else:
                     stopped = "no candidate earns its parameters"
                 break
@@ -443,8 +454,9 @@ class _Loop:
                 # scanned candidates were crossed with the base only: add them in full
                 cols = gram.add(win.effect.columns(self.inputs))
                 win = _Candidate(win.effect, cols, gram.score(self.base_cols + list(cols)),
-                                 win.comparison, win.component_z, win.family, win.z_needed)
-            gap_before = profile_gap(self.inputs, residual)
+                                 win.comparison, win.component_z, win.family, win.z_needed,
+                                 win.delta_bic, win.n_eff)
+            gap_before = profile_gap(self.inputs, residual, spectrum=False)
             rms_before = float(np.sqrt(base.sse_in / n_valid))
             self.added.append((win.effect, win.columns))
             if not win.effect.coupled:
@@ -469,7 +481,7 @@ class _Loop:
 
     def _evidence(self, win: _Candidate, cands, base: CVScore, residual, n_valid) -> dict:
         s = self.settings
-        n_eff = self._n_eff(residual)
+        n_eff = win.n_eff
         ev = {"criterion": "leave-one-block-out cross-validation",
               "block_s": s.block_s,
               **win.comparison.as_dict(),
@@ -478,8 +490,7 @@ class _Loop:
               "z_needed": win.z_needed,
               "n_params": len(win.columns),
               "n_eff": n_eff,
-              "delta_bic_eff": delta_bic_eff(base.sse_in, win.score.sse_in, len(win.columns),
-                                             n_eff),
+              "delta_bic_eff": win.delta_bic,
               "component_z": win.component_z,
               "ambiguous": False, "ambiguous_with": [], "preferred_over": {}}
         others = sorted((c for c in cands if c is not win),
