@@ -23,7 +23,8 @@ from typing import Mapping
 
 import numpy as np
 
-from magcal.ac.core import correction_matrix, fit_first_order
+from magcal.ac.core import DIRECTION_METHODS, correction_matrix, fit_first_order
+from magcal.ac.filters import highpass, highpass_samples
 from magcal.ac.scan import ScanResult, ScanSummary, scan_first_order, summarize_scan
 from magcal.errors import InputError
 
@@ -36,12 +37,27 @@ class Order:
 
     ``interval`` (start, end) in the time base of the data (seconds) restricts the fit;
     ``window_s`` selects the sliding-window scan; with neither the whole input is used.
+    ``direction`` chooses how the disturbance direction at the cleaned sensor is found
+    (``"variance"``: the paper; ``"coherent"``: from the part of the sensor that varies
+    with the difference, where the ambient field cancels). ``highpass_s`` removes
+    running means over that many seconds from both sensors before the fit, so slow
+    ambient variations do not enter the variance analysis (the correction is linear,
+    so it is fitted on the filtered and applied to the raw data).
     """
 
     window_s: float | None = None
     interval: tuple[float, float] | None = None
     cone_deg: float = 2.5
     detrend_s: float | None = None   #: regression stages: running-mean removal before fitting
+    direction: str = "variance"
+    highpass_s: float | None = None
+
+    def __post_init__(self):
+        if self.direction not in DIRECTION_METHODS:
+            raise InputError(f"direction must be one of {DIRECTION_METHODS}, "
+                             f"got {self.direction!r}")
+        if self.highpass_s is not None and not self.highpass_s >= 0:
+            raise InputError(f"highpass_s must be positive, got {self.highpass_s}")
 
 
 @dataclass(frozen=True)
@@ -110,13 +126,16 @@ class Step:
     interval: tuple | None = None
     scan: dict | None = None
     kind: str = "picog"
+    direction_method: str = "variance"
+    highpass_s: float | None = None
 
     def to_dict(self) -> dict:
         d = {"stage": self.stage, "order": self.order, "i": self.i, "j": self.j,
              "alpha": self.alpha, "direction_i": np.asarray(self.direction_i).tolist(),
              "direction_ij": np.asarray(self.direction_ij).tolist(), "window_s": self.window_s,
              "A": np.asarray(self.A).tolist(), "alpha_variance": self.alpha_variance,
-             "correlation": self.correlation, "n_used": self.n_used, "kind": self.kind}
+             "correlation": self.correlation, "n_used": self.n_used, "kind": self.kind,
+             "direction_method": self.direction_method, "highpass_s": self.highpass_s}
         if self.interval is not None:
             d["interval"] = list(self.interval)
         if self.scan is not None:
@@ -146,6 +165,22 @@ def _wcombine(w_i: Weights, w_j: Weights, A: np.ndarray) -> Weights:
     keys = list(dict.fromkeys([*w_i, *w_j]))
     z = np.zeros((3, 3))
     return {k: w_i.get(k, z) + A @ (w_i.get(k, z) - w_j.get(k, z)) for k in keys}
+
+
+def rank_one_parts(A: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """``(alpha, e_i, e_ij)`` with ``A = -alpha e_i e_ij^T`` (Eq. 17) for a rank-one ``A``.
+
+    Examples
+    --------
+    >>> a, ei, eij = rank_one_parts(correction_matrix(0.7, [0, 1, 0], [0, 0, 1]))
+    >>> round(a, 12), ei.tolist(), eij.tolist()
+    (0.7, [0.0, 1.0, 0.0], [0.0, 0.0, 1.0])
+    """
+    from magcal.ac.core import canonical_sign
+
+    u, sv, vt = np.linalg.svd(np.asarray(A, dtype=float))
+    e_i, e_ij = canonical_sign(u[:, 0]), canonical_sign(vt[0])
+    return float(-(e_i @ A @ e_ij)), e_i, e_ij
 
 
 def apply_weights(data: Mapping[str, np.ndarray], weights: Mapping[str, np.ndarray]) -> np.ndarray:
@@ -209,18 +244,22 @@ def fit_order(b_i: np.ndarray, b_j: np.ndarray, t_s: np.ndarray, order: Order, *
         mask = (t_s >= t0) & (t_s < t1)
         if not mask.any():
             raise InputError(f"interval {order.interval} contains no sample")
+    dt = sample_period_s(t_s) if dt_s is None else dt_s
+    hp_n = highpass_samples(order.highpass_s, dt)
+    if hp_n is not None:
+        b_i, b_j = highpass(b_i, hp_n), highpass(b_j, hp_n)
     if order.window_s is None:
-        fit = fit_first_order(b_i, b_j, mask=mask, alpha_method=alpha_method)
+        fit = fit_first_order(b_i, b_j, mask=mask, alpha_method=alpha_method,
+                              direction=order.direction)
         return fit.alpha, fit.direction_i, fit.direction_ij, {
             "alpha_variance": fit.alpha_variance, "correlation": fit.correlation,
             "n_used": fit.n_used}
-    dt = sample_period_s(t_s) if dt_s is None else dt_s
     window_n = int(round(order.window_s / dt))
     bi, bj = (b_i, b_j) if mask is None else (b_i[mask], b_j[mask])
     if window_n > bi.shape[0]:
         raise InputError(f"window_s = {order.window_s} s ({window_n} samples) is longer "
                          f"than the data ({bi.shape[0]} samples)")
-    scan = scan_first_order(bi, bj, window_n)
+    scan = scan_first_order(bi, bj, window_n, direction=order.direction)
     summ = summarize_scan(scan, cone_deg=order.cone_deg,
                           alpha_kind="alpha" if alpha_method == "decorrelate" else "alpha_variance")
     sel = summ.selected
@@ -230,6 +269,8 @@ def fit_order(b_i: np.ndarray, b_j: np.ndarray, t_s: np.ndarray, order: Order, *
             "scan": {"window_n": window_n, "n_windows": summ.n_windows,
                      "n_selected": summ.n_selected, "alpha_std": summ.alpha_std,
                      "cone_deg": summ.cone_deg,
+                     "n_ill_defined": summ.n_ill_defined,
+                     "min_eigen_ratio": summ.min_eigen_ratio,
                      "direction_i_mode": summ.direction_i_mode.tolist(),
                      "direction_ij_mode": summ.direction_ij_mode.tolist()}}
     if keep_scan:
@@ -306,7 +347,18 @@ def run_chain(data: Mapping[str, np.ndarray], t_s: np.ndarray, plan: Plan, *,
                        np.asarray(e_ij), order.window_s, A,
                        alpha_variance=info["alpha_variance"],
                        correlation=info["correlation"], n_used=info["n_used"],
-                       interval=order.interval, scan=info.get("scan"))
+                       interval=order.interval, scan=info.get("scan"),
+                       direction_method=order.direction, highpass_s=order.highpass_s)
+
+    def partner_step(stage_no, order_no, order, j, i, A_ij, st_ij):
+        # Eqs. 20-21 generalised: the partner's correction makes the corrected pair agree
+        # along e_ij, so the order removes exactly that direction from the difference
+        e = np.asarray(st_ij.direction_ij, dtype=float)
+        A = -A_ij - np.outer(e, e)
+        alpha, e_j, e_ji = rank_one_parts(A)
+        return A, Step(stage_no, order_no, j, i, alpha, e_j, e_ji, order.window_s, A,
+                       n_used=st_ij.n_used, interval=order.interval, kind="partner",
+                       direction_method=order.direction, highpass_s=order.highpass_s)
 
     for k, stage in enumerate(plan.stages, start=1):
         if stage.kind == "reference":
@@ -321,7 +373,10 @@ def run_chain(data: Mapping[str, np.ndarray], t_s: np.ndarray, plan: Plan, *,
             i, j = stage.sensors
             for n_o, order in enumerate(stage.orders, start=1):
                 A_ij, st_ij = one(k, n_o, order, i, j)
-                A_ji, st_ji = one(k, n_o, order, j, i)
+                if order.direction == "coherent" and (k, n_o, j) not in fixed:
+                    A_ji, st_ji = partner_step(k, n_o, order, j, i, A_ij, st_ij)
+                else:
+                    A_ji, st_ji = one(k, n_o, order, j, i)
                 d = cur[i] - cur[j]
                 cur[i], cur[j] = cur[i] + d @ A_ij.T, cur[j] - d @ A_ji.T
                 w[i], w[j] = _wcombine(w[i], w[j], A_ij), _wcombine(w[j], w[i], A_ji)

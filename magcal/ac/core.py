@@ -9,7 +9,14 @@ sensor ``j`` (Eqs. 13-17) is
 
 where ``e_i`` is the maximum-variance direction of ``b_i`` (x axis of its variance
 principal system, VPS), ``e_ij`` the maximum-variance direction of ``d`` and ``alpha``
-the scaling factor. ``alpha`` starts from the amplitude ratio of Eq. 14 with the sign
+the scaling factor.
+
+The paper's ``e_i`` includes the ambient field, so a varying ambient field (daily
+variation, substorms) steers it away from the disturbance (§5). With
+``direction="coherent"`` ``e_i`` is instead the direction of ``k = C_id e_ij /
+lambda_ij``, the part of ``b_i`` that varies with the difference principal component:
+the ambient field cancels in the cross-covariance, and ``A = -k e_ij^T`` keeps the
+rank-one form of Eq. 17 with ``alpha = |k|``. ``alpha`` starts from the amplitude ratio of Eq. 14 with the sign
 that removes the disturbance (the sign of the covariance of the two principal
 components) and is refined by making the corrected component uncorrelated with the
 difference component, which has the closed form ``alpha = cov(x, d_x) / var(d_x)``.
@@ -29,6 +36,8 @@ from magcal.errors import InputError
 
 #: Relative size below which the difference variance counts as zero (no disturbance).
 DEGENERATE_RTOL = 1e-12
+#: Ways of finding the disturbance direction at the sensor being cleaned.
+DIRECTION_METHODS = ("variance", "coherent")
 
 
 def canonical_sign(v: np.ndarray, reference: np.ndarray | None = None) -> np.ndarray:
@@ -202,7 +211,7 @@ class MomentFit:
 
     alpha: np.ndarray            #: refined alpha (decorrelation), shape (...)
     alpha_variance: np.ndarray   #: Eq. 14 amplitude ratio with sign, shape (...)
-    direction_i: np.ndarray      #: max-variance direction of sensor i, shape (..., 3)
+    direction_i: np.ndarray      #: disturbance direction at sensor i, shape (..., 3)
     direction_ij: np.ndarray     #: max-variance direction of the difference, (..., 3)
     eigenvalues_i: np.ndarray    #: variances of sensor i along its VPS, (..., 3)
     eigenvalues_ij: np.ndarray   #: variances of the difference along its VPS, (..., 3)
@@ -211,7 +220,8 @@ class MomentFit:
 
 
 def first_order_from_moments(c_ii: np.ndarray, c_dd: np.ndarray, c_id: np.ndarray, *,
-                             reference_i=None, reference_ij=None) -> MomentFit:
+                             reference_i=None, reference_ij=None,
+                             direction: str = "variance") -> MomentFit:
     """First-order PiCoG estimates from second moments (batched).
 
     Parameters
@@ -225,6 +235,14 @@ def first_order_from_moments(c_ii: np.ndarray, c_dd: np.ndarray, c_id: np.ndarra
     reference_i, reference_ij : ndarray (3,), optional
         Hemisphere references fixing the sense of the directions (see
         :func:`canonical_sign`); by default the largest component is positive.
+    direction : {"variance", "coherent"}
+        How the direction ``e_i`` at sensor ``i`` is found. ``"variance"`` (the paper):
+        maximum-variance direction of sensor ``i``, which includes the ambient field.
+        ``"coherent"``: direction of the part of sensor ``i`` that varies with the
+        difference principal component, ``k = C_id e_ij / lambda_ij``; the ambient
+        field cancels in ``C_id`` (it is uncorrelated with the disturbance), so a
+        varying ambient field no longer steers ``e_i``. Then ``alpha = e_i . k``, so
+        ``A d = -k d_x`` (the decorrelation alpha of the paper, along ``k``).
 
     Returns
     -------
@@ -241,18 +259,27 @@ def first_order_from_moments(c_ii: np.ndarray, c_dd: np.ndarray, c_id: np.ndarra
     c_ii = np.asarray(c_ii, dtype=float)
     c_dd = np.asarray(c_dd, dtype=float)
     c_id = np.asarray(c_id, dtype=float)
+    if direction not in DIRECTION_METHODS:
+        raise InputError(f"direction must be one of {DIRECTION_METHODS}, got {direction!r}")
     lam_i, vi = sym3_max_eig(c_ii)
     lam_d, vd = sym3_max_eig(c_dd)
-    e_i = canonical_sign(vi, reference_i)
     e_ij = canonical_sign(vd, reference_ij)
+    if direction == "coherent":
+        k = np.einsum("...kl,...l->...k", c_id, e_ij)
+        nk = np.linalg.norm(k, axis=-1, keepdims=True)
+        e_i = canonical_sign(k / np.where(nk > 0, nk, 1.0), reference_i)
+        var_x = np.einsum("...k,...kl,...l->...", e_i, c_ii, e_i)
+    else:
+        e_i = canonical_sign(vi, reference_i)
+        var_x = lam_i[..., 0]
     cov_xd = np.einsum("...k,...kl,...l->...", e_i, c_id, e_ij)
     scale = np.abs(np.trace(c_ii, axis1=-2, axis2=-1)) + np.abs(np.trace(c_dd, axis1=-2, axis2=-1))
     degenerate = ~(lam_d[..., 0] > DEGENERATE_RTOL * scale)
     with np.errstate(divide="ignore", invalid="ignore"):
         safe_d = np.where(degenerate, np.nan, lam_d[..., 0])
         alpha = cov_xd / safe_d
-        alpha_var = np.sign(cov_xd) * np.sqrt(np.clip(lam_i[..., 0], 0, None) / safe_d)
-        corr = cov_xd / np.sqrt(np.clip(lam_i[..., 0], 0, None) * safe_d)
+        alpha_var = np.sign(cov_xd) * np.sqrt(np.clip(var_x, 0, None) / safe_d)
+        corr = cov_xd / np.sqrt(np.clip(var_x, 0, None) * safe_d)
     return MomentFit(alpha=alpha, alpha_variance=alpha_var, direction_i=e_i, direction_ij=e_ij,
                      eigenvalues_i=lam_i, eigenvalues_ij=lam_d, correlation=corr,
                      degenerate=degenerate)
@@ -319,7 +346,8 @@ class FirstOrderFit:
         return float(lam[0] / lam[1]) if lam[1] > 0 else float("inf")
 
 
-def fit_first_order(b_i, b_j, *, mask=None, alpha_method: str = "decorrelate") -> FirstOrderFit:
+def fit_first_order(b_i, b_j, *, mask=None, alpha_method: str = "decorrelate",
+                    direction: str = "variance") -> FirstOrderFit:
     """Fit the first-order PiCoG correction of ``b_i`` using ``b_j`` (Eqs. 13-17).
 
     Parameters
@@ -332,6 +360,9 @@ def fit_first_order(b_i, b_j, *, mask=None, alpha_method: str = "decorrelate") -
     alpha_method : {"decorrelate", "variance"}
         ``"decorrelate"`` (default) refines Eq. 14 so that the corrected principal
         component is uncorrelated with the difference; ``"variance"`` keeps Eq. 14.
+    direction : {"variance", "coherent"}
+        ``e_i`` from the variance of sensor ``i`` (the paper) or from its part coherent
+        with the difference (ambient-free; see :func:`first_order_from_moments`).
 
     Returns
     -------
@@ -363,7 +394,7 @@ def fit_first_order(b_i, b_j, *, mask=None, alpha_method: str = "decorrelate") -
     if alpha_method not in ("decorrelate", "variance"):
         raise InputError(f"alpha_method must be 'decorrelate' or 'variance', got {alpha_method!r}")
     c_ii, c_dd, c_id, n = pair_moments(b_i, b_j, mask)
-    m = first_order_from_moments(c_ii, c_dd, c_id)
+    m = first_order_from_moments(c_ii, c_dd, c_id, direction=direction)
     if bool(m.degenerate):
         raise InputError("the difference between the two sensors has no variance (no "
                          "disturbance to remove): alpha is undefined")

@@ -18,9 +18,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from magcal.ac.core import (direction_angles_deg, first_order_from_moments,
+from magcal.ac.core import (canonical_sign, direction_angles_deg, first_order_from_moments,
                             unit_from_angles_deg)
 from magcal.errors import InputError
+
+#: Eigenvalue ratio (largest / intermediate) below which a window's maximum-variance
+#: direction counts as ill defined.
+MIN_EIGEN_RATIO = 1.5
 
 
 @dataclass(frozen=True)
@@ -40,10 +44,30 @@ class ScanResult:
     alpha_variance: np.ndarray #: Eq. 14 alpha per window
     correlation: np.ndarray
     valid: np.ndarray
+    #: largest / intermediate variance of the difference per window (how well the
+    #: maximum-variance direction ``e_ij`` is defined; near 1: not defined)
+    eigen_ratio_ij: np.ndarray | None = None
+    #: the same for sensor ``i`` (meaningful for ``direction="variance"``)
+    eigen_ratio_i: np.ndarray | None = None
+    direction: str = "variance"
 
     @property
     def n_windows(self) -> int:
         return int(self.start.size)
+
+    def ill_defined(self, min_eigen_ratio: float = MIN_EIGEN_RATIO) -> np.ndarray:
+        """Valid windows whose maximum-variance direction is not well defined.
+
+        A direction is ill defined when the ratio of the two largest eigenvalues of
+        its covariance is below ``min_eigen_ratio``: the difference direction always,
+        the sensor direction too with ``direction="variance"``.
+        """
+        if self.eigen_ratio_ij is None:
+            return np.zeros(self.n_windows, dtype=bool)
+        bad = self.eigen_ratio_ij < min_eigen_ratio
+        if self.direction == "variance" and self.eigen_ratio_i is not None:
+            bad |= self.eigen_ratio_i < min_eigen_ratio
+        return self.valid & bad
 
     def angles_deg(self, which: str = "i") -> tuple[np.ndarray, np.ndarray]:
         """(theta, phi) of the per-window directions, ``which`` = ``"i"`` or ``"ij"``."""
@@ -65,6 +89,9 @@ class ScanSummary:
     n_selected: int               #: windows within the cone of both directions
     cone_deg: float
     selected: np.ndarray          #: bool per window
+    n_ill_defined: int = 0        #: valid windows with an ill-defined direction
+    min_eigen_ratio: float = 0.0  #: threshold used for ``n_ill_defined``
+    ill_defined_excluded: bool = False  #: whether those windows were left out
 
 
 def _window_covariances(b_i, b_j, window_n, step, min_valid_fraction):
@@ -101,7 +128,8 @@ def _window_covariances(b_i, b_j, window_n, step, min_valid_fraction):
 
 
 def scan_first_order(b_i, b_j, window_n: int, *, step: int = 1,
-                     min_valid_fraction: float = 0.9) -> ScanResult:
+                     min_valid_fraction: float = 0.9,
+                     direction: str = "variance") -> ScanResult:
     """Sliding-window first-order estimates for the pair (i, j).
 
     Parameters
@@ -114,6 +142,10 @@ def scan_first_order(b_i, b_j, window_n: int, *, step: int = 1,
         Window shift in samples (1: every sample, as in the paper).
     min_valid_fraction : float
         Windows with fewer valid samples (both sensors finite) are marked invalid.
+    direction : {"variance", "coherent"}
+        Direction of the disturbance at sensor ``i``: its maximum-variance direction
+        (the paper) or the direction of its part coherent with the difference
+        (ambient-free), see :func:`magcal.ac.core.first_order_from_moments`.
 
     Returns
     -------
@@ -134,7 +166,8 @@ def scan_first_order(b_i, b_j, window_n: int, *, step: int = 1,
     (401, True)
     """
     start, cov, good = _window_covariances(b_i, b_j, window_n, step, min_valid_fraction)
-    fit = first_order_from_moments(cov[:, :3, :3], cov[:, 3:, 3:], cov[:, :3, 3:])
+    fit = first_order_from_moments(cov[:, :3, :3], cov[:, 3:, 3:], cov[:, :3, 3:],
+                                   direction=direction)
     valid = good & ~fit.degenerate & np.isfinite(fit.alpha)
     if not valid.any():
         raise InputError("no valid window: too many missing samples or no variance in the "
@@ -146,10 +179,16 @@ def scan_first_order(b_i, b_j, window_n: int, *, step: int = 1,
     s_i = np.where(e_i @ ref_i < 0, -1.0, 1.0)
     s_ij = np.where(e_ij @ ref_ij < 0, -1.0, 1.0)
     flip = s_i * s_ij
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio_ij = fit.eigenvalues_ij[:, 0] / fit.eigenvalues_ij[:, 1]
+        ratio_i = fit.eigenvalues_i[:, 0] / fit.eigenvalues_i[:, 1]
+    ratio_ij = np.where(fit.eigenvalues_ij[:, 1] > 0, ratio_ij, np.inf)
+    ratio_i = np.where(fit.eigenvalues_i[:, 1] > 0, ratio_i, np.inf)
     return ScanResult(window_n=int(window_n), step=int(step), start=start,
                       direction_i=e_i * s_i[:, None], direction_ij=e_ij * s_ij[:, None],
                       alpha=fit.alpha * flip, alpha_variance=fit.alpha_variance * flip,
-                      correlation=fit.correlation * flip, valid=valid)
+                      correlation=fit.correlation * flip, valid=valid,
+                      eigen_ratio_ij=ratio_ij, eigen_ratio_i=ratio_i, direction=direction)
 
 
 def direction_density(directions: np.ndarray, grid_deg: float = 1.0):
@@ -193,13 +232,23 @@ def _mean_direction(directions, fallback):
 
 
 def summarize_scan(scan: ScanResult, *, cone_deg: float = 2.5, grid_deg: float = 1.0,
-                   alpha_kind: str = "alpha") -> ScanSummary:
+                   alpha_kind: str = "alpha", min_eigen_ratio: float = MIN_EIGEN_RATIO,
+                   exclude_ill_defined: bool = False) -> ScanSummary:
     """Most probable directions and the mean alpha within ``cone_deg`` of them.
 
-    The sensor direction is the centre of the most populated ``grid_deg`` cell; the
+    With paper directions (``scan.direction == "variance"``) the sensor direction is
+    the centre of the most populated ``grid_deg`` cell; the
     difference direction is the most populated cell among the windows in the cone of
     the sensor direction. Both are then refined to the mean of the selected window
     directions; alpha is the mean over windows within the cone of both.
+
+    With coherent directions the windows are selected by the difference direction
+    alone and the correction vector ``alpha e_i`` is averaged as a vector (see
+    :func:`_summarize_coherent`).
+
+    Windows whose direction is ill defined (eigenvalue ratio below
+    ``min_eigen_ratio``, see :meth:`ScanResult.ill_defined`) are counted in
+    ``n_ill_defined``; with ``exclude_ill_defined`` they are also left out.
 
     Examples
     --------
@@ -210,10 +259,17 @@ def summarize_scan(scan: ScanResult, *, cone_deg: float = 2.5, grid_deg: float =
     >>> round(summ.alpha, 2), np.round(summ.direction_i, 2).tolist()
     (1.33, [0.0, 0.0, 1.0])
     """
-    v = scan.valid
+    ill = scan.ill_defined(min_eigen_ratio)
+    v = scan.valid & ~ill if exclude_ill_defined else scan.valid
+    if not v.any():
+        raise InputError(f"every scan window has an ill-defined direction (largest to "
+                         f"intermediate variance below {min_eigen_ratio})")
     e_i = scan.direction_i[v]
     e_ij = scan.direction_ij[v]
     alpha = getattr(scan, alpha_kind)[v]
+    if scan.direction == "coherent":
+        return _summarize_coherent(scan, v, e_i, e_ij, alpha, cone_deg, grid_deg, ill,
+                                   min_eigen_ratio, exclude_ill_defined)
     mode_i = canonical_to(_mode_direction(e_i, grid_deg), e_i)
     in_i = _within(e_i, mode_i, cone_deg)
     pool = e_ij[in_i] if in_i.any() else e_ij
@@ -229,8 +285,40 @@ def summarize_scan(scan: ScanResult, *, cone_deg: float = 2.5, grid_deg: float =
     a = alpha[sel]
     return ScanSummary(direction_i=dir_i, direction_ij=dir_ij, direction_i_mode=mode_i,
                        direction_ij_mode=mode_ij, alpha=float(a.mean()),
-                       alpha_std=float(a.std()), n_windows=int(v.sum()),
-                       n_selected=int(sel.sum()), cone_deg=float(cone_deg), selected=selected)
+                       alpha_std=float(a.std()), n_windows=int(scan.valid.sum()),
+                       n_selected=int(sel.sum()), cone_deg=float(cone_deg), selected=selected,
+                       n_ill_defined=int(ill.sum()), min_eigen_ratio=float(min_eigen_ratio),
+                       ill_defined_excluded=bool(exclude_ill_defined))
+
+
+def _summarize_coherent(scan, v, e_i, e_ij, alpha, cone_deg, grid_deg, ill, min_eigen_ratio,
+                        exclude_ill_defined):
+    """Coherent directions: windows are selected by the difference direction only (where
+    the ambient field cancels); the correction vector ``k = alpha e_i`` is averaged over
+    them as a vector, so windows where sensor i barely responds cannot pull the
+    direction ``e_i`` to one side."""
+    mode_ij = canonical_to(_mode_direction(e_ij, grid_deg), e_ij)
+    sel = _within(e_ij, mode_ij, cone_deg)
+    if not sel.any():
+        raise InputError(f"no scan window has its difference direction within {cone_deg} "
+                         "deg of the most probable one: the disturbance direction is not "
+                         "stable")
+    dir_ij = _mean_direction(e_ij[sel], mode_ij)
+    k_w = alpha[sel, None] * e_i[sel]
+    k = k_w.mean(axis=0)
+    nk = float(np.linalg.norm(k))
+    dir_i = canonical_sign(k / nk) if nk > 0 else canonical_sign(_mean_direction(e_i[sel],
+                                                                                 e_i[sel][0]))
+    a_w = k_w @ dir_i
+    mode_i = canonical_to(_mode_direction(e_i[sel], grid_deg), e_i[sel])
+    selected = np.zeros(scan.n_windows, dtype=bool)
+    selected[np.flatnonzero(v)[sel]] = True
+    return ScanSummary(direction_i=dir_i, direction_ij=dir_ij, direction_i_mode=mode_i,
+                       direction_ij_mode=mode_ij, alpha=float(a_w.mean()),
+                       alpha_std=float(a_w.std()), n_windows=int(scan.valid.sum()),
+                       n_selected=int(sel.sum()), cone_deg=float(cone_deg), selected=selected,
+                       n_ill_defined=int(ill.sum()), min_eigen_ratio=float(min_eigen_ratio),
+                       ill_defined_excluded=bool(exclude_ill_defined))
 
 
 def canonical_to(center, directions):
