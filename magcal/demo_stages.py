@@ -137,6 +137,8 @@ def stage_offsets(data: Path, out: Path, context: dict):
 
 def stage_alignment(data: Path, out: Path, context: dict):
     require("magcal.alignment.posterior", "magcal.cli.align")
+    import numpy as np
+
     from magcal.io.jsonio import read_json
 
     if "month_corrected" not in context:
@@ -151,7 +153,8 @@ def stage_alignment(data: Path, out: Path, context: dict):
              + ", ".join(f"{k} {ang[k]:+.3f} +- {std[k]:.3f} [{ci[k][0]:+.3f}, {ci[k][1]:+.3f}]"
                          for k in ("Hp", "He", "Hn")),
              f"method {res['method']}, n_used {res['n_used']}, MCMC converged: "
-             f"{res.get('converged')} (autocorrelation {res.get('autocorr_steps')} steps)"]
+             f"{res.get('converged')} (autocorrelation {np.max(res.get('autocorr_steps') or [np.nan]):.0f} "
+             "steps)"]
     inside = all(ci[k][0] <= 0.0 <= ci[k][1] for k in ("Hp", "He", "Hn"))
     lines.append("truth inside every 95% interval" if inside
                  else "truth OUTSIDE a 95% interval (expected in 1 of 20 runs per angle)")
@@ -159,13 +162,30 @@ def stage_alignment(data: Path, out: Path, context: dict):
     return lines, [align]
 
 
-def _cli(*argv: str) -> None:
-    """Run a magcal verb in-process; a non-zero status is a stage failure."""
+def _cli(*argv, log: Path | None = None) -> None:
+    """Run a magcal verb in-process; a non-zero status is a stage failure.
+
+    The verb's console output goes to ``log`` (default: ``cli.log`` beside the output
+    named after ``-o``) so the demo summary stays short.
+    """
+    import contextlib
+    import io
+
     from magcal.cli import main
 
-    status = main([str(a) for a in argv])
+    args = [str(a) for a in argv]
+    if log is None and "-o" in args:
+        log = Path(args[args.index("-o") + 1]).parent / "cli.log"
+    buffer, errors = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(buffer), contextlib.redirect_stderr(errors):
+        status = main(args)
+    if log is not None:
+        log.parent.mkdir(parents=True, exist_ok=True)
+        with open(log, "a") as handle:
+            handle.write(f"$ magcal {' '.join(args)}\n{buffer.getvalue()}{errors.getvalue()}\n")
     if status != 0:
-        raise RuntimeError(f"magcal {' '.join(map(str, argv))} exited with status {status}")
+        raise RuntimeError(f"magcal {' '.join(args)} exited with status {status}: "
+                           f"{errors.getvalue().strip()}")
 
 
 def stage_spin(data: Path, out: Path, context: dict):
@@ -227,7 +247,7 @@ def stage_discover(data: Path, out: Path, context: dict):
     lines.append("truth: the model lacks a local-time field of "
                  + " / ".join(f"{v:.1f}" for v in np.ptp(lt, axis=0))
                  + " nT peak-to-peak in Hp / He / Hn")
-    lines += [f"  {line}" for line in res.get("account", [])][:6]
+    lines += [f"account: {line}" for line in res.get("account", [])[1:2]]
     context["discover_report"] = report
     return lines, [report, plot]
 
