@@ -18,17 +18,24 @@ Choices, each recorded with its reason in the returned report:
 4. **Non-orthogonal fallback**: the regression gradiometer with all sensors is tried
    too; it replaces the PiCoG pair stage when it reduces the objective further.
 
-The objective is the variance of the cleaned target after removing running means of
-``highpass_s`` (the ambient field is common to every candidate, so its slow variation
-is removed and the rest of it cancels in the comparison).
+Every order uses ambient-free directions (``direction="coherent"``) after removing
+running means of ``fit_highpass_s`` (see :mod:`magcal.ac.filters`). The objective is
+the variance of the cleaned target after removing running means of ``highpass_s`` (the
+ambient field is common to every candidate, so its slow variation is removed and the
+rest of it cancels in the comparison).
+
+Speed: orders are fitted incrementally. Each candidate window costs one scan of the
+current pair (windows sliding by about 1 % of their length) and one objective; the
+chain is never re-run per trial, so a simulated day takes a few seconds.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from magcal.ac.chain import Order, Plan, Stage, apply_weights, run_chain, sample_period_s
-from magcal.ac.core import fit_first_order
+from magcal.ac.chain import (Order, Plan, Stage, _wcombine, apply_weights, fit_order, run_chain,
+                             sample_period_s)
+from magcal.ac.core import correction_matrix
 from magcal.ac.nonorthogonal import _running_mean
 from magcal.errors import InputError
 
@@ -81,9 +88,21 @@ def timescales(d: np.ndarray, dt_s: float) -> dict:
     return {"spectral_peak_period_s": peak, "autocorrelation_1e_s": decorr}
 
 
+def _pair_update(cur, w, i, j, A_ij, e_ij):
+    """Apply one coherent pair order (partner from Eq. 21) to states and weights."""
+    A_ji = -A_ij - np.outer(e_ij, e_ij)
+    d = cur[i] - cur[j]
+    cur = dict(cur)
+    w = dict(w)
+    cur[i], cur[j] = cur[i] + d @ A_ij.T, cur[j] - d @ A_ji.T
+    w[i], w[j] = _wcombine(w[i], w[j], A_ij), _wcombine(w[j], w[i], A_ji)
+    return cur, w
+
+
 def auto_plan(data: dict, t_s: np.ndarray, target: str, *, alpha_method: str = "decorrelate",
               highpass_s: float = 3600.0, min_gain: float = 0.05, max_orders: int = 3,
-              candidate_windows_s=CANDIDATE_WINDOWS_S) -> tuple[Plan, dict]:
+              candidate_windows_s=CANDIDATE_WINDOWS_S, fit_highpass_s: float | None = 1800.0,
+              direction: str = "coherent") -> tuple[Plan, dict]:
     """Choose references, pair, windows and orders; return the plan and the reasons.
 
     Parameters
@@ -95,6 +114,10 @@ def auto_plan(data: dict, t_s: np.ndarray, target: str, *, alpha_method: str = "
         Running-mean length removed before computing the objective.
     min_gain : float
         Minimum relative reduction of the objective for an order (or stage) to be kept.
+    fit_highpass_s : float or None
+        ``highpass_s`` of every fitted order (running means removed before the fit).
+    direction : {"coherent", "variance"}
+        Direction method of every order (see :class:`magcal.ac.chain.Order`).
 
     Returns
     -------
@@ -111,22 +134,28 @@ def auto_plan(data: dict, t_s: np.ndarray, target: str, *, alpha_method: str = "
     n = len(t_s)
     hp = max(3, int(round(highpass_s / dt)))
     sigma = {s: noise_sigma(data[s]) for s in data}
-    report: dict = {"noise_sigma_nT": sigma, "highpass_s": highpass_s, "choices": []}
+    report: dict = {"noise_sigma_nT": sigma, "highpass_s": highpass_s,
+                    "fit_highpass_s": fit_highpass_s, "direction": direction, "choices": []}
     base = objective(data[target], hp)
     report["objective_raw_nT2"] = base
 
     # 1. reference stage
+    ref_order = Order(direction=direction, highpass_s=fit_highpass_s)
     ref_rows = []
+    ref_fits = {}
     for r in others:
         try:
-            fit = fit_first_order(data[target], data[r], alpha_method=alpha_method)
+            alpha, e_i, e_ij, _ = fit_order(data[target], data[r], t_s, ref_order, dt_s=dt,
+                                            alpha_method=alpha_method)
         except InputError as exc:
             ref_rows.append({"reference": r, "usable": False, "why": str(exc)})
             continue
-        cleaned = data[target] + (data[target] - data[r]) @ fit.A.T
+        A = correction_matrix(alpha, e_i, e_ij)
+        ref_fits[r] = A
+        cleaned = data[target] + (data[target] - data[r]) @ A.T
         obj = objective(cleaned, hp)
-        ref_rows.append({"reference": r, "usable": True, "alpha": fit.alpha,
-                         "injected_noise_nT": abs(fit.alpha) * sigma[r],
+        ref_rows.append({"reference": r, "usable": True, "alpha": float(alpha),
+                         "injected_noise_nT": abs(alpha) * sigma[r],
                          "objective_nT2": obj, "gain": 1 - obj / base})
     report["reference_candidates"] = ref_rows
     partner_pool = sorted(others, key=lambda s: sigma[s])
@@ -135,6 +164,8 @@ def auto_plan(data: dict, t_s: np.ndarray, target: str, *, alpha_method: str = "
     usable = [row for row in ref_rows if row["usable"]]
     best_ref = max(usable, key=lambda row: row["gain"]) if usable else None
     partner = partner_pool[0]
+    cur = {s: np.asarray(data[s], dtype=float) for s in (target, partner)}
+    w = {s: {s: np.eye(3)} for s in (target, partner)}
     if best_ref is not None and best_ref["gain"] >= min_gain and best_ref["reference"] != partner:
         ref = best_ref["reference"]
         if best_ref["injected_noise_nT"] > sigma[target]:
@@ -146,9 +177,15 @@ def auto_plan(data: dict, t_s: np.ndarray, target: str, *, alpha_method: str = "
                 f"reference stage with {ref}: removes {best_ref['gain']:.0%} of the target "
                 f"variance and injects only |alpha| sigma = {best_ref['injected_noise_nT']:.3g}"
                 f" nT of its noise (target noise {sigma[target]:.3g} nT)")
-        stages.append(Stage("reference", (target, partner), reference=ref, orders=(Order(),)))
-        current = objective(run_chain(data, t_s, Plan(target, tuple(stages)),
-                                      alpha_method=alpha_method).corrected, hp)
+        stages.append(Stage("reference", (target, partner), reference=ref, orders=(ref_order,)))
+        b_ref = np.asarray(data[ref], dtype=float)
+        alpha, e_i, e_ij, _ = fit_order(cur[partner], b_ref, t_s, ref_order, dt_s=dt,
+                                        alpha_method=alpha_method)
+        A_p = correction_matrix(alpha, e_i, e_ij)
+        for s_, A in ((target, ref_fits[ref]), (partner, A_p)):
+            cur[s_] = cur[s_] + (cur[s_] - b_ref) @ A.T
+            w[s_] = _wcombine(w[s_], {ref: np.eye(3)}, A)
+        current = objective(cur[target], hp)
     else:
         report["choices"].append("no reference stage: no other sensor removes at least "
                                  f"{min_gain:.0%} of the target variance as a first-order "
@@ -157,41 +194,46 @@ def auto_plan(data: dict, t_s: np.ndarray, target: str, *, alpha_method: str = "
     report["choices"].append(f"pair partner {partner}: lowest noise "
                              f"({sigma[partner]:.3g} nT) of the other sensors")
 
-    # 2. timescales and windows
-    b_t, b_p = data[target], data[partner]
-    if stages:
-        pre = run_chain(data, t_s, Plan(target, tuple(stages)), alpha_method=alpha_method)
-        b_t, b_p = pre.corrected, apply_weights(data, pre.weights[partner])
-    report["timescales"] = timescales(b_t - b_p, dt)
-    windows = [w for w in candidate_windows_s if int(round(w / dt)) <= n // 4
-               and int(round(w / dt)) >= 10]
+    # 2. timescales and windows, fitted incrementally on the current pair
+    report["timescales"] = timescales(cur[target] - cur[partner], dt)
+    windows = [x for x in candidate_windows_s if int(round(x / dt)) <= n // 4
+               and int(round(x / dt)) >= 10]
     orders: list[Order] = []
     order_rows = []
     obj_before = current
     for k in range(max_orders):
         trials = []
-        for w in windows + [None]:
-            trial_plan = Plan(target, tuple(stages) + (Stage(
-                "pair", (target, partner), orders=tuple(orders) + (Order(window_s=w),)),))
+        for win in windows + [None]:
+            order = Order(window_s=win, direction=direction, highpass_s=fit_highpass_s)
+            step = 1 if win is None else max(1, int(round(win / dt)) // 100)
             try:
-                res = run_chain(data, t_s, trial_plan, alpha_method=alpha_method)
+                alpha, e_i, e_ij, _ = fit_order(cur[target], cur[partner], t_s, order, dt_s=dt,
+                                                alpha_method=alpha_method, scan_step=step)
             except InputError:
                 continue
-            trials.append((objective(res.corrected, hp), w))
+            A = correction_matrix(alpha, e_i, e_ij)
+            trial = cur[target] + (cur[target] - cur[partner]) @ A.T
+            trials.append((objective(trial, hp), win, A, e_ij))
         if not trials:
             break
-        obj, w = min(trials, key=lambda x: x[0])
+        obj, win, A, e_ij = min(trials, key=lambda x: x[0])
         gain = 1 - obj / obj_before
-        order_rows.append({"order": k + 1, "best_window_s": w, "objective_nT2": obj,
+        order_rows.append({"order": k + 1, "best_window_s": win, "objective_nT2": obj,
                            "gain": gain, "tried": [{"window_s": tw, "objective_nT2": to}
-                                                   for to, tw in trials]})
+                                                   for to, tw, _, _ in trials]})
         if gain < min_gain:
             report["choices"].append(f"stop after {k} pair order(s): the best order {k + 1} "
-                                     f"(window {w}) reduces the objective by only {gain:.1%}")
+                                     f"(window {win}) reduces the objective by only {gain:.1%}")
             break
-        orders.append(Order(window_s=w))
-        report["choices"].append(f"pair order {k + 1}: window {w} s reduces the objective by "
-                                 f"{gain:.0%} (best of {len(trials)} candidates)")
+        orders.append(Order(window_s=win, direction=direction, highpass_s=fit_highpass_s))
+        report["choices"].append(f"pair order {k + 1}: window {win} s reduces the objective "
+                                 f"by {gain:.0%} (best of {len(trials)} candidates)")
+        if direction == "coherent":
+            cur, w = _pair_update(cur, w, target, partner, A, np.asarray(e_ij, float))
+        else:
+            res = run_chain(data, t_s, Plan(target, tuple(stages) + (Stage(
+                "pair", (target, partner), orders=tuple(orders)),)), alpha_method=alpha_method)
+            cur = {target: res.corrected, partner: apply_weights(data, res.weights[partner])}
         obj_before = obj
     report["pair_orders"] = order_rows
     picog_stages = tuple(stages) + ((Stage("pair", (target, partner), orders=tuple(orders)),)

@@ -228,7 +228,7 @@ def sample_period_s(t_s: np.ndarray) -> float:
 
 def fit_order(b_i: np.ndarray, b_j: np.ndarray, t_s: np.ndarray, order: Order, *,
               dt_s: float | None = None, alpha_method: str = "decorrelate",
-              keep_scan: bool = False):
+              keep_scan: bool = False, scan_step: int = 1):
     """Fit one correction order of ``b_i`` with ``b_j``.
 
     Returns
@@ -259,7 +259,7 @@ def fit_order(b_i: np.ndarray, b_j: np.ndarray, t_s: np.ndarray, order: Order, *
     if window_n > bi.shape[0]:
         raise InputError(f"window_s = {order.window_s} s ({window_n} samples) is longer "
                          f"than the data ({bi.shape[0]} samples)")
-    scan = scan_first_order(bi, bj, window_n, direction=order.direction)
+    scan = scan_first_order(bi, bj, window_n, step=scan_step, direction=order.direction)
     summ = summarize_scan(scan, cone_deg=order.cone_deg,
                           alpha_kind="alpha" if alpha_method == "decorrelate" else "alpha_variance")
     sel = summ.selected

@@ -4,6 +4,9 @@
 
     target = "fgmo"                  # sensor whose cleaned data is the product
     alpha_method = "decorrelate"     # optional: or "variance" (Eq. 14 only)
+    direction = "coherent"           # optional, every order: "variance" (the paper) or
+                                     # "coherent" (ambient-free, see magcal.ac.core)
+    highpass_s = 1800                # optional, every order: remove running means first
     [[stage]]                        # first-order cleaning against one reference
     reference = "amr1"
     sensors = ["fgmo", "fgmi"]
@@ -17,7 +20,12 @@
     orders = [ { detrend_s = 3600 } ]
 
 Interval times are ISO-8601 UTC; they become seconds since 1970-01-01 UTC, the time
-base :class:`magcal.ac.estimator.PiCoG` uses.
+base :class:`magcal.ac.estimator.PiCoG` uses. ``direction`` and ``highpass_s`` may also
+be given per order (``highpass_s = 0`` switches filtering off); without them an order
+follows the paper (maximum-variance direction of the sensor, no filtering). With a
+varying ambient field (daily variation, substorms) use ``direction = "coherent"`` and
+``highpass_s = 1800``: on the simulated GK-2A-like day this takes the contract's plan
+from 3x to about 290x disturbance-power reduction.
 """
 
 from __future__ import annotations
@@ -29,6 +37,7 @@ from pathlib import Path
 import pandas as pd
 
 from magcal.ac.chain import Order, Plan, Stage
+from magcal.ac.core import DIRECTION_METHODS
 from magcal.errors import InputError
 
 _NAME = re.compile(r"^[a-z0-9_]+$")
@@ -58,11 +67,12 @@ def _check_name(name, file, where):
     return name
 
 
-def _order(spec, file, where) -> Order:
+def _order(spec, file, where, defaults=None) -> Order:
     if not isinstance(spec, dict):
         raise InputError(f"{where}: each order must be a table like {{ window_s = 100 }}",
                          file=file)
-    unknown = set(spec) - {"interval", "window_s", "cone_deg", "detrend_s"}
+    unknown = set(spec) - {"interval", "window_s", "cone_deg", "detrend_s", "direction",
+                           "highpass_s"}
     if unknown:
         raise InputError(f"{where}: unknown order key(s) {sorted(unknown)}", file=file)
     interval = None
@@ -80,8 +90,29 @@ def _order(spec, file, where) -> Order:
     if not (isinstance(cone, (int, float)) and 0 < cone <= 90):
         raise InputError(f"{where}: cone_deg must be in (0, 90]", file=file)
     detrend = spec.get("detrend_s")
+    defaults = defaults or {}
+    direction = _direction(spec.get("direction", defaults.get("direction", "variance")),
+                           file, where)
+    hp = _highpass(spec.get("highpass_s", defaults.get("highpass_s")), file, where)
     return Order(window_s=None if window_s is None else float(window_s), interval=interval,
-                 cone_deg=float(cone), detrend_s=None if detrend is None else float(detrend))
+                 cone_deg=float(cone), detrend_s=None if detrend is None else float(detrend),
+                 direction=direction, highpass_s=hp)
+
+
+def _direction(value, file, where) -> str:
+    if value not in DIRECTION_METHODS:
+        raise InputError(f"{where}: direction must be one of {list(DIRECTION_METHODS)}, got "
+                         f"{value!r}", file=file)
+    return value
+
+
+def _highpass(value, file, where) -> float | None:
+    if value is None or value == 0:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
+        raise InputError(f"{where}: highpass_s must be a positive number of seconds (0: "
+                         "off)", file=file)
+    return float(value)
 
 
 def plan_from_dict(doc: dict, *, file=None) -> tuple[Plan, dict]:
@@ -97,10 +128,12 @@ def plan_from_dict(doc: dict, *, file=None) -> tuple[Plan, dict]:
     if "target" not in doc:
         raise InputError("missing 'target'", file=file)
     target = _check_name(doc["target"], file, "target")
+    defaults = {"direction": _direction(doc.get("direction", "variance"), file, "plan"),
+                "highpass_s": _highpass(doc.get("highpass_s"), file, "plan")}
     stages = []
     for k, st in enumerate(doc.get("stage", []), start=1):
         where = f"stage {k}"
-        orders = tuple(_order(o, file, f"{where} order {n}")
+        orders = tuple(_order(o, file, f"{where} order {n}", defaults)
                        for n, o in enumerate(st.get("orders", [{}]), start=1))
         kinds = [key for key in ("reference", "pair", "regression") if key in st]
         if len(kinds) != 1:
@@ -154,6 +187,8 @@ def plan_to_dict(plan: Plan) -> dict:
         if st.references:
             d["references"] = list(st.references)
         d["orders"] = [{"window_s": o.window_s, "interval": list(o.interval) if o.interval else None,
-                        "cone_deg": o.cone_deg, "detrend_s": o.detrend_s} for o in st.orders]
+                        "cone_deg": o.cone_deg, "detrend_s": o.detrend_s,
+                        "direction": o.direction, "highpass_s": o.highpass_s}
+                       for o in st.orders]
         stages.append(d)
     return {"target": plan.target, "stages": stages}
