@@ -32,6 +32,7 @@ class StageResult:
     products: tuple[str, ...] = ()
     seconds: float = 0.0
     error: str = ""
+    metrics: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -70,7 +71,9 @@ def _run_stage(name: str, func: Callable, data: Path, outdir: Path,
                context: dict) -> StageResult:
     start = time.perf_counter()
     try:
-        lines, products = func(data, outdir, context)
+        out = func(data, outdir, context)
+        lines, products = out[0], out[1]
+        metrics = out[2] if len(out) > 2 else {}
     except NotYetAvailableError as exc:
         return StageResult(name, "not yet available", (str(exc),),
                            seconds=time.perf_counter() - start)
@@ -79,7 +82,7 @@ def _run_stage(name: str, func: Callable, data: Path, outdir: Path,
         return StageResult(name, "failed", seconds=time.perf_counter() - start,
                            error=f"{type(exc).__name__}: {exc} [{detail}]")
     return StageResult(name, "ok", tuple(lines), tuple(str(p) for p in products),
-                       time.perf_counter() - start)
+                       time.perf_counter() - start, metrics=metrics)
 
 
 def stages() -> list[tuple[str, Callable]]:

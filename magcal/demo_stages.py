@@ -48,7 +48,7 @@ def stage_ac(data: Path, out: Path, context: dict):
     raw_res = raw[["fgmo_x", "fgmo_y", "fgmo_z"]].to_numpy() - want
     raw_res -= np.nanmean(raw_res, axis=0)
     lines = [f"raw fgmo - truth: rms {np.sqrt(np.nanmean(raw_res ** 2)):.3f} nT (mean removed)"]
-    products = []
+    products, metrics = [], {}
     out.mkdir(parents=True, exist_ok=True)
     for name, text in (("paper", PAPER_PLAN), ("regression", REGRESSION_PLAN)):
         plan = out / f"PLAN_{name}.toml"
@@ -65,8 +65,10 @@ def stage_ac(data: Path, out: Path, context: dict):
         lines.append(f"{name} plan: rms {np.sqrt(np.nanmean(res ** 2)):.3f} nT, disturbance "
                      f"power reduced {ratio:.1f}x; |sum M - I| = {ident:.1e}")
         products += [plan, params, clean]
+        metrics[name] = {"power_reduction": float(ratio), "identity_error": float(ident),
+                         "rms_nT": float(np.sqrt(np.nanmean(res ** 2)))}
     context["ac_params"] = out / "PARAMS_regression.json"
-    return lines, products
+    return lines, products, metrics
 
 
 MONTH_LON_DEG = 128.2  # GK-2A slot of the simulated month
@@ -89,7 +91,7 @@ def stage_offsets(data: Path, out: Path, context: dict):
     kp = read_kp(kp_path)
     times = frame.index.tz_convert("UTC").tz_localize(None).to_numpy()
     values = frame[["Hp", "He", "Hn"]].to_numpy()
-    products, lines, tables = [], [], {}
+    products, lines, tables, metrics = [], [], {}, {}
     out.mkdir(parents=True, exist_ok=True)
     for method in ("median", "lt_balanced"):
         prov = make_provenance("offsets fit", {"method": method, "model": "T89", "kp_max": 1.0,
@@ -110,6 +112,7 @@ def stage_offsets(data: Path, out: Path, context: dict):
                                   for c in ("Hp", "He", "Hn")])
         err = np.abs(table.offset_nT - true_c)[ok]
         worst = err.max(axis=0) if err.size else np.full(3, np.nan)
+        metrics[method] = {"worst_error_nT": worst.tolist(), "n_valid": int(ok.sum())}
         lines.append(f"{method}: {int(ok.sum())}/{len(ok)} valid windows, worst |error| vs "
                      f"truth Hp {worst[0]:.2f}, He {worst[1]:.2f}, Hn {worst[2]:.2f} nT")
     quiet = det["quiet"]
@@ -132,7 +135,8 @@ def stage_offsets(data: Path, out: Path, context: dict):
                  "Hp / He / Hn (the field T89 lacks)")
     context.update(month_corrected=out / "CORRECTED.csv.gz", month_model=out / "MODEL_T89.csv.gz",
                    offsets_table=tables["median"], offsets_quiet_fraction=float(quiet.mean()))
-    return lines, products
+    metrics["quiet_fraction"] = float(quiet.mean())
+    return lines, products, metrics
 
 
 def stage_alignment(data: Path, out: Path, context: dict):
@@ -159,7 +163,7 @@ def stage_alignment(data: Path, out: Path, context: dict):
     lines.append("truth inside every 95% interval" if inside
                  else "truth OUTSIDE a 95% interval (expected in 1 of 20 runs per angle)")
     context["align_json"] = align
-    return lines, [align]
+    return lines, [align], {"angles_deg": ang, "std_deg": std, "truth_inside_ci95": inside}
 
 
 def _cli(*argv, log: Path | None = None) -> None:
@@ -218,7 +222,11 @@ def stage_spin(data: Path, out: Path, context: dict):
              f"vs truth: max |c31, c32 error| {np.degrees(np.abs(c_det).max()):.4f} deg, "
              f"max |O1, O2 error| {np.abs(o_det).max():.4f} nT; held at priors: "
              f"{', '.join(cal['fixed'])}"]
-    return lines, [cal_path, flip_path, full_path]
+    metrics = {"spin_tone_before_nT": before, "spin_tone_after_nT": after,
+               "o3_error_nT": float(err_o3), "o3_std_nT": float(flip["O3_std"]),
+               "max_c3x_error_deg": float(np.degrees(np.abs(c_det).max())),
+               "max_o12_error_nT": float(np.abs(o_det).max())}
+    return lines, [cal_path, flip_path, full_path], metrics
 
 
 def stage_discover(data: Path, out: Path, context: dict):
@@ -249,7 +257,10 @@ def stage_discover(data: Path, out: Path, context: dict):
                  + " nT peak-to-peak in Hp / He / Hn")
     lines += [f"account: {line}" for line in res.get("account", [])[1:2]]
     context["discover_report"] = report
-    return lines, [report, plot]
+    metrics = {"effects": [e["name"] for e in res["effects"]],
+               "rms_initial_nT": res["gap_initial"]["rms_nT"],
+               "rms_final_nT": res["gap_final"]["rms_nT"]}
+    return lines, [report, plot], metrics
 
 
 def stage_report(data: Path, out: Path, context: dict):
