@@ -288,3 +288,102 @@ def error_model_eq38(x, z_ratio: float = 1.0, bq_over_zs: float = 0.0) -> np.nda
     with np.errstate(divide="ignore", invalid="ignore"):
         quad = np.where(x > 0, (1.0 / np.where(x > 0, x, 1.0) - 1.0) * bq_over_zs, 0.0)
     return (1.0 + x ** 3 * z_ratio + quad) / (1.0 - x ** 3)
+
+
+def _event_indices(t_s: np.ndarray, times_s, margin_s: float) -> np.ndarray:
+    """Sample indices of event times at least ``margin_s`` away from both ends."""
+    t_s = np.asarray(t_s, dtype=float)
+    times_s = np.atleast_1d(np.asarray(times_s, dtype=float))
+    keep = (times_s >= t_s[0] + margin_s) & (times_s <= t_s[-1] - margin_s)
+    return np.searchsorted(t_s, times_s[keep])
+
+
+def ramp_sizes(b: np.ndarray, t_s: np.ndarray, times_s, *, span_s: float = 90.0,
+               gap_s: float = 15.0) -> np.ndarray:
+    """Ramp sizes (Table 2: median over ``span_s`` after minus before) at event times.
+
+    ``gap_s`` skips the ramp itself on both sides of the event time (half the ramp
+    duration). Events closer than ``span_s + gap_s`` to an end are left out.
+
+    Returns
+    -------
+    ndarray, shape (n_events, 3)
+
+    Examples
+    --------
+    >>> t = np.arange(1000.0)
+    >>> b = np.c_[np.where(t >= 500, 2.0, 0.0), 0.01 * t, np.zeros(1000)]
+    >>> np.round(ramp_sizes(b, t, [500.0]), 6).tolist()   # step 2; trend 0.01 x (90 + 2 x 15)
+    [[2.0, 1.2, 0.0]]
+    """
+    dt = float(np.median(np.diff(np.asarray(t_s, dtype=float))))
+    idx = _event_indices(t_s, times_s, span_s + gap_s)
+    return np.array([ramp_size(b, int(i), dt, span_s, gap_s) for i in idx]).reshape(-1, 3)
+
+
+def spike_heights(b: np.ndarray, t_s: np.ndarray, times_s, *, span_s: float = 20.0,
+                  gap_s: float = 5.0, search_s: float = 2.0) -> np.ndarray:
+    """Spike heights (Table 2) at event times: the sample of largest |deviation| within
+    ``search_s`` of each time minus the median over ``span_s`` intervals ``gap_s``
+    before and after it.
+
+    Returns
+    -------
+    ndarray, shape (n_events, 3)
+
+    Examples
+    --------
+    >>> t = np.arange(200.0)
+    >>> b = np.c_[3.0 * np.exp(-0.5 * ((t - 100.4) / 1.5) ** 2), np.zeros(200), 0.5 * np.ones(200)]
+    >>> np.round(spike_heights(b, t, [100.4]), 3).tolist()
+    [[2.895, 0.0, 0.0]]
+    """
+    b = np.asarray(b, dtype=float)
+    t_s = np.asarray(t_s, dtype=float)
+    dt = float(np.median(np.diff(t_s)))
+    idx = _event_indices(t_s, times_s, span_s + gap_s + search_s)
+    w = int(round(search_s / dt))
+    out = []
+    for i in idx:
+        seg = b[i - w:i + w + 1]
+        base = np.nanmedian(b[max(0, i - w - 60):i + w + 60], axis=0)
+        peak = i - w + int(np.nanargmax(np.sum((seg - base) ** 2, axis=1)))
+        out.append(spike_height(b, peak, dt, span_s, gap_s))
+    return np.array(out).reshape(-1, 3)
+
+
+def hf_peak_to_peak(b: np.ndarray, t_s: np.ndarray, quiet_s, disturbed_s, *,
+                    block_s: float = 60.0) -> np.ndarray:
+    """High-frequency disturbance magnitude (Table 2): mean peak-to-peak amplitude over
+    ``block_s`` blocks in ``disturbed_s = (start, end)`` minus that in the quiet etalon
+    ``quiet_s = (start, end)``; per component, with a linear trend removed from each
+    block so the slow ambient field does not count.
+
+    Examples
+    --------
+    A 1 nT two-sample pulse in the middle of every 60 s block after 600 s, on a trend:
+
+    >>> t = np.arange(1200.0)
+    >>> pulse = np.tile(np.r_[np.zeros(29), 1.0, 1.0, np.zeros(29)], 20) * (t >= 600)
+    >>> b = np.c_[pulse, 0.02 * t, 0 * t]
+    >>> np.round(hf_peak_to_peak(b, t, (0, 600), (600, 1200)), 6).tolist()
+    [1.0, 0.0, 0.0]
+    """
+    b = np.asarray(b, dtype=float)
+    t_s = np.asarray(t_s, dtype=float)
+    dt = float(np.median(np.diff(t_s)))
+    block_n = max(3, int(round(block_s / dt)))
+
+    def p2p(lo, hi):
+        sel = (t_s >= lo) & (t_s < hi)
+        x = b[sel]
+        m = (x.shape[0] // block_n) * block_n
+        if m == 0:
+            raise InputError(f"interval ({lo}, {hi}) is shorter than one {block_s} s block")
+        blocks = x[:m].reshape(m // block_n, block_n, 3)
+        tt = np.arange(block_n, dtype=float) - (block_n - 1) / 2.0
+        slope = np.einsum("k,nkc->nc", tt, blocks) / np.sum(tt ** 2)
+        res = blocks - blocks.mean(axis=1, keepdims=True) - slope[:, None, :] * tt[None, :, None]
+        return np.nanmean(np.nanmax(res, axis=1) - np.nanmin(res, axis=1), axis=0)
+
+    return p2p(*disturbed_s) - p2p(*quiet_s)
