@@ -264,8 +264,13 @@ def stage_discover(data: Path, out: Path, context: dict):
 
 
 def stage_report(data: Path, out: Path, context: dict):
-    require("magcal.report.html")
-    raise NotYetAvailableError("this demo stage is not wired yet")
+    require("magcal.report.uncertainty", "magcal.cli.report")
+    products = out.parent  # the demo's OUTDIR holds every stage's products
+    html, pdf = out / "REPORT.html", out / "REPORT.pdf"
+    _cli("report", products, "-o", html, "--pdf", pdf)
+    size = html.stat().st_size / 1e6
+    return ([f"uncertainty report: {html} ({size:.1f} MB, plots embedded) and {pdf}"],
+            [html, pdf], {"html_bytes": html.stat().st_size, "pdf_bytes": pdf.stat().st_size})
 
 
 STAGES = [
