@@ -246,18 +246,29 @@ def evaluate_parallel(t, xyz, model, inputs, options, n_jobs=None):
     invalid = np.empty(n, dtype=bool)
     reasons: dict[str, int] = {}
     backend = "ctypes"
-    with ProcessPoolExecutor(max_workers=n_jobs, mp_context=ctx) as pool:
-        futures = []
-        for a, z in zip(bounds[:-1], bounds[1:]):
-            part = {k: v[a:z] for k, v in inputs.items()}
-            futures.append((a, z, pool.submit(_worker, t[a:z], xyz[a:z], model, part,
-                                              options)))
+    chunks = list(zip(bounds[:-1], bounds[1:]))
+    # The parent process takes the last 1/n_jobs of the chunks itself instead of idling
+    # while it waits: n_jobs - 1 workers plus the parent keep every core busy.
+    own = chunks[len(chunks) - len(chunks) // n_jobs:]
+    given = chunks[:len(chunks) - len(own)]
+
+    def collect(a, z, result):
+        nonlocal backend
+        bb, inv, why, used = result
+        b[a:z], invalid[a:z] = bb, inv
+        backend = used if used != "ctypes" else backend
+        for key, count in why.items():
+            reasons[key] = reasons.get(key, 0) + count
+
+    with ProcessPoolExecutor(max_workers=max(1, n_jobs - 1), mp_context=ctx) as pool:
+        futures = [(a, z, pool.submit(_worker, t[a:z], xyz[a:z], model,
+                                      {k: v[a:z] for k, v in inputs.items()}, options))
+                   for a, z in given]
+        for a, z in own:
+            collect(a, z, _worker(t[a:z], xyz[a:z], model,
+                                  {k: v[a:z] for k, v in inputs.items()}, options))
         for a, z, fut in futures:
-            bb, inv, why, used = fut.result()
-            b[a:z], invalid[a:z] = bb, inv
-            backend = used if used != "ctypes" else backend
-            for key, count in why.items():
-                reasons[key] = reasons.get(key, 0) + count
+            collect(a, z, fut.result())
     return b, invalid, reasons, backend
 
 
