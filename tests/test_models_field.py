@@ -61,7 +61,7 @@ def test_disk_cache_hit_is_identical_and_keyed_on_inputs(tmp_path):
     other = model_field_hpen(t, 128.2, 0.0, 6.6, "T89", kp=2.0, n_jobs=1, cache_dir=tmp_path)
     moved = model_field_hpen(t, 128.3, 0.0, 6.6, "T89", kp=1.0, n_jobs=1, cache_dir=tmp_path)
     assert other.cache_hits == 0 and moved.cache_hits == 0
-    assert len(list(tmp_path.glob("T89-*.npz"))) == 3
+    assert len(list(tmp_path.glob("T89-*.json"))) == 3  # one entry per distinct request
 
 
 def test_drivers_dataframe_for_t96_and_missing_inputs():
