@@ -16,6 +16,8 @@ from scipy.stats import t as student_t
 
 from magcal.alignment.noise import (OUNoise, as_seconds, component_basis, fit_ou_stats,
                                     lag_stats, noise_from_fits, restricted_nll_stats)
+from magcal.alignment.localtime import (describe_harmonics, harmonic_basis, harmonic_names,
+                                       local_time_hours)
 from magcal.alignment.result import AlignmentResult
 from magcal.alignment.wahba import wahba_rotation
 from magcal.errors import InputError
@@ -50,8 +52,13 @@ def prepare(times, data, ref, min_samples: int = 10):
     return t - t[0], d[keep], r[keep], keep
 
 
-def param_names(fit_rotation=True, fit_offset=True, fit_scale=False) -> tuple:
-    """Names of the fitted parameters in vector order."""
+def param_names(fit_rotation=True, fit_offset=True, fit_scale=False,
+                lt_harmonics: int = 0) -> tuple:
+    """Names of the fitted parameters in vector order.
+
+    With ``lt_harmonics = K > 0`` the ``6 K`` local-time nuisance coefficients
+    (:func:`magcal.alignment.localtime.harmonic_names`) come last.
+    """
     names = []
     if fit_rotation:
         names += ["w_Hp", "w_He", "w_Hn"]
@@ -59,7 +66,20 @@ def param_names(fit_rotation=True, fit_offset=True, fit_scale=False) -> tuple:
         names += ["o_Hp", "o_He", "o_Hn"]
     if fit_scale:
         names += ["scale"]
+    names += list(harmonic_names(lt_harmonics))
     return tuple(names)
+
+
+def n_lt_harmonics(names) -> int:
+    """Number of local-time harmonics among the parameter ``names``."""
+    return sum(1 for n in names if n.startswith("lt_")) // 6
+
+
+def harmonic_coefficients(theta, names) -> np.ndarray:
+    """Local-time coefficients as an array (3, 2K) (empty when none were fitted)."""
+    theta = np.asarray(theta, dtype=float)
+    idx = [i for i, n in enumerate(names) if n.startswith("lt_")]
+    return theta[idx].reshape(3, -1) if idx else np.zeros((3, 0))
 
 
 def unpack(theta, names):
@@ -89,11 +109,18 @@ def left_jacobian(rotvec) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
-def predict_and_jacobian(theta, names, ref):
-    """Model ``scale * R(w) @ ref + offset`` and its Jacobian, shapes (n, 3), (n, 3, p)."""
+def predict_and_jacobian(theta, names, ref, basis=None):
+    """Model ``scale * R(w) @ ref + offset (+ basis @ lt_coef)`` and its Jacobian.
+
+    ``basis`` (n, 2K) holds the local-time harmonics when ``names`` has ``lt_`` entries.
+    Returns shapes (n, 3) and (n, 3, p).
+    """
     w, o, s = unpack(theta, names)
     rotated = Rotation.from_rotvec(w).apply(ref)
     mu = s * rotated + o
+    coef = harmonic_coefficients(theta, names)
+    if coef.shape[1]:
+        mu = mu + basis @ coef.T
     n = ref.shape[0]
     jac = np.zeros((n, 3, len(names)))
     col = 0
@@ -110,6 +137,10 @@ def predict_and_jacobian(theta, names, ref):
         col += 3
     if "scale" in names:
         jac[:, :, col] = rotated
+        col += 1
+    k2 = coef.shape[1]
+    for c in range(3 if k2 else 0):
+        jac[:, c, col + c * k2:col + (c + 1) * k2] = basis
     return mu, jac
 
 
@@ -204,7 +235,8 @@ def variance_dof(stats, nstats, noise: OUNoise, step: float = 0.05) -> np.ndarra
 
 
 def initial_guess(d, r, names):
-    """Closed-form starting point (Wahba/Kabsch rotation, mean offset, unit scale)."""
+    """Closed-form starting point (Wahba/Kabsch rotation, mean offset, unit scale, no
+    local-time field)."""
     theta = []
     if "w_Hp" in names:
         w, o, _ = wahba_rotation(d, r, center="o_Hp" in names)
@@ -216,18 +248,24 @@ def initial_guess(d, r, names):
         theta += list(o)
     if "scale" in names:
         theta += [1.0]
+    theta += [0.0] * (6 * n_lt_harmonics(names))
     return np.array(theta, dtype=float)
 
 
 def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bool = True,
                   fit_scale: bool = False, noise: OUNoise | None = None,
-                  max_iter: int = 20, noise_iter: int = 2) -> AlignmentResult:
+                  max_iter: int = 20, noise_iter: int = 2, lt_harmonics: int = 0,
+                  lon_deg: float | None = None) -> AlignmentResult:
     """Rotation (plus offset, scale) of ``data`` against ``ref`` with calibrated errors.
 
-    Model: ``data = scale * R(w) @ ref + offset + e`` where each component of ``e`` is an
-    Ornstein-Uhlenbeck process (standard deviation and correlation time fitted). The
-    estimate starts at Wahba's closed form and is refined by Gauss-Newton generalised
-    least squares; the covariance is the inverse Fisher matrix of that model.
+    Model: ``data = scale * R(w) @ ref + offset + L(LT) + e`` where each component of
+    ``e`` is an Ornstein-Uhlenbeck process (standard deviation and correlation time
+    fitted) and ``L`` is an optional field fixed in local time (``lt_harmonics``
+    harmonics per component, nuisance parameters, see
+    :mod:`magcal.alignment.localtime`). The estimate starts at Wahba's closed form and
+    is refined by Gauss-Newton generalised least squares; the covariance is the inverse
+    Fisher matrix of that model, so the angle uncertainty includes the confounding with
+    the local-time field.
 
     Parameters
     ----------
@@ -242,11 +280,17 @@ def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bo
         Fixed noise model; by default fitted to the residuals.
     max_iter, noise_iter : int
         Gauss-Newton iterations per noise fit, and noise re-fits.
+    lt_harmonics : int
+        Number of local-time harmonics per component fitted as nuisance (0: none).
+    lon_deg : float, optional
+        East longitude, to express the local-time field in local time (otherwise UT;
+        for a fixed longitude the fit is the same, only the phase differs).
 
     Returns
     -------
     AlignmentResult
-        ``method="wahba+ou-gls"``.
+        ``method="wahba+ou-gls"``; with harmonics, ``local_time`` describes the fitted
+        field.
 
     Examples
     --------
@@ -258,22 +302,23 @@ def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bo
     """
     if not (fit_rotation or fit_offset or fit_scale):
         raise InputError("nothing to fit: enable rotation, offset or scale")
-    t, d, r, _ = prepare(times, data, ref)
-    names = param_names(fit_rotation, fit_offset, fit_scale)
+    t, d, r, keep = prepare(times, data, ref)
+    names = param_names(fit_rotation, fit_offset, fit_scale, lt_harmonics)
+    basis = lt_basis(times, keep, lt_harmonics, lon_deg)
     theta = initial_guess(d, r, names)
     fixed_noise = noise is not None
     for _ in range(1 if fixed_noise else noise_iter):
         if not fixed_noise:
-            mu, jac = predict_and_jacobian(theta, names, r)
+            mu, jac = predict_and_jacobian(theta, names, r, basis)
             noise = _fit_noise_stats(noise_stats(t, d, mu, jac), t)
         for _ in range(max_iter):
-            mu, jac = predict_and_jacobian(theta, names, r)
+            mu, jac = predict_and_jacobian(theta, names, r, basis)
             a, b = _normal_equations(component_stats(t, d, mu, jac), noise)
             step = np.linalg.solve(a, b)
             theta = theta + step
             if np.all(np.abs(step) <= 1e-9 * (1.0 + np.abs(theta))):
                 break
-    mu, jac = predict_and_jacobian(theta, names, r)
+    mu, jac = predict_and_jacobian(theta, names, r, basis)
     stats = component_stats(t, d, mu, jac)
     nstats = noise_stats(t, d, mu, jac)
     if not fixed_noise:
@@ -282,7 +327,18 @@ def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bo
     cov = np.linalg.inv(a)
     dof = (variance_dof(stats, nstats, noise) if not fixed_noise
            else np.full(len(names), np.inf))
-    return summarize(theta, cov, names, noise, d - mu, method="wahba+ou-gls", dof=dof)
+    return summarize(theta, cov, names, noise, d - mu, method="wahba+ou-gls", dof=dof,
+                     lon_deg=lon_deg)
+
+
+def lt_basis(times, keep, lt_harmonics: int, lon_deg=None):
+    """Local-time harmonic regressors of the kept rows, (m, 2K), or None for K = 0."""
+    if not lt_harmonics:
+        return None
+    if lt_harmonics < 0:
+        raise InputError(f"lt_harmonics must be >= 0, got {lt_harmonics}")
+    lt = local_time_hours(times, lon_deg)
+    return harmonic_basis(np.asarray(lt)[keep], lt_harmonics)
 
 
 def summarize(theta, cov, names, noise, residual, method, **extra) -> AlignmentResult:
@@ -313,6 +369,11 @@ def summarize(theta, cov, names, noise, residual, method, **extra) -> AlignmentR
     scale = scale_std = None
     if "scale" in idx:
         scale, scale_std = float(s), float(np.sqrt(cov[idx["scale"], idx["scale"]]))
+    lon_deg = extra.pop("lon_deg", None)
+    if n_lt_harmonics(names):
+        lt_idx = [i for i, n in enumerate(names) if n.startswith("lt_")]
+        extra.setdefault("local_time", describe_harmonics(
+            harmonic_coefficients(theta, names), cov[np.ix_(lt_idx, lt_idx)], lon_deg))
     return AlignmentResult(
         angles_deg=angles, cov_deg2=cov_deg2, ci95_deg=ci, offset_nT=offset,
         offset_std_nT=offset_std, scale=scale, scale_std=scale_std,

@@ -200,10 +200,14 @@ def lag_stats(v, times_s, dt_decimals: int = 6) -> LagStats:
     if g == 1:
         m00[0], m01[0], m11[0] = cur.T @ cur, cur.T @ prev, prev.T @ prev
     else:
-        for name, a, b in (("00", cur, cur), ("01", cur, prev), ("11", prev, prev)):
-            outer = a[:, :, None] * b[:, None, :]
-            target = {"00": m00, "01": m01, "11": m11}[name]
-            np.add.at(target, inverse, outer)
+        # one matrix product per spacing group (np.add.at over outer products is ~50x
+        # slower for the many groups a Kp-selected record has)
+        order = np.argsort(inverse, kind="stable")
+        bounds = np.concatenate([[0], np.cumsum(count)])
+        for j in range(g):
+            sel = order[bounds[j]:bounds[j + 1]]
+            a, b = cur[sel], prev[sel]
+            m00[j], m01[j], m11[j] = a.T @ a, a.T @ b, b.T @ b
     return LagStats(n=int(v.shape[0]), dt_s=groups, count=count, m00=m00, m01=m01,
                     m11=m11, first=np.outer(v[0], v[0]))
 

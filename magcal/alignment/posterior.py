@@ -24,7 +24,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from magcal.alignment.gls import fit_alignment, param_names, prepare, summarize, unpack
+from magcal.alignment.gls import (fit_alignment, lt_basis, param_names, prepare, summarize,
+                                  unpack)
 from magcal.alignment.noise import COMPONENTS, LagStats, lag_stats, noise_from_fits
 from magcal.alignment.result import AlignmentResult
 
@@ -41,21 +42,30 @@ class AlignmentPosterior:
     data, ref : ndarray, shape (n, 3)
         Finite, matched samples.
     names : tuple of str
-        Model parameter names (see :func:`magcal.alignment.gls.param_names`); the six
-        noise parameters :data:`NOISE_NAMES` follow them in the parameter vector.
+        Model parameter names (see :func:`magcal.alignment.gls.param_names`, without
+        local-time terms); the six noise parameters :data:`NOISE_NAMES` follow them in
+        the parameter vector.
+    basis : ndarray, shape (n, 2K), optional
+        Local-time harmonics (:func:`magcal.alignment.localtime.harmonic_basis`). Their
+        coefficients are nuisance parameters with a flat prior, integrated out
+        analytically (the likelihood is Gaussian and linear in them): the sampled angles
+        carry the full confounding with a local-time field at no extra dimensions.
     """
 
-    def __init__(self, times_s, data, ref, names):
+    def __init__(self, times_s, data, ref, names, basis=None):
         self.times_s = np.asarray(times_s, dtype=float)
         self.data = np.asarray(data, dtype=float)
         self.ref = np.asarray(ref, dtype=float)
         self.names = tuple(names)
         self.all_names = self.names + NOISE_NAMES
         ones = np.ones((self.ref.shape[0], 1))
+        self.basis = (np.zeros((self.ref.shape[0], 0)) if basis is None
+                      else np.asarray(basis, dtype=float))
+        self.n_basis = self.basis.shape[1]
         self.stats: list[LagStats] = [
-            lag_stats(np.concatenate([self.data[:, c:c + 1], self.ref, ones], axis=1),
-                      self.times_s) for c in range(3)]
-        # stacked per component: [first, m00 (g), m01 (g), m11 (g)] -> (3, 1 + 3g, 5, 5)
+            lag_stats(np.concatenate([self.data[:, c:c + 1], self.ref, ones, self.basis],
+                                     axis=1), self.times_s) for c in range(3)]
+        # stacked per component: [first, m00 (g), m01 (g), m11 (g)] -> (3, 1 + 3g, m, m)
         self._stack = np.stack([np.concatenate([st.first[None], st.m00, st.m01, st.m11])
                                 for st in self.stats])
         self._dt = self.stats[0].dt_s
@@ -99,13 +109,40 @@ class AlignmentPosterior:
         tau = np.exp(log_tau)
         nw = theta.shape[0]
         gamma = np.concatenate([np.ones((nw, 3, 1)), -rot, -o[:, :, None]], axis=2)  # (w,3,5)
-        q = np.einsum("wci,cmij,wcj->wcm", gamma, self._stack, gamma)  # (w, 3, 1+3g)
         g = self._dt.size
         phi = np.exp(-self._dt / tau[:, :, None])  # (w, 3, g)
         k2 = 1.0 - phi ** 2
+        if self.n_basis:
+            return self._log_likelihood_marginal(gamma, phi, k2, log_std)
+        q = np.einsum("wci,cmij,wcj->wcm", gamma, self._stack, gamma)  # (w, 3, 1+3g)
         rss = q[:, :, 0] + np.sum((q[:, :, 1:1 + g] - 2.0 * phi * q[:, :, 1 + g:1 + 2 * g]
                                    + phi ** 2 * q[:, :, 1 + 2 * g:]) / k2, axis=2)
         return np.sum(-0.5 * rss * np.exp(-2.0 * log_std) - self.n * log_std
+                      - 0.5 * np.sum(self._count * np.log(k2), axis=2), axis=1)
+
+    def _log_likelihood_marginal(self, gamma, phi, k2, log_std):
+        """Likelihood with the local-time coefficients integrated out (flat prior).
+
+        Per component, with whitened Gram ``G`` of ``[data_c, ref, 1, H]``:
+        ``rss = g^T G_rr g - b^T A^-1 b`` with ``b = G_Hr g``, ``A = G_HH``; the
+        integral adds ``-0.5 log det A + 2K log sigma``.
+        """
+        g = self._dt.size
+        st = self._stack  # (3, 1 + 3g, m, m)
+        c00, c01, c11 = 1.0 / k2, -phi / k2, phi ** 2 / k2  # (w, 3, g)
+        sym = st[:, 1 + g:1 + 2 * g] + np.swapaxes(st[:, 1 + g:1 + 2 * g], 2, 3)
+        gram = (st[None, :, 0] + np.einsum("wcg,cgij->wcij", c00, st[:, 1:1 + g])
+                + np.einsum("wcg,cgij->wcij", c01, sym)
+                + np.einsum("wcg,cgij->wcij", c11, st[:, 1 + 2 * g:]))
+        nr = gamma.shape[2]
+        q = np.einsum("wci,wcij,wcj->wc", gamma, gram[:, :, :nr, :nr], gamma)
+        b = np.einsum("wcij,wcj->wci", gram[:, :, nr:, :nr], gamma)
+        a = gram[:, :, nr:, nr:]
+        sol = np.linalg.solve(a, b[..., None])[..., 0]
+        rss = q - np.einsum("wci,wci->wc", b, sol)
+        log_det = np.linalg.slogdet(a)[1]
+        return np.sum(-0.5 * rss * np.exp(-2.0 * log_std)
+                      - (self.n - self.n_basis) * log_std - 0.5 * log_det
                       - 0.5 * np.sum(self._count * np.log(k2), axis=2), axis=1)
 
     def __call__(self, theta) -> np.ndarray:
@@ -132,12 +169,13 @@ def _rotation_matrices(w) -> np.ndarray:
     return np.eye(3) + a[:, None, None] * k + b[:, None, None] * (k @ k)
 
 
-def log_likelihood_direct(theta, times_s, data, ref, names) -> float:
+def log_likelihood_direct(theta, times_s, data, ref, names, basis=None) -> float:
     """Same log-likelihood as :meth:`AlignmentPosterior.log_likelihood`, sample by sample.
 
     The straightforward implementation (residuals of all samples, whitened per
     component) for one parameter vector: the reference in tests and the baseline of
-    the benchmark.
+    the benchmark. With ``basis`` the local-time coefficients are integrated out by an
+    explicit whitened least-squares projection.
     """
     theta = np.asarray(theta, dtype=float)
     p = len(names)
@@ -150,8 +188,16 @@ def log_likelihood_direct(theta, times_s, data, ref, names) -> float:
         phi = np.exp(-dt / np.exp(theta[p + 3 + c]))
         k = np.sqrt(1.0 - phi ** 2)
         u = np.concatenate([[resid[0, c]], (resid[1:, c] - phi * resid[:-1, c]) / k])
-        total += -0.5 * np.sum(u ** 2) / sigma ** 2 - data.shape[0] * np.log(sigma) - np.sum(
-            np.log(k))
+        n_par = 0
+        if basis is not None and basis.shape[1]:
+            hw = np.concatenate([basis[:1], (basis[1:] - phi[:, None] * basis[:-1])
+                                 / k[:, None]])
+            coef, *_ = np.linalg.lstsq(hw, u, rcond=None)
+            u = u - hw @ coef
+            n_par = basis.shape[1]
+            total -= 0.5 * np.linalg.slogdet(hw.T @ hw)[1]
+        total += -0.5 * np.sum(u ** 2) / sigma ** 2 - (data.shape[0] - n_par) * np.log(
+            sigma) - np.sum(np.log(k))
     return float(total)
 
 
@@ -168,7 +214,8 @@ def _initial_walkers(start: AlignmentResult, names, n_walkers, rng, post):
     center += list(np.log(start.noise.std_nT)) + list(np.log(start.noise.tau_s))
     center = np.array(center)
     cov = np.zeros((len(center), len(center)))
-    cov[:p, :p] = start.param_cov
+    sub = [list(start.param_names).index(n) for n in names]
+    cov[:p, :p] = start.param_cov[np.ix_(sub, sub)]
     cov[p:, p:] = np.eye(6) * 0.05 ** 2
     chol = np.linalg.cholesky(cov + 1e-18 * np.eye(len(center)))
     walkers = center + rng.standard_normal((n_walkers, len(center))) @ chol.T
@@ -182,7 +229,8 @@ def sample_posterior(times, data, ref, rng: np.random.Generator, *, fit_offset: 
                      fit_scale: bool = False, n_walkers: int = 32,
                      min_autocorr_times: float = 50.0, max_steps: int = 40000,
                      first_steps: int = 2000, start: AlignmentResult | None = None,
-                     progress: bool = False) -> AlignmentResult:
+                     progress: bool = False, lt_harmonics: int = 0,
+                     lon_deg: float | None = None) -> AlignmentResult:
     """Sample the alignment posterior with emcee until converged (or ``max_steps``).
 
     Parameters
@@ -206,6 +254,11 @@ def sample_posterior(times, data, ref, rng: np.random.Generator, *, fit_offset: 
         Closed-form result to start from (computed when omitted).
     progress : bool
         Show emcee's tqdm progress bar.
+    lt_harmonics : int
+        Local-time harmonics per component, integrated out as nuisance (see
+        :class:`AlignmentPosterior`); 0 for none.
+    lon_deg : float, optional
+        East longitude for the local time (otherwise UT; same fit, other phase).
 
     Returns
     -------
@@ -225,11 +278,13 @@ def sample_posterior(times, data, ref, rng: np.random.Generator, *, fit_offset: 
     """
     import emcee
 
-    t, d, r, _ = prepare(times, data, ref)
+    t, d, r, keep = prepare(times, data, ref)
     names = param_names(True, fit_offset, fit_scale)
+    basis = lt_basis(times, keep, lt_harmonics, lon_deg)
     if start is None:
-        start = fit_alignment(t, d, r, fit_offset=fit_offset, fit_scale=fit_scale)
-    post = AlignmentPosterior(t, d, r, names)
+        start = fit_alignment(times, data, ref, fit_offset=fit_offset, fit_scale=fit_scale,
+                              lt_harmonics=lt_harmonics, lon_deg=lon_deg)
+    post = AlignmentPosterior(t, d, r, names, basis=basis)
     walkers = _initial_walkers(start, names, n_walkers, rng, post)
     # Differential-evolution moves mix about 4x faster than the default stretch move on
     # this correlated posterior. DESnookerMove is deliberately not used: measured here,
@@ -264,11 +319,14 @@ def sample_posterior(times, data, ref, rng: np.random.Generator, *, fit_offset: 
                     "autocorrelation time {:.1f} steps; increase max_steps".format(
                         n_steps, min_autocorr_times, tau_max)),
         "priors": "angles uniform |w|<45 deg, offsets flat, scale uniform [0.5, 2], "
-                  "noise std and tau log-uniform",
-    }, tau_max, d, r, t)
+                  "noise std and tau log-uniform"
+                  + (", local-time coefficients flat (integrated out)" if lt_harmonics else ""),
+        "lt_harmonics": int(lt_harmonics),
+    }, tau_max, d, r, t, basis)
 
 
-def _summarize_chain(flat, names, post, start, info, tau_max, d, r, t) -> AlignmentResult:
+def _summarize_chain(flat, names, post, start, info, tau_max, d, r, t,
+                     basis=None) -> AlignmentResult:
     p = len(names)
     theta = np.median(flat[:, :p], axis=0)
     cov = np.atleast_2d(np.cov(flat[:, :p], rowvar=False))
@@ -276,6 +334,9 @@ def _summarize_chain(flat, names, post, start, info, tau_max, d, r, t) -> Alignm
     noise = noise_from_fits([(noise_med[c], noise_med[3 + c], False) for c in range(3)], t)
     w, o, s = unpack(theta, names)
     resid = d - s * Rotation.from_rotvec(w).apply(r) - o
+    if basis is not None and start.local_time is not None:
+        coef = np.array([start.local_time["coefficients_nT"][c] for c in COMPONENTS])
+        resid = resid - basis @ coef.T
     angles = np.rad2deg(flat[:, :3])
     ci = np.percentile(angles, [2.5, 97.5], axis=0).T
     samples = flat.copy()
@@ -285,4 +346,4 @@ def _summarize_chain(flat, names, post, start, info, tau_max, d, r, t) -> Alignm
     info["closed_form_std_deg"] = dict(zip(COMPONENTS, map(float, start.std_deg)))
     return summarize(theta, cov, names, noise, resid, method="emcee", ci95_deg=ci,
                      converged=info["converged"], autocorr_steps=tau_max, mcmc=info,
-                     samples=samples)
+                     samples=samples, local_time=start.local_time)

@@ -55,6 +55,9 @@ class AlignmentResult:
     samples : ndarray or None
         Flattened posterior samples in ``param_names`` order (angles in degrees); not
         written to JSON.
+    local_time : dict or None
+        Fitted local-time nuisance field (see
+        :func:`magcal.alignment.localtime.describe_harmonics`), when harmonics were fitted.
     provenance : dict or None
     """
 
@@ -76,6 +79,7 @@ class AlignmentResult:
     autocorr_steps: float | None = None
     mcmc: dict | None = None
     samples: np.ndarray | None = dataclasses.field(default=None, repr=False)
+    local_time: dict | None = None
     provenance: dict | None = None
 
     @property
@@ -123,6 +127,8 @@ class AlignmentResult:
             "dof": _by_component(self.dof_deg),
             "parameters": list(self.param_names),
         })
+        if self.local_time is not None:
+            out["local_time_field"] = self.local_time
         if self.mcmc is not None:
             out["mcmc"] = self.mcmc
         if self.provenance is not None:
