@@ -27,7 +27,7 @@ from magcal.discover.gap import profile_gap, rms
 from magcal.discover.scan import n_period_trials, n_step_trials, scan_periods, scan_step
 from magcal.discover.selection import (
     BlockedGram, Comparison, CVScore, compare, delta_bic_eff,
-    paired_z, regression_n_eff, time_blocks, wald_z)
+    model_covariance, paired_z, regression_n_eff, time_blocks, wald_z)
 from magcal.io.jsonio import product_dict
 
 
@@ -313,6 +313,13 @@ class _Loop:
         self.added: list[tuple[Effect, tuple[int, ...]]] = []
         self.covered: dict[str, set] = {}
 
+    def _compare(self, base: CVScore, score: CVScore) -> Comparison:
+        params = list(range(len(base.columns), len(score.columns)))
+        return compare(base, score, params, self._se(score, params))
+
+    def _se(self, score: CVScore, params):
+        return model_covariance(self.gram, score, params, self.blocks)
+
     # -- scoring ---------------------------------------------------------------------
     @property
     def base_cols(self) -> list[int]:
@@ -324,6 +331,7 @@ class _Loop:
         base_cols = self.base_cols
         comp_cmp = {}
         chosen = []
+        tried = []
         for eff in effects:
             if eff.coupled:
                 chosen.append(eff)
@@ -332,16 +340,23 @@ class _Loop:
             if comp in self.covered.get(family, set()):
                 continue
             s = self.gram.score(base_cols + list(self.cols[eff]))
-            cmp = compare(base, s)
+            cmp = self._compare(base, s)
             comp_cmp[comp] = cmp.z
+            tried.append((eff, cmp))
             if cmp.gain > 0 and cmp.z >= z_comp:
                 chosen.append(eff)
+        if chosen and trials > 1:
+            # the scanned hyper-parameter (step time, period) is established by the
+            # components that passed the look-elsewhere threshold: the others are tested
+            # at that fixed value
+            chosen = [eff for eff, cmp in tried
+                      if cmp.gain > 0 and cmp.z >= self.settings.z_component]
         if not chosen:
             return None
         cols = tuple(c for e in chosen for c in self.cols[e])
         score = self.gram.score(base_cols + list(cols))
-        return _Candidate(_merge(chosen), cols, score, compare(base, score), comp_cmp, family,
-                          z_need)
+        return _Candidate(_merge(chosen), cols, score, self._compare(base, score), comp_cmp,
+                          family, z_need)
 
     def _family(self, family: str, variants, base: CVScore):
         if family in ("rotation",) and family in self.covered:
@@ -359,7 +374,8 @@ class _Loop:
             have = set(pick.effect.labels())
             extra = [k + i for i, lab in enumerate(richer.effect.labels()) if lab not in have]
             if richer.comparison.gain > pick.comparison.gain and \
-                    wald_z(richer.score, extra) >= self.settings.z_variant:
+                    wald_z(richer.score, extra, cov_model=self._se(richer.score, extra)) \
+                    >= self.settings.z_variant:
                 pick = richer
         return pick
 
