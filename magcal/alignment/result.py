@@ -58,6 +58,12 @@ class AlignmentResult:
     local_time : dict or None
         Fitted local-time nuisance field (see
         :func:`magcal.alignment.localtime.describe_harmonics`), when harmonics were fitted.
+    warnings : tuple of str
+        Reasons not to take the numbers at face value (see
+        :mod:`magcal.alignment.checks`); empty when none.
+    checks : dict or None
+        JSON-ready diagnostics behind the warnings (local-time check, window
+        consistency, inflation applied).
     provenance : dict or None
     """
 
@@ -80,6 +86,8 @@ class AlignmentResult:
     mcmc: dict | None = None
     samples: np.ndarray | None = dataclasses.field(default=None, repr=False)
     local_time: dict | None = None
+    warnings: tuple = ()
+    checks: dict | None = None
     provenance: dict | None = None
 
     @property
@@ -127,8 +135,11 @@ class AlignmentResult:
             "dof": _by_component(self.dof_deg),
             "parameters": list(self.param_names),
         })
+        out["warnings"] = list(self.warnings)
         if self.local_time is not None:
             out["local_time_field"] = self.local_time
+        if self.checks is not None:
+            out.update(self.checks)
         if self.mcmc is not None:
             out["mcmc"] = self.mcmc
         if self.provenance is not None:
