@@ -84,8 +84,11 @@ def account_lines(result) -> list[str]:
     per = ", ".join(f"{c} {by[c]['rms_nT']:.2f}" for c in result.components if c in by)
     lines = [f"gap: RMS {g0['rms_nT']:.2f} nT over all components ({per} nT)"]
     for fe in result.effects:
+        # a slow term (drift) can be highly significant against the day-to-day scatter
+        # while the RMS, dominated by fast variability, barely moves: show the change
+        nd = 2 if abs(fe.rms_before_nT - fe.rms_after_nT) >= 0.005 else 4
         line = (f"{_symptom(fe)}; added {_what(fe)} on {_comps(fe.components)}; "
-                f"RMS {fe.rms_before_nT:.2f} -> {fe.rms_after_nT:.2f} nT "
+                f"RMS {fe.rms_before_nT:.{nd}f} -> {fe.rms_after_nT:.{nd}f} nT "
                 f"(z = {fe.evidence['z']:.1f})")
         amb = fe.evidence.get("ambiguous_with") or []
         if amb:
