@@ -7,7 +7,8 @@ import dataclasses
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from magcal.alignment.checks import inflate, local_time_check, window_consistency
+from magcal.alignment.checks import (add_systematic, inflate, local_time_check,
+                                     whole_vs_windows, window_consistency)
 from magcal.alignment.gls import fit_alignment, prepare
 from magcal.alignment.noise import COMPONENTS
 from magcal.alignment.posterior import sample_posterior
@@ -158,16 +159,23 @@ class Aligner:
             cons, warn = window_consistency(self.windows_)
             checks["window_consistency"] = cons
             warnings += warn
+            whole, warn, syst = whole_vs_windows(result, self.windows_)
+            checks["whole_vs_windows"] = whole
+            warnings += warn
+            uninflated = {
+                "std_deg": dict(zip(COMPONENTS, map(float, result.std_deg))),
+                "ci95_deg": {c: [float(lo), float(hi)] for c, (lo, hi)
+                             in zip(COMPONENTS, result.ci95_deg)}}
             if self.inflate_inconsistent and "inflation" in cons:
                 factors = [cons["inflation"][c] for c in COMPONENTS]
-                if any(f != 1.0 for f in factors):
-                    checks["uninflated"] = {
-                        "std_deg": dict(zip(COMPONENTS, map(float, result.std_deg))),
-                        "ci95_deg": {c: [float(lo), float(hi)] for c, (lo, hi)
-                                     in zip(COMPONENTS, result.ci95_deg)}}
                 result = inflate(result, factors, cons["dof"])
                 checks["window_consistency"]["inflation_applied"] = any(
                     f != 1.0 for f in factors)
+            if self.inflate_inconsistent:
+                result = add_systematic(result, syst)
+                whole["systematic_applied"] = bool(np.any(syst > 0))
+            if not np.allclose(result.std_deg, list(uninflated["std_deg"].values())):
+                checks["uninflated"] = uninflated
         result = dataclasses.replace(result, warnings=tuple(warnings), checks=checks or None)
         self.lt_harmonics_ = k
         self.closed_form_ = closed

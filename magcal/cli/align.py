@@ -150,5 +150,29 @@ def run(args) -> int:
                   "window_days": args.window_days, "lt_harmonics": args.lt_harmonics,
                   "longitude": args.longitude, "kp_max": args.kp_max if args.kp else None},
         inputs=inputs)
+    if args.mcmc and aligner.result_.samples is not None:
+        samples_path = samples_path_for(args.output)
+        payload["mcmc"]["samples_file"] = samples_path.name
+        _write_samples(samples_path, aligner.result_)
     write_json(args.output, payload)
     return 0
+
+
+def samples_path_for(output):
+    """Side file of the posterior samples: ``ALIGN.json`` -> ``ALIGN.samples.csv.gz``."""
+    from pathlib import Path
+
+    out = Path(output)
+    return out.with_name(out.stem + ".samples.csv.gz")
+
+
+def _write_samples(path, result) -> None:
+    """Posterior samples (angles in degrees, as named in ``mcmc.sample_names``), atomically."""
+    import pandas as pd
+
+    from magcal.io.atomic import atomic_path
+
+    names = [n.replace("w_", "angle_deg_") for n in result.mcmc["sample_names"]]
+    frame = pd.DataFrame(result.samples, columns=names)
+    with atomic_path(path) as tmp:
+        frame.to_csv(tmp, index=False, float_format="%.6g", compression="gzip")
