@@ -62,3 +62,11 @@ def test_spin_stage_numbers(demo):
     assert m["spin_tone_after_nT"] < 0.01 < m["spin_tone_before_nT"]
     assert m["max_c3x_error_deg"] < 0.01 and m["max_o12_error_nT"] < 0.05
     assert abs(m["o3_error_nT"]) < 4 * m["o3_std_nT"]
+
+
+@pytest.mark.slow
+def test_alignment_stage_is_honest(demo):
+    # the month has no rotation but a local-time field the model lacks: the intervals
+    # must cover the truth (0) instead of reporting the gap as a tight rotation
+    m = demo[1]["alignment against the model"]["metrics"]
+    assert m["truth_inside_ci95"] is True
