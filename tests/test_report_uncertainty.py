@@ -1,0 +1,134 @@
+"""``magcal report``: uncertainty report built from a small products folder."""
+
+from __future__ import annotations
+
+import base64
+import json
+import re
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from magcal.cli import main
+from magcal.io.csv import write_csv_frame
+from magcal.io.jsonio import write_json
+from magcal.provenance import make_provenance
+
+
+@pytest.fixture(scope="module")
+def products(tmp_path_factory):
+    """ac/ (two plans, raw input reachable), offsets/ (two estimators), alignment/
+    (magcal align --mcmc on a 12-day synthetic pair), spin/CAL.json, discover/REPORT.json."""
+    from magcal.alignment.synthetic import synthetic_pair
+
+    root = tmp_path_factory.mktemp("products")
+    rng = np.random.default_rng(5)
+    # --- ac: 1 Hz, 3 h; raw = clean + a 30 s disturbance
+    n = 3 * 3600
+    idx = pd.date_range("2019-03-04", periods=n, freq="1s", tz="UTC", name="time")
+    clean = rng.normal(0.0, 0.1, (n, 3)) + [10.0, 20.0, 30.0]
+    dist = 2.0 * np.sin(2 * np.pi * np.arange(n) / 30.0)[:, None] * [1.0, 0.5, 0.2]
+    (root / "ac").mkdir()
+    raw_path = root / "raw.csv"
+    write_csv_frame(raw_path, pd.DataFrame(clean + dist, index=idx,
+                                           columns=["fgmo_x", "fgmo_y", "fgmo_z"]))
+    for name, scale in (("paper", 0.0), ("regression", 0.05)):
+        write_csv_frame(root / "ac" / f"CLEAN_{name}.csv.gz", pd.DataFrame(
+            clean + scale * dist, index=idx, columns=["x", "y", "z"]))
+        write_json(root / "ac" / f"PARAMS_{name}.json", {
+            "target": "fgmo", "M": {"fgmo": np.eye(3).tolist(), "amr1": np.zeros((3, 3)).tolist()},
+            "G": [0.0, 0.0, 0.0],
+            "steps": [{"stage": 1, "order": 1, "i": "fgmo", "j": "amr1", "alpha": 0.98,
+                       "direction_i": [1, 0, 0], "direction_ij": [1, 0, 0], "window_s": None}],
+            "provenance": make_provenance("picog fit", {}, inputs=[raw_path])})
+    # --- offsets
+    (root / "offsets").mkdir()
+    header = "center,start,end,Hp,He,Hn,Hp_std,He_std,Hn_std,n_used,fraction_used\n"
+    rows = ["2019-11-15T00:00:00,2019-11-01T00:00:00,2019-11-29T00:00:00,"
+            "15.5,38.3,-89.6,3.3,1.8,0.7,24660,0.61",
+            "2019-11-22T00:00:00,2019-11-08T00:00:00,2019-12-06T00:00:00,"
+            "15.7,38.2,-89.5,3.4,1.9,0.6,22680,0.68"]
+    (root / "offsets" / "OFFSETS.csv").write_text(header + "\n".join(rows) + "\n")
+    rows_b = [r.replace("15.5,38.3", "15.1,38.4") for r in rows]
+    (root / "offsets" / "OFFSETS_lt_balanced.csv").write_text(header + "\n".join(rows_b) + "\n")
+    # --- alignment through the CLI
+    case = synthetic_pair(np.random.default_rng(21), n=3456, cadence_s=300.0,
+                          rotvec_deg=(1.7, -0.5, -0.5), noise_tau_s=(1800.0,) * 3)
+    tidx = pd.DatetimeIndex(case.times, name="time").tz_localize("UTC")
+    write_csv_frame(root / "d.csv", pd.DataFrame(case.data, index=tidx, columns=["Hp", "He", "Hn"]))
+    write_csv_frame(root / "r.csv", pd.DataFrame(case.ref, index=tidx, columns=["Hp", "He", "Hn"]))
+    (root / "alignment").mkdir()
+    assert main(["align", str(root / "d.csv"), "--reference", str(root / "r.csv"), "--mcmc",
+                 "--seed", "1", "--lt-harmonics", "0", "-o",
+                 str(root / "alignment" / "ALIGN.json")]) == 0
+    (root / "d.csv").unlink()
+    (root / "r.csv").unlink()
+    # --- spin and discover
+    (root / "spin").mkdir()
+    write_json(root / "spin" / "CAL.json", {
+        "coupling": np.eye(3).tolist(), "offsets": [0.1, 0.2, 0.3],
+        "determined": ["O1", "O2"], "fixed": ["O3"],
+        "spin_tone_before_nT": {"BX": [1.25, 0.5], "BY": [1.5, 0.25], "BZ": [0.75, 0.125]},
+        "spin_tone_after_nT": {"BX": [0.0125, 0.005], "BY": [0.015, 0.0025],
+                               "BZ": [0.0075, 0.00125]}})
+    (root / "discover").mkdir()
+    write_json(root / "discover" / "REPORT.json", {
+        "gap_initial": {"rms_nT": 5.125}, "gap_final": {"rms_nT": 1.25},
+        "stopped_because": "no candidate improves BIC",
+        "effects": [{"name": "diurnal", "components": ["Hp"], "parameters": {},
+                     "rms_before_nT": 5.125, "rms_after_nT": 1.25, "evidence": {}}]})
+    return root
+
+
+def _text(html):
+    return re.sub(r"<[^>]+>", " ", html)
+
+
+@pytest.mark.slow
+def test_report_holds_the_product_numbers_and_embeds_every_figure(products, tmp_path):
+    out, pdf = tmp_path / "REPORT.html", tmp_path / "REPORT.pdf"
+    assert main(["report", str(products), "-o", str(out), "--pdf", str(pdf)]) == 0
+    html = out.read_text()
+    text = _text(html)
+    align = json.loads((products / "alignment" / "ALIGN.json").read_text())
+    for c in ("Hp", "He", "Hn"):  # alignment table, 3 decimals
+        assert f"{align['angles_deg'][c]:.3f}" in text
+        assert f"{align['std_deg'][c]:.3f}" in text
+        assert f"{align['ci95_deg'][c][0]:.3f}" in text
+    for v in ("15.50", "38.30", "-89.60", "24660", "0.40"):  # offsets table, |diff| 0.4
+        assert v in text
+    for v in ("5.125", "1.250", "diurnal", "1.2500", "0.0125"):  # discover and spin
+        assert v in text
+    assert "Not available: no alignment/*conjunction*.json" in text
+    # plan disagreement above 0.1 mHz: 0.05 x the 30 s wave of amplitude 2 -> rms 0.0707
+    x_rms = 0.05 * 2.0 / np.sqrt(2.0)
+    assert f"{x_rms:.3g}" in text
+    # raw/clean power of the paper plan, summed over axes: (3 x 0.01 + (4 + 1 + 0.16) / 2)
+    # / (3 x 0.01) = 87 (noise variance of 10800 samples known to ~1.4 %)
+    m = re.search(r"paper\s+1\s+0\.0e\+00\s+0\.980 \.\. 0\.980\s+([0-9.]+)", text)
+    assert m is not None
+    np.testing.assert_allclose(float(m.group(1)), (0.03 + 5.16 / 2) / 0.03, rtol=0.05)
+    # every figure is embedded as a decodable PNG; no external image references
+    imgs = re.findall(r'<img [^>]*src="([^"]+)"', html)
+    assert len(imgs) == 5  # PSD x2, offsets, corner, angles by window (12 days: 3 windows)
+    for src in imgs:
+        assert src.startswith("data:image/png;base64,")
+        assert base64.b64decode(src.split(",", 1)[1])[:8] == b"\x89PNG\r\n\x1a\n"
+    # PDF: one page per figure after the text pages
+    n_pages = len(re.findall(rb"/Type\s*/Page\b", pdf.read_bytes()))
+    assert n_pages == len(imgs) + 2  # 2 text pages (about 100 lines at 62 a page)
+
+
+def test_missing_products_are_reported_not_errors(tmp_path):
+    out = tmp_path / "r.html"
+    (tmp_path / "empty").mkdir()
+    assert main(["report", str(tmp_path / "empty"), "-o", str(out)]) == 0
+    text = _text(out.read_text())
+    assert text.count("Not available") == 6
+
+
+def test_report_of_missing_folder_exits_2(tmp_path, capsys):
+    assert main(["report", str(tmp_path / "nope"), "-o", str(tmp_path / "r.html")]) == 2
+    assert "nope" in capsys.readouterr().err
+    assert not (tmp_path / "r.html").exists()
