@@ -38,9 +38,13 @@ def write_pdf(doc: Document, path) -> Path:
     figures_after: dict[int, list[Figure]] = {}
 
     def add(style, text):
-        if len(pages[-1]) >= _LINES_PER_PAGE:
-            pages.append([])
-        pages[-1].append((style, text))
+        # long table rows continue on an indented line instead of running off the page
+        parts = (textwrap.wrap(text, 118, subsequent_indent="    ", drop_whitespace=False)
+                 if style == "mono" and len(text) > 118 else [text])
+        for part in parts:
+            if len(pages[-1]) >= _LINES_PER_PAGE:
+                pages.append([])
+            pages[-1].append((style, part))
 
     for style, text in _text_lines(doc):
         add(style, text)
@@ -74,7 +78,7 @@ def write_pdf(doc: Document, path) -> Path:
                 y = 0.96
                 for style, text in page:
                     fig.text(0.07, y, text, va="top", **styles[style])
-                    y -= 0.0152 if style not in ("title", "h2") else 0.022
+                    y -= {"title": 0.03, "h2": 0.022}.get(style, 0.0152)
                 pdf.savefig(fig)
                 plt.close(fig)
                 for item in figures_after.get(k, []):
