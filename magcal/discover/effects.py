@@ -33,6 +33,8 @@ from typing import ClassVar, Mapping
 
 import numpy as np
 
+from magcal.frames.localtime import harmonic_basis, local_time_hours
+
 DAY_S = 86400.0
 
 #: Effect names of CONTRACTS §5, in the order of the vocabulary.
@@ -60,9 +62,7 @@ def local_time_h(times_s, longitude_deg) -> np.ndarray:
     >>> float(local_time_h(np.array([12 * 3600.0]), 128.2)[0])  # doctest: +ELLIPSIS
     20.54666...
     """
-    t = np.asarray(times_s, dtype=float)
-    ut_h = np.mod(t, DAY_S) / 3600.0
-    return np.mod(ut_h + np.asarray(longitude_deg, dtype=float) / 15.0, 24.0)
+    return local_time_hours(np.asarray(times_s, dtype=float), longitude_deg)
 
 
 @dataclass(frozen=True)
@@ -211,11 +211,7 @@ class Diurnal(Effect):
     harmonics: int = 2
 
     def basis(self, inputs):
-        x = 2 * np.pi * inputs.local_time_h / 24.0
-        cols = []
-        for k in range(1, self.harmonics + 1):
-            cols += [np.cos(k * x), np.sin(k * x)]
-        return np.column_stack(cols)
+        return harmonic_basis(inputs.local_time_h, self.harmonics)
 
     def basis_labels(self):
         return tuple(lab for k in range(1, self.harmonics + 1)

@@ -4,18 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-
-def local_time_hours(times, lon_deg) -> np.ndarray:
-    """Local (solar mean) time in hours: UT + longitude / 15, modulo 24.
-
-    Examples
-    --------
-    >>> local_time_hours(np.array(["2019-11-01T03:00"], dtype="datetime64[ns]"), 128.2)
-    array([11.54666667])
-    """
-    t = np.asarray(times).astype("datetime64[ns]")
-    ut = (t - t.astype("datetime64[D]")).astype(np.int64) / 3.6e12
-    return np.mod(ut + np.asarray(lon_deg, dtype=float) / 15.0, 24.0)
+from magcal.frames.localtime import local_time_hours  # noqa: F401 - re-exported
 
 
 def residual_by_local_time(times, diff, lon_deg, selected=None, bin_hours: float = 1.0,
