@@ -252,15 +252,19 @@ def default_n_jobs() -> int:
 def evaluate_parallel(t, xyz, model, inputs, options, n_jobs=None):
     """:func:`irbem.evaluate_geo` over worker processes; returns (b_geo, invalid, reasons, backend).
 
-    The points are split into ``n_jobs * k`` contiguous chunks of at most
-    :data:`irbem.NTIME_MAX` points each.
+    The points are split into at least ``8 * n_jobs`` contiguous chunks (each at most
+    :data:`irbem.NTIME_MAX` points), shared dynamically between ``n_jobs - 1`` worker
+    processes and this one.
     """
     n = len(t)
     n_jobs = default_n_jobs() if n_jobs is None else max(1, int(n_jobs))
     if n_jobs == 1 or n < MIN_PARALLEL_POINTS:
         return _worker(t, xyz, model, inputs, options)
-    per_job = math.ceil(n / n_jobs)
-    n_chunks = n_jobs * math.ceil(per_job / irbem.NTIME_MAX)
+    # Many small chunks, balanced dynamically: the pool's n_jobs - 1 workers take chunks
+    # from the front while this process takes them from the back (cancelling a pending
+    # future before computing it here), so no core idles while another finishes a big
+    # share. Chunks stay well under IRBEM's NTIME_MAX.
+    n_chunks = max(n_jobs * 8, math.ceil(n / irbem.NTIME_MAX))
     bounds = np.linspace(0, n, n_chunks + 1).astype(int)
     methods = multiprocessing.get_all_start_methods()
     ctx = multiprocessing.get_context("fork" if "fork" in methods else None)
@@ -268,11 +272,6 @@ def evaluate_parallel(t, xyz, model, inputs, options, n_jobs=None):
     invalid = np.empty(n, dtype=bool)
     reasons: dict[str, int] = {}
     backend = "ctypes"
-    chunks = list(zip(bounds[:-1], bounds[1:]))
-    # The parent process takes the last 1/n_jobs of the chunks itself instead of idling
-    # while it waits: n_jobs - 1 workers plus the parent keep every core busy.
-    own = chunks[len(chunks) - len(chunks) // n_jobs:]
-    given = chunks[:len(chunks) - len(own)]
 
     def collect(a, z, result):
         nonlocal backend
@@ -282,15 +281,22 @@ def evaluate_parallel(t, xyz, model, inputs, options, n_jobs=None):
         for key, count in why.items():
             reasons[key] = reasons.get(key, 0) + count
 
+    def run(a, z):
+        return _worker(t[a:z], xyz[a:z], model, {k: v[a:z] for k, v in inputs.items()},
+                       options)
+
+    chunks = list(zip(bounds[:-1], bounds[1:]))
     with ProcessPoolExecutor(max_workers=max(1, n_jobs - 1), mp_context=ctx) as pool:
         futures = [(a, z, pool.submit(_worker, t[a:z], xyz[a:z], model,
                                       {k: v[a:z] for k, v in inputs.items()}, options))
-                   for a, z in given]
-        for a, z in own:
-            collect(a, z, _worker(t[a:z], xyz[a:z], model,
-                                  {k: v[a:z] for k, v in inputs.items()}, options))
+                   for a, z in chunks]
+        for a, z, fut in reversed(futures):
+            if not fut.cancel():
+                break  # the workers have reached this chunk: the rest is theirs
+            collect(a, z, run(a, z))
         for a, z, fut in futures:
-            collect(a, z, fut.result())
+            if not fut.cancelled():
+                collect(a, z, fut.result())
     return b, invalid, reasons, backend
 
 
