@@ -24,7 +24,7 @@ from typing import Mapping
 import numpy as np
 
 from magcal.ac.core import DIRECTION_METHODS, correction_matrix, fit_first_order
-from magcal.ac.filters import highpass, highpass_samples
+from magcal.ac.filters import bandpass, highpass, highpass_samples
 from magcal.ac.scan import ScanResult, ScanSummary, scan_first_order, summarize_scan
 from magcal.errors import InputError
 
@@ -51,8 +51,12 @@ class Order:
     detrend_s: float | None = None   #: regression stages: running-mean removal before fitting
     direction: str = "variance"
     highpass_s: float | None = None
+    band_hz: tuple[float, float] | None = None   #: fit on an FFT band-pass of both sensors
 
     def __post_init__(self):
+        if self.band_hz is not None and not 0 <= self.band_hz[0] < self.band_hz[1]:
+            raise InputError(f"band_hz must be [low, high] with 0 <= low < high, "
+                             f"got {self.band_hz}")
         if self.direction not in DIRECTION_METHODS:
             raise InputError(f"direction must be one of {DIRECTION_METHODS}, "
                              f"got {self.direction!r}")
@@ -128,6 +132,7 @@ class Step:
     kind: str = "picog"
     direction_method: str = "variance"
     highpass_s: float | None = None
+    band_hz: tuple | None = None
 
     def to_dict(self) -> dict:
         d = {"stage": self.stage, "order": self.order, "i": self.i, "j": self.j,
@@ -135,7 +140,8 @@ class Step:
              "direction_ij": np.asarray(self.direction_ij).tolist(), "window_s": self.window_s,
              "A": np.asarray(self.A).tolist(), "alpha_variance": self.alpha_variance,
              "correlation": self.correlation, "n_used": self.n_used, "kind": self.kind,
-             "direction_method": self.direction_method, "highpass_s": self.highpass_s}
+             "direction_method": self.direction_method, "highpass_s": self.highpass_s,
+             "band_hz": list(self.band_hz) if self.band_hz else None}
         if self.interval is not None:
             d["interval"] = list(self.interval)
         if self.scan is not None:
@@ -248,6 +254,8 @@ def fit_order(b_i: np.ndarray, b_j: np.ndarray, t_s: np.ndarray, order: Order, *
     hp_n = highpass_samples(order.highpass_s, dt)
     if hp_n is not None:
         b_i, b_j = highpass(b_i, hp_n), highpass(b_j, hp_n)
+    if order.band_hz is not None:
+        b_i, b_j = bandpass(b_i, order.band_hz, dt), bandpass(b_j, order.band_hz, dt)
     if order.window_s is None:
         fit = fit_first_order(b_i, b_j, mask=mask, alpha_method=alpha_method,
                               direction=order.direction)
@@ -348,7 +356,8 @@ def run_chain(data: Mapping[str, np.ndarray], t_s: np.ndarray, plan: Plan, *,
                        alpha_variance=info["alpha_variance"],
                        correlation=info["correlation"], n_used=info["n_used"],
                        interval=order.interval, scan=info.get("scan"),
-                       direction_method=order.direction, highpass_s=order.highpass_s)
+                       direction_method=order.direction, highpass_s=order.highpass_s,
+                       band_hz=order.band_hz)
 
     def partner_step(stage_no, order_no, order, j, i, A_ij, st_ij):
         # Eqs. 20-21 generalised: the partner's correction makes the corrected pair agree
@@ -358,7 +367,8 @@ def run_chain(data: Mapping[str, np.ndarray], t_s: np.ndarray, plan: Plan, *,
         alpha, e_j, e_ji = rank_one_parts(A)
         return A, Step(stage_no, order_no, j, i, alpha, e_j, e_ji, order.window_s, A,
                        n_used=st_ij.n_used, interval=order.interval, kind="partner",
-                       direction_method=order.direction, highpass_s=order.highpass_s)
+                       direction_method=order.direction, highpass_s=order.highpass_s,
+                       band_hz=order.band_hz)
 
     for k, stage in enumerate(plan.stages, start=1):
         if stage.kind == "reference":

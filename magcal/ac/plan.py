@@ -7,6 +7,8 @@
     direction = "coherent"           # optional, every order: "variance" (the paper) or
                                      # "coherent" (ambient-free, see magcal.ac.core)
     highpass_s = 1800                # optional, every order: remove running means first
+                                     # order key band_hz = [lo, hi]: fit on an FFT band-pass
+                                     # (a spectral line such as the 6 s tone)
     [[stage]]                        # first-order cleaning against one reference
     reference = "amr1"
     sensors = ["fgmo", "fgmi"]
@@ -72,7 +74,7 @@ def _order(spec, file, where, defaults=None) -> Order:
         raise InputError(f"{where}: each order must be a table like {{ window_s = 100 }}",
                          file=file)
     unknown = set(spec) - {"interval", "window_s", "cone_deg", "detrend_s", "direction",
-                           "highpass_s"}
+                           "highpass_s", "band_hz"}
     if unknown:
         raise InputError(f"{where}: unknown order key(s) {sorted(unknown)}", file=file)
     interval = None
@@ -90,13 +92,21 @@ def _order(spec, file, where, defaults=None) -> Order:
     if not (isinstance(cone, (int, float)) and 0 < cone <= 90):
         raise InputError(f"{where}: cone_deg must be in (0, 90]", file=file)
     detrend = spec.get("detrend_s")
+    band = spec.get("band_hz")
+    if band is not None:
+        if not (isinstance(band, list) and len(band) == 2
+                and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in band)
+                and 0 <= band[0] < band[1]):
+            raise InputError(f"{where}: band_hz must be [low, high] in Hz with "
+                             "0 <= low < high", file=file)
+        band = (float(band[0]), float(band[1]))
     defaults = defaults or {}
     direction = _direction(spec.get("direction", defaults.get("direction", "variance")),
                            file, where)
     hp = _highpass(spec.get("highpass_s", defaults.get("highpass_s")), file, where)
     return Order(window_s=None if window_s is None else float(window_s), interval=interval,
                  cone_deg=float(cone), detrend_s=None if detrend is None else float(detrend),
-                 direction=direction, highpass_s=hp)
+                 direction=direction, highpass_s=hp, band_hz=band)
 
 
 def _direction(value, file, where) -> str:
@@ -188,7 +198,8 @@ def plan_to_dict(plan: Plan) -> dict:
             d["references"] = list(st.references)
         d["orders"] = [{"window_s": o.window_s, "interval": list(o.interval) if o.interval else None,
                         "cone_deg": o.cone_deg, "detrend_s": o.detrend_s,
-                        "direction": o.direction, "highpass_s": o.highpass_s}
+                        "direction": o.direction, "highpass_s": o.highpass_s,
+                        "band_hz": list(o.band_hz) if o.band_hz else None}
                        for o in st.orders]
         stages.append(d)
     return {"target": plan.target, "stages": stages}
