@@ -67,13 +67,17 @@ def _dt(t_s: np.ndarray) -> float:
 
 # --------------------------------------------------------------------------- detection
 def detect_steps(d: np.ndarray, t_s: np.ndarray, *, span_s: float = 90.0, gap_s: float = 15.0,
-                 n_sigma: float = DETECT_SIGMA, min_nT: float = 0.0) -> np.ndarray:
+                 n_sigma: float = 4.0, min_significance: float = 4.0,
+                 min_nT: float = 0.0) -> np.ndarray:
     """Times of steps (ramps) in a sensor difference.
 
     The step signal is ``|m(t + h) - m(t - h)|`` with ``m`` the running median over
     ``span_s`` and ``h = gap_s + span_s / 2`` (the Table-2 ramp size at every sample);
-    its peaks above ``median + n_sigma`` robust sigmas (and ``min_nT``), at least ``2 h``
-    apart, are the steps.
+    its peaks above ``median + n_sigma`` robust sigmas (and ``min_nT``) whose height is
+    at least ``min_significance`` times the robust spread (MAD sigma, norm over
+    components) of the samples in the noisier of the two ``span_s`` windows are the steps. The second
+    test rejects the peaks that band-limited noise puts in the step signal (on the
+    GK-2A-like demo day the true steps have 4.5-38, noise peaks below 3.6).
 
     Parameters
     ----------
@@ -99,11 +103,24 @@ def detect_steps(d: np.ndarray, t_s: np.ndarray, *, span_s: float = 90.0, gap_s:
     dt = _dt(t_s)
     n = max(3, int(round(span_s / dt)) | 1)
     h = int(round(gap_s / dt)) + n // 2
-    m = ndimage.median_filter(_filled(d), size=(n, 1), mode="nearest")
+    x = _filled(d)
+    m = ndimage.median_filter(x, size=(n, 1), mode="nearest")
     s = np.zeros(len(t_s))
     s[h:-h] = np.linalg.norm(m[2 * h:] - m[:-2 * h], axis=1)
     thr = _robust_threshold(s[h:-h], n_sigma, min_nT)
     peaks, _ = signal.find_peaks(s, height=thr, distance=h)
+    # band-limited noise makes the step signal heavy-tailed: keep a candidate only when
+    # the jump is ``min_significance`` times the spread of the samples in its two windows
+    half_n = n // 2
+    keep = []
+    for p in peaks:
+        if p - h - half_n < 0 or p + h + half_n >= len(s):
+            continue
+        spread = max(float(np.linalg.norm(1.4826 * np.median(
+            np.abs(x[c - half_n:c + half_n + 1] - m[c]), axis=0))) for c in (p - h, p + h))
+        if s[p] >= min_significance * spread:
+            keep.append(p)
+    peaks = np.array(keep, dtype=int)
     # medians keep edges sharp, so a step gives a plateau ~2h wide: its centre (between
     # the half-height crossings) is the step time, robust to noise on the plateau
     centres = []
@@ -122,14 +139,15 @@ def detect_steps(d: np.ndarray, t_s: np.ndarray, *, span_s: float = 90.0, gap_s:
 
 
 def detect_spikes(d: np.ndarray, t_s: np.ndarray, *, span_s: float = 20.0, gap_s: float = 5.0,
-                  max_width_s: float = 5.0, n_sigma: float = DETECT_SIGMA,
+                  max_width_s: float = 10.0, n_sigma: float = DETECT_SIGMA,
                   min_nT: float = 0.0, exclude_s=(), exclude_within_s: float = 60.0
                   ) -> np.ndarray:
     """Times of spikes in a sensor difference.
 
     A spike is a peak of ``|d - running median over 2 (span_s + gap_s)|`` above
-    ``median + n_sigma`` robust sigmas (and ``min_nT``), narrower than ``max_width_s`` at
-    half height, at least ``span_s + gap_s`` from the next one and ``exclude_within_s``
+    ``n_sigma`` local robust sigmas (running MAD over the same span, its
+    largest value within that span; and ``min_nT``), narrower than ``max_width_s`` at
+    half height (GK-2A spikes: 6 s), at least ``span_s + gap_s`` from the next one and ``exclude_within_s``
     from any time in ``exclude_s`` (the steps).
 
     Examples
@@ -144,8 +162,14 @@ def detect_spikes(d: np.ndarray, t_s: np.ndarray, *, span_s: float = 20.0, gap_s
     dt = _dt(t_s)
     n = int(round(2 * (span_s + gap_s) / dt)) | 1
     x = _filled(d)
-    r = np.linalg.norm(x - ndimage.median_filter(x, size=(n, 1), mode="nearest"), axis=1)
-    thr = _robust_threshold(r, n_sigma, min_nT)
+    res = x - ndimage.median_filter(x, size=(n, 1), mode="nearest")
+    r = np.linalg.norm(res, axis=1)
+    # local scale: noise bursts raise the threshold where they are
+    local = np.linalg.norm(1.4826 * ndimage.median_filter(np.abs(res), size=(n, 1),
+                                                          mode="nearest"), axis=1)
+    local = ndimage.maximum_filter1d(local, n, mode="nearest")  # burst edges too
+    thr = np.maximum(n_sigma * local, min_nT)
+    thr[:n // 2] = thr[-(n // 2):] = np.inf                      # filter edge effects
     peaks, _ = signal.find_peaks(r, height=thr, distance=max(1, int(round((span_s + gap_s)
                                                                          / dt))),
                                  width=(None, max(1.0, max_width_s / dt)), rel_height=0.5)
@@ -258,7 +282,7 @@ def remnants(raw: np.ndarray, clean: np.ndarray, diff: np.ndarray, t_s: np.ndarr
 
     t_s = np.asarray(t_s, dtype=float)
     raw, clean, diff = (np.asarray(a, dtype=float) for a in (raw, clean, diff))
-    steps = detect_steps(diff, t_s, n_sigma=n_sigma, min_nT=min_step_nT)
+    steps = detect_steps(diff, t_s, min_nT=min_step_nT)
     spikes = detect_spikes(diff, t_s, n_sigma=n_sigma, min_nT=min_spike_nT, exclude_s=steps)
     out = {}
     for name, times, fn in (("steps", steps, ramp_sizes), ("spikes", spikes, spike_heights)):
