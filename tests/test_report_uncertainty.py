@@ -133,3 +133,32 @@ def test_report_of_missing_folder_exits_2(tmp_path, capsys):
     assert main(["report", str(tmp_path / "nope"), "-o", str(tmp_path / "r.html")]) == 2
     assert "nope" in capsys.readouterr().err
     assert not (tmp_path / "r.html").exists()
+
+
+def test_ac_quality_tables_hold_the_product_numbers(tmp_path):
+    from magcal.report.uncertainty import ac_quality_items
+
+    (tmp_path / "ac").mkdir()
+    summ = lambda v, m: {"mean_abs_nT": v, "mean_module_nT": m}  # noqa: E731
+    write_json(tmp_path / "ac" / "AC_QUALITY.json", {"plans": {"paper": {
+        "pair": ["fgmi", "fgmo"], "target": "fgmo",
+        "remnants": {
+            "steps": {"n": 68, "times_s": [], "raw": summ([4.93, 1.39, 0.86], 5.66),
+                      "clean": summ([0.37, 2.18, 0.96], 2.47)},
+            "spikes": {"n": 388, "times_s": [], "raw": summ([2.37, 2.36, 3.68], 4.98),
+                       "clean": summ([0.43, 1.46, 1.42], 2.11)},
+            "hf": {"quiet_s": [0, 600], "disturbed_s": [600, 1200], "contrast": 1.25,
+                   "raw_nT": [0.54, 0.16, 0.14], "clean_nT": [0.94, 0.45, 0.08]}},
+        "stability": {"days": ["2019-03-04", "2019-03-05"], "bmaxdev_nT": 32.306,
+                      "bmaxdev_ac_nT": 14.017, "steps": [
+                          {"stage": 2, "order": 3, "i": "fgmo", "j": "fgmi", "kind": "picog",
+                           "std_direction_i_deg": 4.75, "std_direction_ij_deg": 2.19,
+                           "std_alpha": 1.7238, "mean_alpha": 0.2593, "n_fits": 2}]}}}})
+    remn, stab, bmax = [it for it in ac_quality_items(tmp_path) if hasattr(it, "rows")]
+    assert remn.rows[0] == ("paper", "steps", "68", "4.93", "1.39", "0.86", "5.66", "0.37",
+                            "2.18", "0.96", "2.47")
+    assert remn.rows[1][2] == "388" and remn.rows[1][-1] == "2.11"
+    assert remn.rows[2][:4] == ("paper", "HF (contrast 1.2)", "-", "0.54")
+    assert stab.rows[0] == ("paper", "2.3 fgmo-fgmi", "4.75", "2.19", "1.7", "0.259")
+    assert bmax.rows[0] == ("paper", "2019-03-04, 2019-03-05", "32.306", "14.017")
+    assert remn.source == stab.source == "ac/AC_QUALITY.json"

@@ -11,6 +11,7 @@ section whose products are missing says so.
 Layout read (relative to the products folder)::
 
     ac/PARAMS_*.json, ac/CLEAN_*.csv.gz       PiCoG parameters and cleaned data
+    ac/AC_QUALITY.json                         remnants and daily-refit stability
     offsets/OFFSETS.csv, OFFSETS_*.csv         offsets per window (median, variants)
     alignment/ALIGN.json, ALIGN.samples.csv.gz angles, checks, posterior samples
     alignment/*conjunction*.json               validation against a reference craft
@@ -150,7 +151,83 @@ def ac_section(root: Path, budget: list) -> tuple:
         budget.append(("above 0.1 mHz", "AC: plan disagreement rms",
                        float(np.max(hp)), REQUIREMENT_HIGH_NT,
                        f"{_rel(p1, root)} - {_rel(p2, root)}"))
+    items += ac_quality_items(root)
     return tuple(items)
+
+
+def _f(v, fmt="{:.2f}"):
+    return "-" if v is None or not np.isfinite(v) else fmt.format(v)
+
+
+def ac_quality_items(root: Path) -> list:
+    """Remnants per disturbance class and daily-refit stability from ``ac/AC_QUALITY.json``
+    (written by :func:`magcal.report.ac_quality.write_ac_quality`; not computed here,
+    the refits cost about one whole-record fit per plan)."""
+    path = root / "ac" / "AC_QUALITY.json"
+    if not path.is_file():
+        return [Paragraph("Remnants per disturbance class and parameter stability: no "
+                          "ac/AC_QUALITY.json (magcal.report.ac_quality.write_ac_quality "
+                          "writes it).")]
+    doc = _read_json(path)
+    src = _rel(path, root)
+    plans = doc.get("plans", {})
+    items = [Paragraph(
+        "Remnants (paper Table 2) without truth: events are found in the difference of "
+        "two sensors, where the ambient field cancels; at those times the raw target and "
+        "the cleaned data are measured. Steps: median over 90 s after minus before; "
+        "spikes: peak minus the median over 20 s intervals 5 s either side; high-frequency "
+        "noise: mean peak-to-peak over 60 s blocks in the noisiest event-free 10 min "
+        "minus that in the quietest (the etalon). Mean |component| and mean module.")]
+    rows = []
+    for name, e in plans.items():
+        rem = e.get("remnants", {})
+        for cls in ("steps", "spikes"):
+            r = rem.get(cls)
+            if not r:
+                continue
+            raw, cln = r["raw"], r["clean"]
+            rows.append((name, cls, r["n"], *[_f(v) for v in raw["mean_abs_nT"]],
+                         _f(raw["mean_module_nT"]), *[_f(v) for v in cln["mean_abs_nT"]],
+                         _f(cln["mean_module_nT"])))
+        hf = rem.get("hf", {})
+        if "raw_nT" in hf:
+            rows.append((name, f"HF (contrast {hf['contrast']:.1f})", "-",
+                         *[_f(v) for v in hf["raw_nT"]], "-",
+                         *[_f(v) for v in hf["clean_nT"]], "-"))
+    items.append(Table.from_records(
+        ["plan", "class", "n", "raw x", "raw y", "raw z", "raw |B|", "clean x", "clean y",
+         "clean z", "clean |B|"], rows or [("-",) * 11],
+        caption="Disturbance magnitudes in the raw target and remnants in the cleaned "
+                "data (nT), pair " + ", ".join(f"{k}: {'-'.join(v.get('pair', []))}"
+                                               for k, v in plans.items()) + ".",
+        source=src))
+    rows, bmax = [], []
+    for name, e in plans.items():
+        st = e.get("stability") or {}
+        if "steps" not in st:
+            rows.append((name, st.get("skipped", "not computed"), "-", "-", "-", "-"))
+            continue
+        for r in st["steps"]:
+            step = f"{r['stage']}.{r['order']} {r['i']}-{r['j']}"
+            if "std_matrix_max" in r:
+                rows.append((name, step, "-", "-", f"matrix {r['std_matrix_max']:.2g}", "-"))
+            else:
+                rows.append((name, step, _f(r["std_direction_i_deg"]),
+                             _f(r["std_direction_ij_deg"]), f"{r['std_alpha']:.2g}",
+                             _f(r["mean_alpha"], "{:.3f}")))
+        bmax.append((name, ", ".join(st["days"]), _f(st["bmaxdev_nT"], "{:.3f}"),
+                     _f(st["bmaxdev_ac_nT"], "{:.3f}")))
+    items.append(Table.from_records(
+        ["plan", "step (stage.order i-j)", "std dir i (deg)", "std dir ij (deg)",
+         "std alpha", "mean alpha"], rows or [("-",) * 6],
+        caption="Parameter stability (paper Table 1): the plan refitted on each UTC day "
+                "separately, std over the days.", source=src))
+    if bmax:
+        items.append(Table.from_records(
+            ["plan", "days", "Bmaxdev (nT)", "Bmaxdev, means removed (nT)"], bmax,
+            caption="Bmaxdev: largest change of the corrected field between two days' "
+                    "upload matrices applied to the whole input.", source=src))
+    return items
 
 
 def highpass_rms(x, dt_s: float, f_hz: float) -> np.ndarray:
