@@ -83,6 +83,12 @@ def stage_ac(data: Path, out: Path, context: dict):
         products += [plan, params, clean]
         metrics[name] = {"power_reduction": float(ratio), "identity_error": float(ident),
                          "rms_nT": float(np.sqrt(np.nanmean(res ** 2)))}
+    from magcal.report.ac_quality import write_ac_quality
+
+    quality = write_ac_quality(out, src)  # remnants and daily-refit stability
+    products.append(quality)
+    lines.append(f"AC quality (remnants per disturbance class, day-to-day stability): "
+                 f"{quality.name}")
     context["ac_params"] = out / "PARAMS_regression.json"
     return lines, products, metrics
 
