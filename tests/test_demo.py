@@ -70,3 +70,12 @@ def test_alignment_stage_is_honest(demo):
     # must cover the truth (0) instead of reporting the gap as a tight rotation
     m = demo[1]["alignment against the model"]["metrics"]
     assert m["truth_inside_ci95"] is True
+
+
+@pytest.mark.slow
+def test_report_stage_embeds_ac_quality(demo):
+    out = demo[2]
+    html = (out / "report" / "REPORT.html").read_text()
+    assert "source: ac/AC_QUALITY.json" in html  # tables from the product, not the "no file" note
+    assert "parameter stability: no ac/AC_QUALITY.json" not in html
+    assert (out / "report" / "REPORT.pdf").read_bytes()[:5] == b"%PDF-"
