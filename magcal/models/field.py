@@ -241,6 +241,21 @@ def _worker(t, xyz, model, inputs, options):
     return res.b_geo_nT, res.invalid, res.reasons, res.backend
 
 
+# The whole request, handed to each worker process once when it starts (inherited, not
+# pickled, under fork); chunks are then submitted as index ranges only.
+_WORKER_REQUEST: tuple | None = None
+
+
+def _init_worker(t, xyz, model, inputs, options) -> None:
+    global _WORKER_REQUEST
+    _WORKER_REQUEST = (t, xyz, model, inputs, options)
+
+
+def _worker_range(a: int, z: int):
+    t, xyz, model, inputs, options = _WORKER_REQUEST
+    return _worker(t[a:z], xyz[a:z], model, {k: v[a:z] for k, v in inputs.items()}, options)
+
+
 def default_n_jobs() -> int:
     """Number of CPU cores this process may use."""
     try:
@@ -286,10 +301,10 @@ def evaluate_parallel(t, xyz, model, inputs, options, n_jobs=None):
                        options)
 
     chunks = list(zip(bounds[:-1], bounds[1:]))
-    with ProcessPoolExecutor(max_workers=max(1, n_jobs - 1), mp_context=ctx) as pool:
-        futures = [(a, z, pool.submit(_worker, t[a:z], xyz[a:z], model,
-                                      {k: v[a:z] for k, v in inputs.items()}, options))
-                   for a, z in chunks]
+    with ProcessPoolExecutor(max_workers=max(1, n_jobs - 1), mp_context=ctx,
+                             initializer=_init_worker,
+                             initargs=(t, xyz, model, inputs, options)) as pool:
+        futures = [(a, z, pool.submit(_worker_range, int(a), int(z))) for a, z in chunks]
         for a, z, fut in reversed(futures):
             if not fut.cancel():
                 break  # the workers have reached this chunk: the rest is theirs
