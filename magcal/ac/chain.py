@@ -73,8 +73,15 @@ class Stage:
     reference: str | None = None
     references: tuple[str, ...] = ()
     orders: tuple[Order, ...] = (Order(),)
+    #: pair stages: fit one constant 3x3 per sensor jointly over the selections of all
+    #: orders plus event intervals (:mod:`magcal.ac.joint`) instead of order by order
+    joint: bool = False
+    event_half_s: float | None = 120.0   #: joint: half-width of the event intervals
+    min_snr: float = 5.0                 #: joint: drop selections below this
 
     def __post_init__(self):
+        if self.joint and self.kind != "pair":
+            raise InputError("joint = true is only for a pair stage")
         if self.kind not in ("reference", "pair", "regression"):
             raise InputError(f"unknown stage kind {self.kind!r}")
         if self.kind == "pair" and len(self.sensors) != 2:
@@ -286,6 +293,31 @@ def fit_order(b_i: np.ndarray, b_j: np.ndarray, t_s: np.ndarray, order: Order, *
     return summ.alpha, summ.direction_i, summ.direction_ij, info
 
 
+def _joint_steps(stage_no, stage, b_i, b_j, t_s, dt, fixed, raw_diff) -> list:
+    """The two steps of a joint pair stage (``A_ij`` and ``A_ji`` in the chain's
+    convention ``B_j' = B_j - A_ji (B_i - B_j)``)."""
+    from magcal.ac.joint import fit_joint, selections, swap
+
+    i, j = stage.sensors
+    key_i, key_j = (stage_no, 1, i), (stage_no, 1, j)
+    if key_i in fixed and key_j in fixed:
+        return [Step(stage_no, 1, a, b, float("nan"), np.full(3, np.nan), np.full(3, np.nan),
+                     None, np.asarray(fixed[key], dtype=float), kind="fixed")
+                for a, b, key in ((i, j, key_i), (j, i, key_j))]
+    sels = selections(b_i, b_j, t_s, stage.orders, dt, event_half_s=stage.event_half_s,
+                      event_difference=raw_diff)
+    out = []
+    for a, b, ss in ((i, j, sels), (j, i, swap(sels))):
+        fit = fit_joint(ss, dt, min_snr=stage.min_snr)
+        # the partner: B_j + K_ji (B_j - B_i), which is the chain's A_ji = K_ji
+        out.append(Step(stage_no, 1, a, b, float("nan"), np.full(3, np.nan),
+                        np.full(3, np.nan), None, fit.K, kind="joint",
+                        n_used=int(sum(s.mask.sum() for s in ss)), scan=fit.to_dict(),
+                        direction_method=stage.orders[0].direction,
+                        highpass_s=stage.orders[0].highpass_s))
+    return out
+
+
 def run_chain(data: Mapping[str, np.ndarray], t_s: np.ndarray, plan: Plan, *,
               alpha_method: str = "decorrelate", keep_scans: bool = False,
               fixed_steps: Mapping | None = None) -> ChainResult:
@@ -379,6 +411,15 @@ def run_chain(data: Mapping[str, np.ndarray], t_s: np.ndarray, plan: Plan, *,
                     cur[s] = cur[s] + (cur[s] - cur[ref]) @ A.T
                     w[s] = _wcombine(w[s], w[ref], A)
                     steps.append(step)
+        elif stage.kind == "pair" and stage.joint:
+            i, j = stage.sensors
+            raw_diff = np.asarray(data[i], dtype=float) - np.asarray(data[j], dtype=float)
+            pair_steps = _joint_steps(k, stage, cur[i], cur[j], t_s, dt, fixed, raw_diff)
+            A_ij, A_ji = pair_steps[0].A, pair_steps[1].A
+            d = cur[i] - cur[j]
+            cur[i], cur[j] = cur[i] + d @ A_ij.T, cur[j] - d @ A_ji.T
+            w[i], w[j] = _wcombine(w[i], w[j], A_ij), _wcombine(w[j], w[i], A_ji)
+            steps += pair_steps
         elif stage.kind == "pair":
             i, j = stage.sensors
             for n_o, order in enumerate(stage.orders, start=1):

@@ -16,6 +16,10 @@
     [[stage]]                        # iterative cleaning of a pair: i is cleaned with j
     pair = ["fgmo", "fgmi"]
     orders = [ { window_s = 100 }, { window_s = 700 }, { window_s = 16000, cone_deg = 2.5 } ]
+    # joint = true                   # optional: one constant 3x3 per sensor fitted jointly
+                                     # over the selections of all orders and event
+                                     # intervals (magcal.ac.joint); event_half_s = 120
+                                     # (0: no events), min_snr = 5
     [[stage]]                        # extension: non-orthogonal regression gradiometer
     regression = ["fgmo"]
     references = ["fgmi", "amr1"]
@@ -158,8 +162,18 @@ def plan_from_dict(doc: dict, *, file=None) -> tuple[Plan, dict]:
             pair = st["pair"]
             if not (isinstance(pair, list) and len(pair) == 2):
                 raise InputError(f"{where}: pair must list two sensors", file=file)
+            joint = st.get("joint", False)
+            if not isinstance(joint, bool):
+                raise InputError(f"{where}: joint must be true or false", file=file)
+            extra = {}
+            for key in ("event_half_s", "min_snr"):
+                if key in st:
+                    v = st[key]
+                    if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0:
+                        raise InputError(f"{where}: {key} must be a number >= 0", file=file)
+                    extra[key] = float(v) if (v or key == "min_snr") else None
             stages.append(Stage("pair", tuple(_check_name(s, file, where) for s in pair),
-                                orders=orders))
+                                orders=orders, joint=joint, **extra))
         else:
             sensors = tuple(_check_name(s, file, where) for s in st["regression"])
             refs = tuple(_check_name(s, file, where) for s in st.get("references", []))
@@ -196,6 +210,8 @@ def plan_to_dict(plan: Plan) -> dict:
             d["reference"] = st.reference
         if st.references:
             d["references"] = list(st.references)
+        if st.joint:
+            d.update(joint=True, event_half_s=st.event_half_s, min_snr=st.min_snr)
         d["orders"] = [{"window_s": o.window_s, "interval": list(o.interval) if o.interval else None,
                         "cone_deg": o.cone_deg, "detrend_s": o.detrend_s,
                         "direction": o.direction, "highpass_s": o.highpass_s,
