@@ -152,3 +152,17 @@ def test_write_ac_quality_product(rng, tmp_path):
     assert plan["pair"] == ["a", "o"]
     assert doc["provenance"]["step"] == "ac quality"
     np.testing.assert_allclose(plan["stability"]["bmaxdev_nT"], 0.0, atol=1e-6)
+
+
+def test_plan_round_trip_keeps_joint_and_band_orders():
+    # daily refits must rebuild exactly the plan that was fitted (joint pair, band order)
+    from magcal.ac.chain import Order, Plan, Stage
+    from magcal.ac.plan import plan_to_dict
+    from magcal.report.ac_quality import plan_from_params
+
+    plan = Plan("fgmo", (
+        Stage("reference", ("fgmo", "fgmi"), reference="amr1",
+              orders=(Order(interval=(10.0, 20.0)),)),
+        Stage("pair", ("fgmo", "fgmi"), joint=True, event_half_s=60.0, min_snr=4.0,
+              orders=(Order(window_s=100.0), Order(band_hz=(0.16, 0.17))))))
+    assert plan_from_params(plan_to_dict(plan)) == plan

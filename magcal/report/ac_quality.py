@@ -323,9 +323,12 @@ def plan_from_params(plan_doc: dict, shift_s: float = 0.0):
                 window_s=o.get("window_s"),
                 interval=None if iv is None else (iv[0] + shift_s, iv[1] + shift_s),
                 cone_deg=o.get("cone_deg", 2.5), detrend_s=o.get("detrend_s"),
-                direction=o.get("direction", "variance"), highpass_s=o.get("highpass_s")))
+                direction=o.get("direction", "variance"), highpass_s=o.get("highpass_s"),
+                band_hz=None if o.get("band_hz") is None else tuple(o["band_hz"])))
+        joint = {k: st[k] for k in ("joint", "event_half_s", "min_snr") if k in st}
         stages.append(Stage(st["kind"], tuple(st["sensors"]), reference=st.get("reference"),
-                            references=tuple(st.get("references", ())), orders=tuple(orders)))
+                            references=tuple(st.get("references", ())), orders=tuple(orders),
+                            **joint))
     return Plan(plan_doc["target"], tuple(stages))
 
 
