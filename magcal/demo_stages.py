@@ -40,6 +40,25 @@ pair = ["fgmo", "fgmi"]
 orders = [ { window_s = 100 }, { window_s = 700 }, { window_s = 16000 } ]
 """
 
+JOINT_PLAN = """# The coherent plan with the boom pair fitted jointly: one constant 3x3 per sensor
+# balancing the scan windows, the 6 s tone band and clean intervals around the largest
+# steps, so weak disturbers are not left to whichever order dominates.
+target = "fgmo"
+direction = "coherent"
+highpass_s = 1800
+[[stage]]
+reference = "amr1"
+sensors = ["fgmo", "fgmi"]
+orders = [ { interval = ["2019-03-04T15:25:12", "2019-03-04T16:30:12"] } ]
+[[stage]]
+pair = ["fgmo", "fgmi"]
+joint = true
+event_half_s = 120
+min_snr = 5
+orders = [ { window_s = 100 }, { window_s = 700 }, { window_s = 16000 },
+           { band_hz = [0.1664, 0.1669] } ]
+"""
+
 REGRESSION_PLAN = """# magcal's extension for non-orthogonal disturbers: every other sensor is a reference.
 target = "fgmo"
 [[stage]]
@@ -66,7 +85,7 @@ def stage_ac(data: Path, out: Path, context: dict):
     products, metrics = [], {}
     out.mkdir(parents=True, exist_ok=True)
     for name, text in (("paper", PAPER_PLAN), ("coherent", COHERENT_PLAN),
-                       ("regression", REGRESSION_PLAN)):
+                       ("joint", JOINT_PLAN), ("regression", REGRESSION_PLAN)):
         plan = out / f"PLAN_{name}.toml"
         plan.write_text(text)
         params, clean = out / f"PARAMS_{name}.json", out / f"CLEAN_{name}.csv.gz"

@@ -37,6 +37,7 @@ def test_ac_stage_numbers(demo):
     m = demo[1]["AC cleaning (PiCoG)"]["metrics"]
     assert m["regression"]["power_reduction"] >= 20.0      # issue 3: >= 20x overall
     assert m["coherent"]["power_reduction"] >= 20.0        # the paper's plan, fixed
+    assert m["joint"]["power_reduction"] >= 20.0
     assert m["paper"]["power_reduction"] < m["coherent"]["power_reduction"]
     assert m["regression"]["identity_error"] < 1e-12         # Eq. 33: sum M = I
     assert m["paper"]["identity_error"] < 1e-12

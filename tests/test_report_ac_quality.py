@@ -166,3 +166,17 @@ def test_plan_round_trip_keeps_joint_and_band_orders():
         Stage("pair", ("fgmo", "fgmi"), joint=True, event_half_s=60.0, min_snr=4.0,
               orders=(Order(window_s=100.0), Order(band_hz=(0.16, 0.17))))))
     assert plan_from_params(plan_to_dict(plan)) == plan
+
+
+def test_joint_steps_report_matrix_spread(rng):
+    # a joint pair step has a full 3x3 and no direction/alpha: its spread is the largest
+    # std of a matrix element over the refits (sample std of 0, 0.1, 0.2 is 0.1)
+    frame, _ = _three_days(rng, [np.array([0.0, 0.6, 0.8])] * 3)
+    refits = []
+    for day, a in zip(("d1", "d2", "d3"), (0.0, 0.1, 0.2)):
+        A = np.eye(3) * 0.5
+        A[0, 1] += a
+        refits.append({"day": day, "M": {"o": np.eye(3)}, "steps": [
+            {"stage": 2, "order": 1, "i": "o", "j": "i", "kind": "joint", "A": A.tolist()}]})
+    row = q.stability(frame, refits)["steps"][0]
+    np.testing.assert_allclose(row["std_matrix_max"], 0.1, rtol=1e-12)

@@ -387,7 +387,7 @@ def stability(frame: pd.DataFrame, refits: list[dict], nominal_M: dict | None = 
     -------
     dict with ``days``, ``steps`` (per step: ``stage, order, i, j, kind``,
     ``std_direction_i_deg``, ``std_direction_ij_deg``, ``std_alpha``, ``mean_alpha``;
-    regression steps: ``std_matrix_max``, the largest std of a matrix element),
+    regression and joint steps: ``std_matrix_max``, the largest std of a matrix element),
     ``bmaxdev_nT`` (largest |change| of the corrected field between two refits),
     ``bmaxdev_ac_nT`` (the same with each corrected series' mean removed) and
     ``max_change_vs_nominal_nT`` per refit.
@@ -402,7 +402,7 @@ def stability(frame: pd.DataFrame, refits: list[dict], nominal_M: dict | None = 
     rows = []
     for k, first in enumerate(steps_list[0]):
         base = {key: first[key] for key in ("stage", "order", "i", "j", "kind")}
-        if first.get("kind") == "regression":
+        if first.get("kind") in ("regression", "joint"):  # full 3x3, no direction/alpha
             a = np.array([s[k]["A"] for s in steps_list], dtype=float)
             base["std_matrix_max"] = float(np.max(a.std(axis=0, ddof=1)))
         else:
