@@ -13,51 +13,35 @@ from magcal.demo import require
 from magcal.errors import NotYetAvailableError
 
 
-PAPER_PLAN = """# The paper's chain (PiCoG §4): AMR1 cleans both fluxgates on an interval around the
+def _amr1_stage(start: str, end: str) -> str:
+    """PLAN.toml stage: AMR1 cleans both fluxgates on an interval around the midnight step."""
+    return ('[[stage]]\nreference = "amr1"\nsensors = ["fgmo", "fgmi"]\n'
+            f'orders = [ {{ interval = ["{start}", "{end}"] }} ]\n')
+
+
+# The paper's three pair orders (PiCoG §4), shared by the plans below.
+_PAIR_ORDERS = "{ window_s = 100 }, { window_s = 700 }, { window_s = 16000 }"
+_PAIR = '[[stage]]\npair = ["fgmo", "fgmi"]\n'
+_COHERENT = 'target = "fgmo"\ndirection = "coherent"\nhighpass_s = 1800\n'
+
+PAPER_PLAN = ("""# The paper's chain (PiCoG §4): AMR1 cleans both fluxgates on an interval around the
 # midnight disturbance, then the fluxgates clean each other to third order.
 target = "fgmo"
-[[stage]]
-reference = "amr1"
-sensors = ["fgmo", "fgmi"]
-orders = [ { interval = ["2019-03-04T15:10", "2019-03-04T16:15"] } ]
-[[stage]]
-pair = ["fgmo", "fgmi"]
-orders = [ { window_s = 100 }, { window_s = 700 }, { window_s = 16000 } ]
-"""
+""" + _amr1_stage("2019-03-04T15:10", "2019-03-04T16:15")
+              + _PAIR + f"orders = [ {_PAIR_ORDERS} ]\n")
 
-COHERENT_PLAN = """# The paper's chain with magcal's fix for a varying ambient field: each direction comes
+COHERENT_PLAN = ("""# The paper's chain with magcal's fix for a varying ambient field: each direction comes
 # from the part of the sensor that varies with the sensor difference (where the ambient
 # field cancels), and a 30 min high-pass removes the daily variation before fitting.
-target = "fgmo"
-direction = "coherent"
-highpass_s = 1800
-[[stage]]
-reference = "amr1"
-sensors = ["fgmo", "fgmi"]
-orders = [ { interval = ["2019-03-04T15:10", "2019-03-04T16:15"] } ]
-[[stage]]
-pair = ["fgmo", "fgmi"]
-orders = [ { window_s = 100 }, { window_s = 700 }, { window_s = 16000 } ]
-"""
+""" + _COHERENT + _amr1_stage("2019-03-04T15:10", "2019-03-04T16:15")
+                 + _PAIR + f"orders = [ {_PAIR_ORDERS} ]\n")
 
-JOINT_PLAN = """# The coherent plan with the boom pair fitted jointly: one constant 3x3 per sensor
+JOINT_PLAN = ("""# The coherent plan with the boom pair fitted jointly: one constant 3x3 per sensor
 # balancing the scan windows, the 6 s tone band and clean intervals around the largest
 # steps, so weak disturbers are not left to whichever order dominates.
-target = "fgmo"
-direction = "coherent"
-highpass_s = 1800
-[[stage]]
-reference = "amr1"
-sensors = ["fgmo", "fgmi"]
-orders = [ { interval = ["2019-03-04T15:25:12", "2019-03-04T16:30:12"] } ]
-[[stage]]
-pair = ["fgmo", "fgmi"]
-joint = true
-event_half_s = 120
-min_snr = 5
-orders = [ { window_s = 100 }, { window_s = 700 }, { window_s = 16000 },
-           { band_hz = [0.1664, 0.1669] } ]
-"""
+""" + _COHERENT + _amr1_stage("2019-03-04T15:25:12", "2019-03-04T16:30:12")
+              + _PAIR + "joint = true\nevent_half_s = 120\nmin_snr = 5\n"
+              + f"orders = [ {_PAIR_ORDERS},\n           {{ band_hz = [0.1664, 0.1669] }} ]\n")
 
 REGRESSION_PLAN = """# magcal's extension for non-orthogonal disturbers: every other sensor is a reference.
 target = "fgmo"
