@@ -3,8 +3,9 @@
 :func:`model_field_hpen` evaluates IGRF + a Tsyganenko model (through
 :func:`magcal.models.irbem.evaluate_geo`) at the spacecraft, at the cadence of the
 comparison (1 min by default: denser input times are served by linear interpolation of
-the GEO field between grid points), in chunks spread over worker processes (IRBEM is not
-thread safe), and rotates it to Hpen with :func:`magcal.frames.hpen.geo_to_hpen`.
+the GEO field between grid points), in chunks shared between forked processes
+(:mod:`magcal.models.parallel`; IRBEM is not thread safe), and rotates it to Hpen with
+:func:`magcal.frames.hpen.geo_to_hpen`.
 
 Results are cached on disk (one file per request) under a key made of the model, its
 inputs, the positions, the times, the options and the IRBEM/spacepy/magcal versions; a
@@ -16,10 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
-import multiprocessing
 import os
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field as dc_field
 from pathlib import Path
 
@@ -27,12 +25,11 @@ import numpy as np
 
 from magcal._version import __version__
 from magcal.errors import InputError
-from magcal.frames.hpen import geo_to_hpen
+from magcal.frames.hpen import geo_to_hpen, hpen_basis
 from magcal.io.jsonio import product_dict
 from magcal.models import irbem
+from magcal.models.parallel import evaluate_parallel
 
-#: Below this many evaluation points everything runs in the calling process.
-MIN_PARALLEL_POINTS = 20_000
 _CACHE_FORMAT = 2  # 2: plain .npy files (1 was one .npz per entry)
 
 
@@ -150,31 +147,48 @@ def _model_inputs(model: str, times: np.ndarray, kp, drivers) -> dict:
 
 
 # --------------------------------------------------------------------------- cache key
+def _is_regular(v: np.ndarray, block: int = 65536) -> bool:
+    """True when the integer sequence ``v`` has one constant step (checked block-wise)."""
+    if v.size < 3:
+        return True
+    step = v[1] - v[0]
+    for a in range(0, v.size - 1, block):
+        z = min(a + block, v.size - 1)
+        if not np.all(v[a + 1:z + 1] - v[a:z] == step):
+            return False
+    return True
+
+
 def _digest_array(h, name: str, arr: np.ndarray) -> None:
     """Feed a compact canonical form of ``arr`` to hash ``h`` (constant / regular / RLE)."""
     a = np.ascontiguousarray(arr)
     h.update(f"|{name}:{a.dtype.str}:{a.shape}|".encode())
     if a.size == 0:
         return
-    flat = a.reshape(a.shape[0], -1) if a.ndim > 1 else a
-    first = flat[:1]
-    if np.array_equal(flat, np.broadcast_to(first, flat.shape), equal_nan=a.dtype.kind == "f"):
-        h.update(b"const")
-        h.update(first.tobytes())
+    if a.ndim > 1:
+        flat = a.reshape(a.shape[0], -1)
+        if np.array_equal(flat, np.broadcast_to(flat[:1], flat.shape),
+                          equal_nan=a.dtype.kind == "f"):
+            h.update(b"const")
+            h.update(flat[:1].tobytes())
+            return
+        h.update(a.tobytes())
         return
-    if a.ndim == 1 and a.dtype.kind in "iuM":
-        d = np.diff(a.view(np.int64))
-        if np.all(d == d[0]):
-            h.update(b"regular")
-            h.update(a[:1].tobytes() + d[:1].tobytes())
-            return
-    if a.ndim == 1:
-        change = np.flatnonzero(a[1:] != a[:-1])
-        if change.size < a.size // 4:
-            h.update(b"rle")
-            h.update(change.tobytes())
-            h.update(a[np.r_[0, change + 1]].tobytes())
-            return
+    if a.dtype.kind in "iuM" and _is_regular(a.view(np.int64)):
+        h.update(b"regular")
+        h.update(a[:1].tobytes() + np.diff(a[:2].view(np.int64)).tobytes())
+        return
+    # one pass finds the runs: none -> constant, few -> run-length code, else raw bytes
+    change = np.flatnonzero(a[1:] != a[:-1])
+    if change.size == 0:
+        h.update(b"const")
+        h.update(a[:1].tobytes())
+        return
+    if change.size < a.size // 4:
+        h.update(b"rle")
+        h.update(change.tobytes())
+        h.update(a[np.r_[0, change + 1]].tobytes())
+        return
     h.update(a.tobytes())
 
 
@@ -196,8 +210,10 @@ def cache_key(model: str, times: np.ndarray, lon, lat, r, inputs: dict, options,
 def _cache_parts(path: Path) -> tuple[Path, Path, Path]:
     """The three files of one cache entry: field (.npy), invalid mask (.npy), meta (.json).
 
-    Plain .npy files load at disk speed (no zip container, no CRC pass): a cached year
-    of 1-min vectors is back in a few milliseconds.
+    Plain .npy files load at disk speed (no zip container, no CRC pass) and the field is
+    memory-mapped: a cached year of 1-min vectors is back in a few milliseconds. Entries
+    are replaced with ``os.replace`` (a new file), never rewritten in place, so a mapped
+    array stays valid.
     """
     return (path.with_suffix(".npy"), path.with_suffix(".invalid.npy"),
             path.with_suffix(".json"))
@@ -208,7 +224,9 @@ def _cache_load(path: Path):
     try:
         meta = json.loads(meta_path.read_text())
         invalid = np.load(invalid_path, allow_pickle=False)
-        b_hpen = np.load(field_path, allow_pickle=False)
+        # mapped copy-on-write from the page cache: no copy, faulted in 64 kB at a time,
+        # and still writable (writes stay private to this process)
+        b_hpen = np.load(field_path, mmap_mode="c", allow_pickle=False).view(np.ndarray)
     except (OSError, KeyError, ValueError):
         return None
     if b_hpen.shape != (invalid.size, 3):
@@ -216,16 +234,34 @@ def _cache_load(path: Path):
     return b_hpen, invalid, meta
 
 
+def _cache_temp_names(path: Path) -> list[Path]:
+    """Temporary names of the three files of an entry while it is being written."""
+    return [q.with_name(f".{q.name}.{os.getpid()}.part") for q in _cache_parts(path)]
+
+
+def _cache_open_field(path: Path, n: int) -> np.ndarray:
+    """Writable file-backed (n, 3) array at the entry's temporary field name.
+
+    Worker processes write their chunks straight into it (a shared file mapping), so
+    storing the entry afterwards costs no pass over the data; see :func:`_cache_store`.
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return np.lib.format.open_memmap(_cache_temp_names(path)[0], mode="w+",
+                                     dtype=np.float64, shape=(n, 3))
+
+
 def _cache_store(path: Path, b_hpen, invalid, meta: dict) -> None:
+    """Write an entry atomically; ``b_hpen=None`` when its field file was filled in place."""
     path.parent.mkdir(parents=True, exist_ok=True)
     parts = _cache_parts(path)
-    tmps = [q.with_name(f".{q.name}.{os.getpid()}.part") for q in parts]
+    tmps = _cache_temp_names(path)
     try:
         tmps[2].write_text(json.dumps(meta))
         with open(tmps[1], "wb") as handle:
             np.save(handle, np.asarray(invalid, dtype=bool))
-        with open(tmps[0], "wb") as handle:
-            np.save(handle, np.ascontiguousarray(b_hpen, dtype=np.float64))
+        if b_hpen is not None:
+            with open(tmps[0], "wb") as handle:
+                np.save(handle, np.ascontiguousarray(b_hpen, dtype=np.float64))
         # the field file last: an entry counts only once its field file exists
         for tmp, final in zip(tmps[::-1], parts[::-1]):
             os.replace(tmp, final)
@@ -236,85 +272,6 @@ def _cache_store(path: Path, b_hpen, invalid, meta: dict) -> None:
 
 
 # --------------------------------------------------------------------------- evaluation
-def _worker(t, xyz, model, inputs, options):
-    res = irbem.evaluate_geo(t, xyz, model, inputs, options)
-    return res.b_geo_nT, res.invalid, res.reasons, res.backend
-
-
-# The whole request, handed to each worker process once when it starts (inherited, not
-# pickled, under fork); chunks are then submitted as index ranges only.
-_WORKER_REQUEST: tuple | None = None
-
-
-def _init_worker(t, xyz, model, inputs, options) -> None:
-    global _WORKER_REQUEST
-    _WORKER_REQUEST = (t, xyz, model, inputs, options)
-
-
-def _worker_range(a: int, z: int):
-    t, xyz, model, inputs, options = _WORKER_REQUEST
-    return _worker(t[a:z], xyz[a:z], model, {k: v[a:z] for k, v in inputs.items()}, options)
-
-
-def default_n_jobs() -> int:
-    """Number of CPU cores this process may use."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover - not on Linux
-        return max(1, os.cpu_count() or 1)
-
-
-def evaluate_parallel(t, xyz, model, inputs, options, n_jobs=None):
-    """:func:`irbem.evaluate_geo` over worker processes; returns (b_geo, invalid, reasons, backend).
-
-    The points are split into at least ``8 * n_jobs`` contiguous chunks (each at most
-    :data:`irbem.NTIME_MAX` points), shared dynamically between ``n_jobs - 1`` worker
-    processes and this one.
-    """
-    n = len(t)
-    n_jobs = default_n_jobs() if n_jobs is None else max(1, int(n_jobs))
-    if n_jobs == 1 or n < MIN_PARALLEL_POINTS:
-        return _worker(t, xyz, model, inputs, options)
-    # Many small chunks, balanced dynamically: the pool's n_jobs - 1 workers take chunks
-    # from the front while this process takes them from the back (cancelling a pending
-    # future before computing it here), so no core idles while another finishes a big
-    # share. Chunks stay well under IRBEM's NTIME_MAX.
-    n_chunks = max(n_jobs * 8, math.ceil(n / irbem.NTIME_MAX))
-    bounds = np.linspace(0, n, n_chunks + 1).astype(int)
-    methods = multiprocessing.get_all_start_methods()
-    ctx = multiprocessing.get_context("fork" if "fork" in methods else None)
-    b = np.empty((n, 3))
-    invalid = np.empty(n, dtype=bool)
-    reasons: dict[str, int] = {}
-    backend = "ctypes"
-
-    def collect(a, z, result):
-        nonlocal backend
-        bb, inv, why, used = result
-        b[a:z], invalid[a:z] = bb, inv
-        backend = used if used != "ctypes" else backend
-        for key, count in why.items():
-            reasons[key] = reasons.get(key, 0) + count
-
-    def run(a, z):
-        return _worker(t[a:z], xyz[a:z], model, {k: v[a:z] for k, v in inputs.items()},
-                       options)
-
-    chunks = list(zip(bounds[:-1], bounds[1:]))
-    with ProcessPoolExecutor(max_workers=max(1, n_jobs - 1), mp_context=ctx,
-                             initializer=_init_worker,
-                             initargs=(t, xyz, model, inputs, options)) as pool:
-        futures = [(a, z, pool.submit(_worker_range, int(a), int(z))) for a, z in chunks]
-        for a, z, fut in reversed(futures):
-            if not fut.cancel():
-                break  # the workers have reached this chunk: the rest is theirs
-            collect(a, z, run(a, z))
-        for a, z, fut in futures:
-            if not fut.cancelled():
-                collect(a, z, fut.result())
-    return b, invalid, reasons, backend
-
-
 def _grid_plan(times: np.ndarray, cadence_s):
     """Evaluation grid for ``times`` at ``cadence_s``, or None to evaluate at ``times``.
 
@@ -327,7 +284,8 @@ def _grid_plan(times: np.ndarray, cadence_s):
     if step <= 0:
         raise InputError("cadence_s must be positive")
     ns = times.astype(np.int64)
-    if np.median(np.diff(ns)) >= step * 0.999:
+    spacing = ns[1] - ns[0] if _is_regular(ns) else np.median(np.diff(ns))
+    if spacing >= step * 0.999:
         return None
     base = (ns[0] // step) * step
     cell = (ns - base) // step
@@ -387,7 +345,7 @@ def model_field_hpen(times, lon_deg, lat_deg, r_re, model: str = "T89", kp=None,
         raise InputError(f"unknown model {model!r}; choose one of {', '.join(irbem.KEXT)}")
     t = irbem.as_datetime64(times)
     n = t.size
-    if n and np.any(np.diff(t.astype(np.int64)) <= 0):
+    if n and np.any(t[1:] <= t[:-1]):
         raise InputError("times must be strictly increasing")
     opts = tuple(int(o) for o in (options if options is not None else irbem.DEFAULT_OPTIONS))
     lon, lat, r = (np.asarray(v, dtype=float) for v in (lon_deg, lat_deg, r_re))
@@ -431,17 +389,45 @@ def model_field_hpen(times, lon_deg, lat_deg, r_re, model: str = "T89", kp=None,
     xyz = irbem.geo_position_re(lon_e, lat_e, r_e)
     if xyz.shape[0] != t_eval.size:
         xyz = np.broadcast_to(xyz, (t_eval.size, 3))
-    b_geo, bad, reasons, backend = evaluate_parallel(t_eval, xyz, model, inp_e, opts, n_jobs)
+    # The Hpen rotation is done by the worker that computed each chunk when it is the
+    # same at the evaluation points as at the output times (one position, or no grid):
+    # the parent then never makes another pass over the whole array.
+    if lon.ndim == 0 and lat.ndim == 0:
+        basis_t = hpen_basis(lon, lat)[0].T
+
+        def to_hpen(idx, b):
+            return b @ basis_t
+    elif plan is None:
+        def to_hpen(idx, b):
+            return geo_to_hpen(b, lon[idx] if lon.ndim else lon, lat[idx] if lat.ndim else lat)
+    else:
+        to_hpen = None
+    # With no grid, the workers' output is the product: write it straight into the cache
+    direct = path is not None and plan is None and to_hpen is not None and n > 0
+    target = _cache_open_field(path, n) if direct else None
+    b_hpen, bad, reasons, backend = evaluate_parallel(t_eval, xyz, model, inp_e, opts, n_jobs,
+                                                      transform=to_hpen, out=target)
     if plan is not None:
         _, k, w = plan
         k1 = np.minimum(k + 1, t_eval.size - 1)
-        b_geo = b_geo[k] * (1 - w)[:, None] + b_geo[k1] * w[:, None]
+        b_hpen = b_hpen[k] * (1 - w)[:, None] + b_hpen[k1] * w[:, None]
         bad = bad[k] | (bad[k1] & (w > 0))
-    b_hpen = geo_to_hpen(b_geo, lon, lat)
-    b_hpen[bad] = np.nan
+        if to_hpen is None:
+            b_hpen = geo_to_hpen(b_hpen, lon, lat)
+        b_hpen[bad] = np.nan
     n_eval = int(t_eval.size)
     if path is not None:
-        _cache_store(path, b_hpen, bad, {"reasons": reasons, "n_evaluated": n_eval})
+        meta = {"reasons": reasons, "n_evaluated": n_eval}
+        if direct:
+            target.flush()
+            del target, b_hpen  # drop the shared, writable mapping of the cache file
+            _cache_store(path, None, bad, meta)
+            hit = _cache_load(path)  # private copy-on-write view, pages still cached
+            if hit is None:
+                raise OSError(f"model field cache entry {path} unreadable after writing it")
+            b_hpen = hit[0]
+        else:
+            _cache_store(path, b_hpen, bad, meta)
     return ModelFieldResult(
         times=t, b_hpen_nT=b_hpen, invalid=bad, reasons=reasons, model=model,
         cadence_s=cadence_s, n_evaluated=n_eval, cache_hits=0,

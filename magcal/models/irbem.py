@@ -42,6 +42,7 @@ IRBEM_FILL = -1e31
 #: Points per IRBEM call in evaluate_geo: small enough that the (CHUNK, 25) input buffer
 #: stays in cache and is faulted in once, large enough that the call overhead is nil.
 CHUNK = 8192
+_DAY_NS = 86_400 * 10**9
 #: IRBEM's compile-time maximum number of points per array call.
 NTIME_MAX = 100_000
 #: The 16 IRBEM model inputs, in ``maginput`` order.
@@ -168,6 +169,18 @@ def time_parts(times) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     (2019, 305, 3630.0)
     """
     t = as_datetime64(times)
+    ns = t.view(np.int64)
+    if t.size and not np.isnat(t).any():
+        # calendar arithmetic once per distinct day (datetime64 unit casts are slow)
+        day = ns // _DAY_NS
+        lo, hi = int(day.min()), int(day.max())
+        if hi - lo < 4 * t.size + 1000:
+            table = np.arange(lo, hi + 1).astype("datetime64[D]")
+            years = table.astype("datetime64[Y]")
+            year = (years.astype(np.int64) + 1970).astype(np.int32)[day - lo]
+            doy = ((table - years.astype("datetime64[D]")).astype(np.int64) + 1
+                   ).astype(np.int32)[day - lo]
+            return year, doy, (ns - day * _DAY_NS) / 1e9
     years = t.astype("datetime64[Y]")
     days = t.astype("datetime64[D]")
     year = years.astype(np.int64) + 1970
@@ -190,7 +203,7 @@ def as_datetime64(times) -> np.ndarray:
             arr = pd.to_datetime(arr, utc=True).tz_localize(None).to_numpy()
         except (ValueError, TypeError) as exc:
             raise InputError(f"times are not dates: {exc}") from None
-    return arr.astype("datetime64[ns]")
+    return arr.astype("datetime64[ns]", copy=False)
 
 
 def build_maginput(inputs, n: int, model: str) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -333,15 +346,96 @@ def evaluate_geo(times, pos_geo_re, model: str = "T89", inputs=None, options=Non
     >>> res.b_geo_nT.shape, res.n_invalid
     ((1, 3), 0)
     """
+    plan = prepare(times, pos_geo_re, model, inputs, options, backend)
+    out = np.full((plan.n, 3), np.nan)
+    fill = np.zeros(plan.n, dtype=bool)
+    buffer = plan.buffer()
+    for idx in plan.chunks():
+        plan.compute(idx, out, buffer, fill)
+    return plan.finish(out, fill)
+
+
+@dataclass(frozen=True)
+class EvaluationPlan:
+    """A checked request, split into IRBEM calls: what :func:`evaluate_geo` does in steps.
+
+    :func:`prepare` validates the inputs and counts the samples it excludes;
+    :meth:`compute` fills one chunk of the output (any process may do any chunk);
+    :meth:`finish` flags IRBEM fill values and returns the :class:`GeoFieldResult`.
+    :func:`magcal.models.parallel.evaluate_parallel` shares the chunks between processes.
+    """
+
+    model: str
+    kext: int
+    options: tuple
+    n: int
+    xyz: np.ndarray
+    times: np.ndarray
+    columns: dict
+    bad: np.ndarray
+    good: np.ndarray
+    reasons: dict
+    backend: str
+
+    def chunks(self, step: int = CHUNK) -> list:
+        """Index of each IRBEM call: contiguous slices when nothing is excluded."""
+        step = min(step, NTIME_MAX)
+        if self.good.size == self.n:
+            return [slice(a, min(a + step, self.n)) for a in range(0, self.n, step)]
+        return [self.good[a:a + step] for a in range(0, self.good.size, step)]
+
+    def buffer(self) -> np.ndarray:
+        """Reusable (CHUNK, 25) input array: assembled chunk by chunk, few page faults."""
+        return np.zeros((min(CHUNK, max(self.good.size, 1)), 25))
+
+    def compute(self, idx, out: np.ndarray, buffer: np.ndarray, fill: np.ndarray,
+                transform=None) -> None:
+        """Evaluate the points ``idx`` (one item of :meth:`chunks`) into ``out[idx]``.
+
+        ``fill[idx]`` (all False on entry) is set True where IRBEM returned its fill value
+        (or NaN/inf).
+        ``transform(idx, b)``, if given, maps the chunk's GEO vectors before they are
+        stored (e.g. to Hpen), so that a worker process does that work too.
+        """
+        year, doy, sec = time_parts(self.times[idx])
+        mag = buffer[:len(year)]
+        for i, values in self.columns.items():
+            mag[:, i] = values[idx]
+        if self.backend == "ctypes":
+            b = _call_multi(self.kext, self.options, year, doy, sec, self.xyz[idx], mag)
+        else:
+            b = _call_get_bfield(self.kext, self.options, self.times[idx], self.xyz[idx],
+                                 mag.copy())
+        # IRBEM marks failures with -1e31; |B| of any real field is far below 1e30 nT
+        if not np.abs(b).max() < 1e30:  # also catches NaN and inf (rarely true: then per row)
+            fill[idx] = ~np.all(np.abs(b) < 1e30, axis=1)
+        out[idx] = b if transform is None else transform(idx, b)
+
+    def finish(self, out: np.ndarray, fill: np.ndarray) -> GeoFieldResult:
+        """Set excluded and IRBEM-fill samples to NaN (in place) and build the result."""
+        reasons = dict(self.reasons)
+        fill = ~self.bad & fill
+        if np.any(fill):
+            reasons["IRBEM fill or NaN"] = int(np.count_nonzero(fill))
+        invalid = self.bad | fill
+        out[invalid] = np.nan
+        return GeoFieldResult(b_geo_nT=out, invalid=invalid, reasons=reasons,
+                              model=self.model, backend=self.backend)
+
+
+def prepare(times, pos_geo_re, model: str = "T89", inputs=None, options=None,
+            backend: str = "auto") -> EvaluationPlan:
+    """Check a request and plan its IRBEM calls (arguments as :func:`evaluate_geo`)."""
     model = str(model).upper()
     if model in ("TS04", "TS05", "T05"):
         model = "T04"
     if model not in KEXT:
         raise InputError(f"unknown model {model!r}; choose one of {', '.join(KEXT)}")
-    kext = KEXT[model]
     opts = tuple(int(o) for o in (options if options is not None else DEFAULT_OPTIONS))
     if len(opts) != 5:
         raise InputError("IRBEM options must have 5 integers")
+    if backend not in ("auto", "ctypes", "get_Bfield"):
+        raise InputError(f"unknown backend {backend!r}")
     t = as_datetime64(times)
     n = t.size
     xyz = np.asarray(pos_geo_re, dtype=float)
@@ -351,53 +445,27 @@ def evaluate_geo(times, pos_geo_re, model: str = "T89", inputs=None, options=Non
         raise InputError(f"positions have shape {xyz.shape}, expected ({n}, 3)")
     columns, bad, reasons = maginput_columns(inputs, n, model)
     nat = np.isnat(t)
-    badpos = ~np.all(np.isfinite(xyz), axis=1) | nat
+    badpos = ~(np.isfinite(xyz[:, 0]) & np.isfinite(xyz[:, 1]) & np.isfinite(xyz[:, 2])) | nat
     new = badpos & ~bad
     if np.any(new):
         reasons["position or time missing"] = int(np.count_nonzero(new))
         bad |= badpos
-    year, doy, sec = time_parts(np.where(nat, np.datetime64("2000-01-01", "ns"), t))
-    late = np.count_nonzero(~bad & (year > IGRF_LAST_YEAR))
+    late = np.count_nonzero(~bad & (t >= np.datetime64(f"{IGRF_LAST_YEAR + 1}-01-01")))
     if late:
         reasons[f"info: IGRF extrapolated beyond {IGRF_LAST_YEAR}"] = int(late)
     if model == "T89":
         top = np.count_nonzero(~bad & (columns[0] >= 57)) if 0 in columns else 0
         if top:
             reasons["info: T89 top activity level (Kp >= 6-)"] = int(top)
-
-    good = np.flatnonzero(~bad)
-    out = np.full((n, 3), np.nan)
     used = "ctypes"
-    if backend not in ("auto", "ctypes", "get_Bfield"):
-        raise InputError(f"unknown backend {backend!r}")
     if backend != "get_Bfield" and not ctypes_available():
         if backend == "ctypes":
             raise RuntimeError("IRBEM ctypes path unavailable (libirbem.so not loadable)")
         used = "get_Bfield"
     elif backend == "get_Bfield":
         used = "get_Bfield"
-    step = min(CHUNK, NTIME_MAX)
-    buffer = np.zeros((min(step, max(good.size, 1)), 25))  # reused: few page faults
-    for start in range(0, good.size, step):
-        # contiguous slices when nothing is excluded: no copies of the inputs
-        idx = (slice(start, min(start + step, n)) if good.size == n
-               else good[start:start + step])
-        mag = buffer[:len(year[idx])]
-        for i, values in columns.items():
-            mag[:, i] = values[idx]
-        if used == "ctypes":
-            b = _call_multi(kext, opts, year[idx], doy[idx], sec[idx], xyz[idx], mag)
-        else:
-            b = _call_get_bfield(kext, opts, t[idx], xyz[idx], mag.copy())
-        out[idx] = b
-    # IRBEM marks failures with -1e31; |B| of any real field is far below 1e30 nT
-    fill = ~bad & ~np.all(np.abs(out) < 1e30, axis=1)  # also catches NaN and inf
-    if np.any(fill):
-        reasons["IRBEM fill or NaN"] = int(np.count_nonzero(fill))
-    invalid = bad | fill
-    out[invalid] = np.nan
-    return GeoFieldResult(b_geo_nT=out, invalid=invalid, reasons=reasons, model=model,
-                          backend=used)
+    return EvaluationPlan(model=model, kext=KEXT[model], options=opts, n=n, xyz=xyz, times=t, columns=columns, bad=bad,
+                          good=np.flatnonzero(~bad), reasons=reasons, backend=used)
 
 
 def field_geo(times, pos_geo_re, model: str = "T89", inputs=None, options=None) -> np.ndarray:
@@ -439,6 +507,7 @@ def geo_position_re(lon_deg, lat_deg, r_re) -> np.ndarray:
                      r * np.sin(lat)], axis=-1)
 
 
+@functools.lru_cache(maxsize=1)
 def library_version() -> str:
     """Version tag of the IRBEM build in use (spacepy version + library size and mtime)."""
     from importlib.metadata import PackageNotFoundError, version
