@@ -67,7 +67,7 @@ def test_venus_express_spacecraft_correlated_variance(real_data):
 def test_goes16_boom_pair(real_data):
     import glob
 
-    from magcal.ac.estimator import epoch_seconds
+    from magcal.timeconv import epoch_seconds
     from magcal.io.goes import read_goes_mag
 
     folder = real_data("goes16", "l2_hires_5min")

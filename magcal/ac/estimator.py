@@ -15,6 +15,7 @@ from magcal.ac.chain import ChainResult, Plan, apply_weights, run_chain
 from magcal.ac.plan import plan_to_dict
 from magcal.errors import InputError
 from magcal.io.jsonio import product_dict
+from magcal.timeconv import epoch_seconds
 
 COMPONENTS = ("x", "y", "z")
 
@@ -46,14 +47,6 @@ def sensor_array(frame: pd.DataFrame, sensor: str) -> np.ndarray:
                              f"{', '.join(sensors_in_frame(frame)) or 'none'})",
                              file=src, column=c)
     return frame[cols].to_numpy(dtype=float)
-
-
-def epoch_seconds(index: pd.DatetimeIndex) -> np.ndarray:
-    """Seconds since 1970-01-01 UTC as float64."""
-    idx = pd.DatetimeIndex(index)
-    if idx.tz is not None:
-        idx = idx.tz_convert("UTC").tz_localize(None)
-    return idx.as_unit("ns").asi8 / 1e9
 
 
 def uniform_grid(t_s: np.ndarray, tolerance: float = 0.05):

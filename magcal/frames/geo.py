@@ -43,6 +43,7 @@ import pandas as pd
 from magcal.errors import InputError
 from magcal.frames.hpen import geo_to_hpen, hpen_to_geo
 from magcal.offline import ensure_spacepy_dir
+from magcal.timeconv import utc_index
 
 #: Frames understood by :func:`convert_vectors` (spacepy/IRBEM names).
 FRAMES = ("GEO", "GEI", "GSE", "GSM", "SM")
@@ -59,24 +60,6 @@ def _frame(name: str) -> str:
     if key not in FRAMES:
         raise InputError(f"unknown frame {name!r}; expected one of {', '.join(FRAMES)}")
     return key
-
-
-def utc_index(times) -> pd.DatetimeIndex:
-    """Times as a tz-aware UTC :class:`pandas.DatetimeIndex` (naive input is taken as UTC).
-
-    Examples
-    --------
-    >>> utc_index(["2017-03-05T02:09:00.4"])[0]
-    Timestamp('2017-03-05 02:09:00.400000+0000', tz='UTC')
-    """
-    if isinstance(times, pd.Series):
-        times = times.to_numpy()
-    if np.ndim(times) == 0:
-        times = [times]
-    idx = pd.DatetimeIndex(pd.to_datetime(times, utc=True))
-    if idx.hasnans:
-        raise InputError("times contain NaT (missing time)")
-    return idx
 
 
 def _vectors(b, n_times: int, what: str = "b") -> np.ndarray:
@@ -131,7 +114,7 @@ def rotation_matrices(times, from_frame: str, to_frame: str) -> np.ndarray:
     (True, 1.0)
     """
     f, t = _frame(from_frame), _frame(to_frame)
-    idx = utc_index(times)
+    idx = utc_index(times, allow_nat=False)
     if f == t:
         return np.broadcast_to(np.eye(3), (len(idx), 3, 3)).copy()
     seconds = idx.tz_convert("UTC").tz_localize(None).round("s").as_unit("ns").asi8
@@ -162,7 +145,7 @@ def convert_vectors(b, times, from_frame: str, to_frame: str) -> np.ndarray:
     >>> convert_vectors([0.0, 0.0, 10.0], ["2017-03-05T02:09:00"], "GEO", "GEI").round(9) + 0.0
     array([[ 0.,  0., 10.]])
     """
-    idx = utc_index(times)
+    idx = utc_index(times, allow_nat=False)
     vec = _vectors(b, len(idx))
     return np.einsum("nij,nj->ni", rotation_matrices(idx, from_frame, to_frame), vec)
 
@@ -203,7 +186,7 @@ def hpen_to(b_hpen, times, lon_deg, lat_deg, frame: str = "GEO") -> np.ndarray:
     >>> hpen_to([100.0, 0.0, 0.0], ["2017-03-05T02:09:00"], -89.5, 0.0, "GEO").round(9) + 0.0
     array([[  0.,   0., 100.]])
     """
-    idx = utc_index(times)
+    idx = utc_index(times, allow_nat=False)
     vec = _vectors(b_hpen, len(idx), "b_hpen")
     b_geo = hpen_to_geo(vec, lon_deg, lat_deg)
     return convert_vectors(b_geo, idx, "GEO", frame)

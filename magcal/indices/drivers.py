@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 
 from magcal.errors import InputError
-from magcal.indices._time import utc_ns
+from magcal.timeconv import utc_ns
 from magcal.indices.kp import kp_to_irbem, snap_to_thirds
 
 #: The 16 IRBEM ``omnivals`` keys, in IRBEM's order (all are required by spacepy).

@@ -33,7 +33,7 @@ import numpy as np
 import pandas as pd
 
 from magcal.errors import InputError
-from magcal.indices._time import utc_ns
+from magcal.timeconv import utc_ns
 
 #: Length of one Kp interval in nanoseconds.
 INTERVAL_NS = 3 * 3600 * 10**9

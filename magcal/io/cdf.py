@@ -29,6 +29,7 @@ import pandas as pd
 from magcal._version import __version__
 from magcal.errors import InputError
 from magcal.io.atomic import atomic_path
+from magcal.timeconv import utc_index
 
 #: Fill value for float data in written products (ISTP convention).
 FILLVAL_FLOAT = -1.0e31
@@ -241,7 +242,7 @@ def read_elfin_fgs(path: str | os.PathLike) -> pd.DataFrame:
         raise InputError("not an ELFIN FGS file: no 'ela_fgs'/'elb_fgs' variable with its "
                          "'_time'", file=p)
     values = np.asarray(data[name], dtype=float).reshape(-1, 3)
-    index = _utc_index(data[f"{name}_time"])
+    index = utc_index(data[f"{name}_time"], name="time")
     frame = pd.DataFrame(values, index=index, columns=["b1", "b2", "b3"])
     frame.attrs.update({"units": "counts", "probe": name[:3], "file": str(p),
                         "n_fill": int(data.fill_counts[name]),
@@ -272,7 +273,7 @@ def read_elfin_state(path: str | os.PathLike) -> pd.DataFrame:
     probe = next((n[:3] for n in data if re.fullmatch(r"el[ab]_pos_gei", n)), None)
     if probe is None:
         raise InputError("not an ELFIN state file: no 'ela_pos_gei'/'elb_pos_gei'", file=p)
-    index = _utc_index(data[f"{probe}_state_time"])
+    index = utc_index(data[f"{probe}_state_time"], name="time")
     cols = {}
     for kind in ("pos", "vel"):
         arr = np.asarray(data[f"{probe}_{kind}_gei"], dtype=float).reshape(-1, 3)
@@ -281,7 +282,7 @@ def read_elfin_state(path: str | os.PathLike) -> pd.DataFrame:
     att_name, att_time = f"{probe}_att_gei", f"{probe}_att_time"
     if att_name in data and att_time in data and len(data[att_time]):
         att = np.asarray(data[att_name], dtype=float).reshape(-1, 3)
-        t_att = _utc_index(data[att_time]).asi8
+        t_att = utc_index(data[att_time], name="time").asi8
         t = index.asi8
         inside = (t >= t_att[0]) & (t <= t_att[-1])
         interp = np.column_stack([np.interp(t, t_att, att[:, j]) for j in range(3)])
@@ -300,11 +301,6 @@ def read_elfin_state(path: str | os.PathLike) -> pd.DataFrame:
              for c in frame.columns}
     frame.attrs.update({"units": units, "probe": probe, "file": str(p)})
     return frame
-
-
-def _utc_index(times: np.ndarray) -> pd.DatetimeIndex:
-    index = pd.DatetimeIndex(np.asarray(times, dtype="datetime64[ns]"), name="time")
-    return index.tz_localize("UTC")
 
 
 # ---------------------------------------------------------------------------- writing

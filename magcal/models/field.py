@@ -29,6 +29,7 @@ from magcal.frames.hpen import geo_to_hpen, hpen_basis
 from magcal.io.jsonio import product_dict
 from magcal.models import irbem
 from magcal.models.parallel import evaluate_parallel
+from magcal.timeconv import as_datetime64
 
 _CACHE_FORMAT = 2  # 2: plain .npy files (1 was one .npz per entry)
 
@@ -100,7 +101,7 @@ class ModelFieldResult:
 # --------------------------------------------------------------------------- inputs
 def _sample_step(series, times: np.ndarray) -> np.ndarray:
     """Value of a time-indexed pandas object valid at ``times`` (previous-value lookup)."""
-    idx = irbem.as_datetime64(series.index)
+    idx = as_datetime64(series.index)
     if idx.size and np.any(np.diff(idx.astype(np.int64)) <= 0):
         order = np.argsort(idx, kind="stable")
         idx, series = idx[order], series.iloc[order]
@@ -343,7 +344,7 @@ def model_field_hpen(times, lon_deg, lat_deg, r_re, model: str = "T89", kp=None,
     model = "T04" if model in ("TS04", "TS05", "T05") else model
     if model not in irbem.KEXT:
         raise InputError(f"unknown model {model!r}; choose one of {', '.join(irbem.KEXT)}")
-    t = irbem.as_datetime64(times)
+    t = as_datetime64(times)
     n = t.size
     if n and np.any(t[1:] <= t[:-1]):
         raise InputError("times must be strictly increasing")

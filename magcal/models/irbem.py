@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from magcal.errors import InputError
+from magcal.timeconv import as_datetime64
 
 #: IRBEM's fill value for bad output.
 IRBEM_FILL = -1e31
@@ -187,23 +188,6 @@ def time_parts(times) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     doy = (days - years.astype("datetime64[D]")).astype(np.int64) + 1
     sec = (t - days).astype("timedelta64[ns]").astype(np.int64) / 1e9
     return year.astype(np.int32), doy.astype(np.int32), sec.astype(np.float64)
-
-
-def as_datetime64(times) -> np.ndarray:
-    """``times`` as a 1-D ``datetime64[ns]`` array (timezone-aware inputs converted to UTC)."""
-    if hasattr(times, "tz_convert") and getattr(times, "tz", None) is not None:
-        times = times.tz_convert("UTC").tz_localize(None)
-    if hasattr(times, "dt") and getattr(times.dt, "tz", None) is not None:
-        times = times.dt.tz_convert("UTC").dt.tz_localize(None)
-    arr = np.atleast_1d(np.asarray(times))
-    if arr.dtype.kind != "M":
-        try:
-            import pandas as pd
-
-            arr = pd.to_datetime(arr, utc=True).tz_localize(None).to_numpy()
-        except (ValueError, TypeError) as exc:
-            raise InputError(f"times are not dates: {exc}") from None
-    return arr.astype("datetime64[ns]", copy=False)
 
 
 def build_maginput(inputs, n: int, model: str) -> tuple[np.ndarray, np.ndarray, dict]:

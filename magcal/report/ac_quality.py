@@ -353,7 +353,8 @@ def daily_refits(frame: pd.DataFrame, plan_doc: dict, *, alpha_method: str = "de
     -------
     list of dict ``{"day", "steps" (PARAMS style), "M"}``
     """
-    from magcal.ac.estimator import PiCoG, epoch_seconds
+    from magcal.ac.estimator import PiCoG
+    from magcal.timeconv import epoch_seconds
 
     t = epoch_seconds(frame.index)
     day = np.floor(t / DAY_S)
@@ -475,7 +476,8 @@ def ac_quality(raw: pd.DataFrame, cleaned: dict, params: dict, *, refit: bool = 
     dict name -> ``{"pair", "remnants", "stability"}`` (stability missing or
     ``{"skipped": reason}`` when not computed).
     """
-    from magcal.ac.estimator import epoch_seconds, sensor_array
+    from magcal.ac.estimator import sensor_array
+    from magcal.timeconv import epoch_seconds
 
     out = {}
     for name, prm in params.items():

@@ -154,7 +154,7 @@ def phase_from_counts(t_s, counts) -> tuple[np.ndarray, float]:
     >>> t = np.arange(0, 60, 0.1)
     >>> c = np.column_stack([3 * np.cos(2.2 * t), 5 * np.sin(2.2 * t), 0.01 * t])
     >>> p, w = phase_from_counts(t, c @ np.array([[1, .2, 0], [0, 1, .1], [.3, 0, 1]]))
-    >>> round(abs(w), 3)
+    >>> round(abs(w), 2)
     2.2
     """
     t = np.asarray(t_s, dtype=float)
