@@ -394,10 +394,11 @@ def model_field_hpen(times, lon_deg, lat_deg, r_re, model: str = "T89", kp=None,
     # same at the evaluation points as at the output times (one position, or no grid):
     # the parent then never makes another pass over the whole array.
     if lon.ndim == 0 and lat.ndim == 0:
-        basis_t = hpen_basis(lon, lat)[0].T
+        rows = hpen_basis(lon, lat)[0].T
 
         def to_hpen(idx, b):
-            return b @ basis_t
+            # plain ufuncs, no BLAS call inside a forked worker
+            return b[:, :1] * rows[0] + b[:, 1:2] * rows[1] + b[:, 2:] * rows[2]
     elif plan is None:
         def to_hpen(idx, b):
             return geo_to_hpen(b, lon[idx] if lon.ndim else lon, lat[idx] if lat.ndim else lat)
