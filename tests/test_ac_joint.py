@@ -59,6 +59,18 @@ def test_plan_joint_parsed_and_validated():
     st = plan.stages[0]
     assert st.joint and st.min_snr == 4.0 and st.event_half_s is None
     assert plan_to_dict(plan)["stages"][0]["joint"] is True
+    assert st.events == "pulse" and st.pulse_min_snr == 2.5      # defaults
+    doc["stage"][0].update(events="interval", pulse_min_snr=3)
+    st2 = plan_from_dict(doc)[0].stages[0]
+    assert st2.events == "interval" and st2.pulse_min_snr == 3.0
+    d = plan_to_dict(plan_from_dict(doc)[0])["stages"][0]
+    assert d["events"] == "interval" and d["pulse_min_snr"] == 3.0
+    with pytest.raises(InputError, match="events must be"):
+        plan_from_dict({"target": "fgmo", "stage": [{"pair": ["fgmo", "fgmi"], "joint": True,
+                                                     "events": "pulses"}]})
+    with pytest.raises(InputError, match="pulse_min_snr must be"):
+        plan_from_dict({"target": "fgmo", "stage": [{"pair": ["fgmo", "fgmi"], "joint": True,
+                                                     "pulse_min_snr": -1}]})
     with pytest.raises(InputError, match="joint must be"):
         plan_from_dict({"target": "fgmo", "stage": [{"pair": ["fgmo", "fgmi"],
                                                      "joint": "yes"}]})
@@ -76,12 +88,16 @@ def joint_day_plan(md_start_s: float) -> Plan:
               + (Order(band_hz=(0.1664, 0.1669), **kw),))))
 
 
-#: per-disturber power ratios at fgmo (exact by linearity), pinned from the fit
+#: per-disturber power ratios at fgmo (exact by linearity), pinned from the fit with the
+#: default pulse events (seed 2: both edge pulses sit in Pc5 waves, the ambient is
+#: interpolated from the flanks)
 PINNED = {
-    20190304: {"midnight": 79163.4, "md_edge": 15.5, "spikes": 14.7, "hf_noise": 13.1,
-               "steps": 94.5, "tone_6s": 17.3},
-    1: {"midnight": 110543.4, "md_edge": 30.2, "spikes": 13.4, "hf_noise": 12.1,
-        "steps": 25.1, "tone_6s": 19.0},
+    20190304: {"midnight": 94139.1, "md_edge": 15.8, "spikes": 14.0, "hf_noise": 13.9,
+               "steps": 113.2, "tone_6s": 17.8},
+    1: {"midnight": 118937.1, "md_edge": 24.3, "spikes": 13.6, "hf_noise": 12.7,
+        "steps": 27.4, "tone_6s": 19.8},
+    2: {"midnight": 6420.5, "md_edge": 20.4, "spikes": 17.8, "hf_noise": 16.7,
+        "steps": 28.8, "tone_6s": 14.6},
 }
 
 

@@ -78,10 +78,20 @@ class Stage:
     joint: bool = False
     event_half_s: float | None = 120.0   #: joint: half-width of the event intervals
     min_snr: float = 5.0                 #: joint: drop selections below this
+    #: joint: event selections, ``"pulse"`` (matched filter on the pulse shape of every
+    #: event, other spikes masked, ambient waves removed, pooled) or ``"interval"``
+    #: (whole intervals free of other events), see :func:`magcal.ac.joint.selections`
+    events: str = "pulse"
+    pulse_min_snr: float = 2.5           #: joint: drop the pooled pulse selection below this
 
     def __post_init__(self):
         if self.joint and self.kind != "pair":
             raise InputError("joint = true is only for a pair stage")
+        if self.events not in ("pulse", "interval"):
+            raise InputError(f"events must be \"pulse\" or \"interval\", got {self.events!r}")
+        for key in ("min_snr", "pulse_min_snr"):
+            if not getattr(self, key) >= 0:
+                raise InputError(f"{key} must be >= 0, got {getattr(self, key)}")
         if self.kind not in ("reference", "pair", "regression"):
             raise InputError(f"unknown stage kind {self.kind!r}")
         if self.kind == "pair" and len(self.sensors) != 2:
@@ -305,10 +315,10 @@ def _joint_steps(stage_no, stage, b_i, b_j, t_s, dt, fixed, raw_diff) -> list:
                      None, np.asarray(fixed[key], dtype=float), kind="fixed")
                 for a, b, key in ((i, j, key_i), (j, i, key_j))]
     sels = selections(b_i, b_j, t_s, stage.orders, dt, event_half_s=stage.event_half_s,
-                      event_difference=raw_diff)
+                      event_difference=raw_diff, events=stage.events)
     out = []
     for a, b, ss in ((i, j, sels), (j, i, swap(sels))):
-        fit = fit_joint(ss, dt, min_snr=stage.min_snr)
+        fit = fit_joint(ss, dt, min_snr=stage.min_snr, pulse_min_snr=stage.pulse_min_snr)
         # the partner: B_j + K_ji (B_j - B_i), which is the chain's A_ji = K_ji
         out.append(Step(stage_no, 1, a, b, float("nan"), np.full(3, np.nan),
                         np.full(3, np.nan), None, fit.K, kind="joint",

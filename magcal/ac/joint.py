@@ -30,11 +30,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from magcal.ac.core import pair_moments
 from magcal.ac.filters import bandpass, highpass, highpass_samples, running_mean
 from magcal.ac.scan import scan_first_order, summarize_scan
 from magcal.errors import InputError
 
+#: how event selections are formed (see :func:`selections`)
+EVENT_MODES = ("pulse", "interval")
 #: lags (s) of the difference used for the chance level of a cross-covariance
 NULL_LAGS_S = (-1500.0, -1100.0, -700.0, -400.0, 400.0, 700.0, 1100.0, 1500.0)
 
@@ -48,6 +49,9 @@ class Selection:
     b_j: np.ndarray
     mask: np.ndarray
     lag_null: bool = True   #: chance level by lagging (not for a spectral line)
+    #: chance levels of the coherent power (for ``b_i``, for ``b_j``) when known
+    #: otherwise (pulse selections); None: from lagging or none
+    chance: tuple | None = None
 
 
 @dataclass(frozen=True)
@@ -103,6 +107,41 @@ def chance_level(b_i: np.ndarray, b_j: np.ndarray, mask: np.ndarray, dt_s: float
     return float(np.mean(vals)) if vals else float("nan")
 
 
+def _step_and_spike_signals(d: np.ndarray, dt: float, span_s: float):
+    n = max(3, int(round(span_s / dt)))
+    x = np.where(np.isfinite(d), d, 0.0)
+    m = running_mean(x, n)
+    s = np.zeros(len(x))
+    s[n:-n] = np.linalg.norm(m[2 * n:] - m[:-2 * n], axis=1)
+    sp = np.linalg.norm(x - ndimage.median_filter(x, size=(21, 1), mode="nearest"), axis=1)
+    return n, s, sp
+
+
+def _largest_steps(s: np.ndarray, half_n: int, size_fraction: float) -> list[int]:
+    big = []
+    work = s.copy()
+    top = float(s.max())
+    while True:
+        p = int(np.argmax(work))
+        if work[p] < size_fraction * top:
+            break
+        # the step signal of a ramp has a flat top: its centre is between the
+        # half-height crossings, not at the (noise-placed) maximum
+        lo, hi = p, p
+        while lo > 0 and s[lo - 1] > 0.5 * s[p]:
+            lo -= 1
+        while hi < len(s) - 1 and s[hi + 1] > 0.5 * s[p]:
+            hi += 1
+        big.append((lo + hi) // 2)
+        work[max(0, p - 2 * half_n):p + 2 * half_n + 1] = 0.0
+    return sorted(big)
+
+
+def _robust_threshold(v: np.ndarray, n_sigma: float) -> float:
+    med = np.median(v)
+    return float(med + n_sigma * 1.4826 * np.median(np.abs(v - med)))
+
+
 def event_intervals(d: np.ndarray, t_s: np.ndarray, *, half_s: float = 120.0,
                     span_s: float = 60.0, size_fraction: float = 0.3,
                     n_sigma: float = 6.0) -> list[tuple[float, float]]:
@@ -121,39 +160,13 @@ def event_intervals(d: np.ndarray, t_s: np.ndarray, *, half_s: float = 120.0,
     """
     t_s = np.asarray(t_s, float)
     dt = float(np.median(np.diff(t_s)))
-    n = max(3, int(round(span_s / dt)))
-    x = np.where(np.isfinite(d), d, 0.0)
-    m = running_mean(x, n)
-    s = np.zeros(len(t_s))
-    s[n:-n] = np.linalg.norm(m[2 * n:] - m[:-2 * n], axis=1)
-    sp = np.linalg.norm(x - ndimage.median_filter(x, size=(21, 1), mode="nearest"), axis=1)
+    n, s, sp = _step_and_spike_signals(d, dt, span_s)
     if not np.any(s > 0):
         return []
     half_n = int(round(half_s / dt))
-    big = []
-    work = s.copy()
-    top = float(s.max())
-    while True:
-        p = int(np.argmax(work))
-        if work[p] < size_fraction * top:
-            break
-        # the step signal of a ramp has a flat top: its centre is between the
-        # half-height crossings, not at the (noise-placed) maximum
-        lo, hi = p, p
-        while lo > 0 and s[lo - 1] > 0.5 * s[p]:
-            lo -= 1
-        while hi < len(s) - 1 and s[hi + 1] > 0.5 * s[p]:
-            hi += 1
-        big.append((lo + hi) // 2)
-        work[max(0, p - 2 * half_n):p + 2 * half_n + 1] = 0.0
-
-    def robust(v):
-        med = np.median(v)
-        return med + n_sigma * 1.4826 * np.median(np.abs(v - med))
-
-    thr_s, thr_sp = robust(s[n:-n]), robust(sp)
+    thr_s, thr_sp = _robust_threshold(s[n:-n], n_sigma), _robust_threshold(sp, n_sigma)
     out = []
-    for p in sorted(big):
+    for p in _largest_steps(s, half_n, size_fraction):
         lo, hi = max(0, p - half_n), min(len(s), p + half_n)
         # the ramp itself fills the step signal for +-2n samples; a running median
         # follows a ramp, so the spike signal sees it only near its corners
@@ -165,16 +178,293 @@ def event_intervals(d: np.ndarray, t_s: np.ndarray, *, half_s: float = 120.0,
     return out
 
 
+def _event_windows(d, t_s, half_s, guard_s, span_s, size_fraction, n_sigma):
+    """(centre index, keep mask, other-event mask) per large step of ``d``."""
+    t_s = np.asarray(t_s, float)
+    dt = float(np.median(np.diff(t_s)))
+    n, s, sp = _step_and_spike_signals(d, dt, span_s)
+    if not np.any(s > 0):
+        return []
+    half_n, g = int(round(half_s / dt)), max(1, int(round(guard_s / dt)))
+    thr_s, thr_sp = _robust_threshold(s[n:-n], n_sigma), _robust_threshold(sp, n_sigma)
+    bad_s = ndimage.binary_dilation(s > thr_s, np.ones(2 * n + 1, bool))
+    lab_s, lab_sp = ndimage.label(bad_s)[0], ndimage.label(sp > thr_sp)[0]
+    dil = np.ones(2 * g + 1, bool)
+    out = []
+    for p in _largest_steps(s, half_n, size_fraction):
+        # the ramp's own detections are the event, not another one: its step signal
+        # (+-2n samples) and the spike signal at its corners (within n/2 of its centre)
+        own_s = np.unique(lab_s[p])
+        own_sp = np.unique(lab_sp[max(0, p - n // 2):p + n // 2 + 1])
+        spikes = (lab_sp > 0) & ~np.isin(lab_sp, own_sp)
+        # a spike also lifts the step signal: only step detections without a spike in
+        # them are steps (masked over the step detector's span)
+        spiky = np.unique(lab_s[spikes])
+        other = ((bad_s & ~np.isin(lab_s, own_s) & ~np.isin(lab_s, spiky))
+                 | ndimage.binary_dilation(spikes, dil))
+        keep = np.zeros(len(s), bool)
+        keep[max(0, p - half_n):p + half_n + 1] = True
+        out.append((p, keep & ~other, other))
+    return out
+
+
+def event_masks(d: np.ndarray, t_s: np.ndarray, *, half_s: float = 120.0,
+                guard_s: float = 15.0, span_s: float = 60.0, size_fraction: float = 0.3,
+                n_sigma: float = 6.0) -> list[np.ndarray]:
+    """Row masks of ``+-half_s`` around the largest steps of the difference ``d`` (at
+    least ``size_fraction`` of the largest) with the samples within ``guard_s`` of any
+    other spike (and of any other step, over the step detector's span) taken out,
+    instead of dropping the whole interval as :func:`event_intervals` does.
+
+    Examples
+    --------
+    >>> t = np.arange(4000.0); rng = np.random.default_rng(1)
+    >>> d = rng.normal(0, 0.05, (4000, 3)); d[1000:3000, 2] += 20.0
+    >>> d[3060, 0] += 3.0                    # a spike near the second ramp
+    >>> [(int(m.sum()), bool(m[3060])) for m in event_masks(d, t)]
+    [(241, False), (210, False)]
+    """
+    return [m for _, m, _ in _event_windows(d, t_s, half_s, guard_s, span_s,
+                                            size_fraction, n_sigma)]
+
+
+#: periods (s) tried for the ambient wave in :func:`flank_ambient` (Pc4-Pc5 range)
+AMBIENT_PERIODS_S = tuple(float(p) for p in range(120, 901, 20))
+
+
+def flank_ambient(x: np.ndarray, t_s: np.ndarray, centre_s: float, *,
+                  core_s: float = 100.0, flank_s: float = 600.0, degree: int = 3,
+                  periods_s=AMBIENT_PERIODS_S, exclude: np.ndarray | None = None
+                  ) -> np.ndarray:
+    """Ambient field across an event core interpolated from its flanks.
+
+    Fits a polynomial of ``degree`` plus the best single sinusoid (period from
+    ``periods_s``, or none) to ``x`` on ``core_s < |t - centre_s| <= flank_s`` (rows in
+    ``exclude`` left out) by least squares and evaluates it on ``|t - centre_s| <=
+    flank_s`` (NaN elsewhere). Subtracted from both sensors of a pair it leaves their
+    difference unchanged and removes most of a ULF wave from the event core, which
+    would otherwise correlate with the event's pulse by chance.
+
+    Examples
+    --------
+    >>> t = np.arange(3000.0); w = np.sin(2 * np.pi * t / 300.0)[:, None] * [1.0, 0.5, 0.0]
+    >>> pulse = np.maximum(0, 1 - np.abs(t - 1500) / 90)[:, None] * [0.0, 0.0, 2.0]
+    >>> a = flank_ambient(w + pulse, t, 1500.0)
+    >>> bool(np.nanmax(np.abs(a - w)) < 1e-6)
+    True
+    """
+    x = np.asarray(x, float)
+    t_s = np.asarray(t_s, float)
+    span = np.abs(t_s - centre_s) <= flank_s
+    fit = span & (np.abs(t_s - centre_s) > core_s) & np.all(np.isfinite(x), axis=1)
+    if exclude is not None:
+        fit &= ~np.asarray(exclude, bool)
+    u = (t_s[span] - centre_s) / flank_s
+    poly = [u ** k for k in range(degree + 1)]
+    best = None
+    for period in (None, *periods_s):
+        cols = poly if period is None else poly + [
+            np.sin(2 * np.pi * u * flank_s / period), np.cos(2 * np.pi * u * flank_s / period)]
+        basis = np.column_stack(cols)
+        rows = fit[span]
+        if rows.sum() <= basis.shape[1]:
+            continue
+        coef, *_ = np.linalg.lstsq(basis[rows], x[span][rows], rcond=None)
+        rss = float(np.sum((x[span][rows] - basis[rows] @ coef) ** 2))
+        if best is None or rss < best[0]:
+            best = (rss, basis @ coef)
+    out = np.full(x.shape, np.nan)
+    if best is not None:
+        out[span] = best[1]
+    return out
+
+
+def flank_ambient_error(x: np.ndarray, t_s: np.ndarray, centre_s: float, *,
+                        core_s: float = 100.0, flank_s: float = 600.0,
+                        shifts_s=(-350.0, 350.0), exclude: np.ndarray | None = None
+                        ) -> tuple[float, float]:
+    """Cross-check of :func:`flank_ambient` at pseudo-cores ``centre_s + shifts_s``:
+    (rms of ``x`` minus the interpolated ambient there, rms of ``x`` about its mean
+    there), both mean-removed per core and summed over components. Interpolating pays
+    off when the first is clearly below the second (a coherent ambient wave).
+    """
+    x = np.asarray(x, float)
+    t_s = np.asarray(t_s, float)
+    e_mod, e_raw = [], []
+    for sh in shifts_s:
+        c = centre_s + sh
+        core = (np.abs(t_s - c) <= core_s) & np.all(np.isfinite(x), axis=1)
+        if exclude is not None:
+            core &= ~np.asarray(exclude, bool)
+        if core.sum() < 3:
+            continue
+        r = (x - flank_ambient(x, t_s, c, core_s=core_s, flank_s=flank_s,
+                               exclude=exclude))[core]
+        if not np.all(np.isfinite(r)):
+            continue
+        e_mod.append(np.sqrt(r.var(axis=0).sum()))
+        e_raw.append(np.sqrt(x[core].var(axis=0).sum()))
+    if not e_mod:
+        return float("nan"), float("nan")
+    return float(np.mean(e_mod)), float(np.mean(e_raw))
+
+
+#: template shifts (s) for the chance level of a pulse selection
+PULSE_LAGS_S = tuple(float(v) for v in np.r_[-np.arange(1800, 299, -100), np.arange(300, 1801, 100)])
+
+
+def _pulse_template(dd: np.ndarray, tt: np.ndarray) -> np.ndarray:
+    """Main temporal component of the difference ``dd`` (rows of one event) with its
+    mean and the ramp (a step at ``tt = 0``) regressed out."""
+    nuis = np.column_stack([np.ones(len(tt)), np.clip(tt / 15.0, -1.0, 1.0)])
+    r = dd - nuis @ np.linalg.lstsq(nuis, dd, rcond=None)[0]
+    _, _, vt = np.linalg.svd(r, full_matrices=False)
+    return r @ vt[0]
+
+
+def _pulse_coef(z, cm, t_s, centre_s, offsets_s, u, ambient, exclude):
+    """Projection coefficients (3,) of ``z`` on the template ``u`` placed at
+    ``centre_s + offsets_s`` (None where that window leaves the data or meets another
+    event); the ambient interpolated from the flanks of ``cm`` removed first if asked."""
+    rows = np.searchsorted(t_s, centre_s + offsets_s)
+    if rows[0] <= 0 or rows[-1] >= len(t_s) - 1:
+        return None
+    if exclude is not None and np.any(exclude[rows]):
+        return None
+    v = z[rows]
+    if ambient:
+        v = v - flank_ambient(cm, t_s, centre_s, exclude=exclude)[rows]
+    if not np.all(np.isfinite(v)):
+        return None
+    return u @ (v - v.mean(axis=0)) / (u @ u)
+
+
+def pulse_selection(name: str, x: np.ndarray, y: np.ndarray, t_s: np.ndarray,
+                    centre_s: float, mask: np.ndarray, other: np.ndarray | None = None, *,
+                    ambient: bool = False, lags_s=PULSE_LAGS_S) -> Selection:
+    """A rank-one selection of one event (a matched filter): both sensors projected on
+    the event's pulse shape in their difference (:func:`_pulse_template`, free of the
+    ambient field), after removing the ambient interpolated from the flanks of their
+    mean (:func:`flank_ambient`) if ``ambient``. Its chance levels (one per sensor)
+    are the same projection with the template moved by ``lags_s`` (windows that meet
+    another event, ``other``, skipped).
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(2); t = np.arange(6000.0)
+    >>> pulse = np.maximum(0, 1 - np.abs(t - 3000) / 90)[:, None]
+    >>> amb = rng.normal(0, 0.05, (6000, 3))
+    >>> x = amb + pulse * [0.0, 0.0, 2.0]; y = amb + pulse * [0.0, 0.0, 5.0]
+    >>> sel = pulse_selection("e", x, y, t, 3000.0, np.abs(t - 3000) <= 120)
+    >>> fit = fit_joint([sel], 1.0)
+    >>> round(float(fit.K[2, 2]), 2), bool(fit.snr["e pulse"] > 100)
+    (0.67, True)
+    """
+    t_s = np.asarray(t_s, float)
+    rows = np.flatnonzero(mask)
+    off = t_s[rows] - centre_s
+    u = _pulse_template((x - y)[rows], off)
+    cm = 0.5 * (x + y)
+    cx = _pulse_coef(x, cm, t_s, centre_s, off, u, ambient, None)
+    cy = _pulse_coef(y, cm, t_s, centre_s, off, u, ambient, None)
+    if cx is None or cy is None:
+        raise InputError(f"event {name}: the pulse window leaves the data or holds NaN")
+    scale = (u @ u) / len(rows)
+    # the event itself (pulse and ramp) must not enter the shifted windows or their
+    # flank fits
+    lag_exclude = np.abs(t_s - centre_s) <= np.max(np.abs(off)) + 30.0
+    if other is not None:
+        lag_exclude |= other
+    chance = []
+    for z in (x, y):
+        vals = [c @ c * scale for c in (_pulse_coef(z, cm, t_s, centre_s + lag, off, u,
+                                                    ambient, lag_exclude) for lag in lags_s)
+                if c is not None]
+        chance.append(float(np.mean(vals)) if vals else float("nan"))
+    bx, by = np.zeros_like(x), np.zeros_like(y)
+    bx[rows], by[rows] = np.outer(u, cx), np.outer(u, cy)
+    return Selection(name + " pulse", bx, by, mask, lag_null=False, chance=tuple(chance))
+
+
+def pulse_snr(sel: Selection) -> float:
+    """Coherent power of a pulse selection over its chance level, both sensors together
+    (NaN when no chance level could be formed)."""
+    rows = sel.mask
+    p0 = float(np.sum(sel.b_i[rows].var(axis=0)) + np.sum(sel.b_j[rows].var(axis=0)))
+    ch = sel.chance[0] + sel.chance[1]
+    return p0 / ch if ch > 0 else float("nan")
+
+
+def pool_pulses(pulses: list[Selection]) -> Selection:
+    """One rank-one selection from the pulse selections of one pair (the same disturber
+    at every event): the per-event signatures (cleaned sensor and partner per unit of
+    difference) are averaged with weights ``|d|^2 / chance``, so a pulse hidden in
+    ambient waves counts little, and the events do not compete in the minimax. Each
+    event keeps its own pulse shape and size.
+
+    Examples
+    --------
+    >>> t = np.arange(8000.0); rng = np.random.default_rng(0)
+    >>> h = lambda c: np.maximum(0, 1 - np.abs(t - c) / 90)[:, None]
+    >>> x = rng.normal(0, 0.05, (8000, 3)) + (h(3000) + h(5700)) * [0.0, 0.0, 2.0]
+    >>> y = x + (h(3000) + h(5700)) * [0.0, 0.0, 3.0]
+    >>> sels = [pulse_selection(str(c), x, y, t, c, np.abs(t - c) <= 120)
+    ...         for c in (3000.0, 5700.0)]
+    >>> fit = fit_joint([pool_pulses(sels)], 1.0)
+    >>> round(float(fit.K[2, 2]), 2)
+    0.67
+    """
+    parts = []
+    ref = None
+    for s in pulses:
+        rows = np.flatnonzero(s.mask)
+        u, sv, vt = np.linalg.svd(np.hstack([s.b_i[rows], s.b_j[rows]]), full_matrices=False)
+        shape, cx, cy = u[:, 0] * sv[0], vt[0, :3], vt[0, 3:]
+        cd = cx - cy
+        if ref is None:
+            ref = cd
+        if cd @ ref < 0:
+            shape, cx, cy, cd = -shape, -cx, -cy, -cd
+        size = float(np.linalg.norm(cd))
+        w = size ** 2 * float(shape @ shape) * 2.0 / (s.chance[0] + s.chance[1])
+        parts.append((rows, shape * size, cx / size, cy / size, w))
+    tot = sum(p[4] for p in parts)
+    ax = sum(p[4] * p[2] for p in parts) / tot
+    ay = sum(p[4] * p[3] for p in parts) / tot
+    bx, by = np.zeros_like(pulses[0].b_i), np.zeros_like(pulses[0].b_j)
+    mask = np.zeros(len(bx), bool)
+    for rows, shape, *_ in parts:
+        bx[rows], by[rows] = np.outer(shape, ax), np.outer(shape, ay)
+        mask[rows] = True
+    # chance level of the pooled coherent power: the events' chance levels, weighted
+    # as their signatures are
+    n = mask.sum()
+    chance = tuple(sum(p[4] / tot * s.chance[k] * p[0].size for p, s in zip(parts, pulses))
+                   * len(parts) / n for k in (0, 1))
+    return Selection("pulses " + "; ".join(s.name for s in pulses), bx, by, mask,
+                     lag_null=False, chance=chance)
+
+
 def selections(b_i: np.ndarray, b_j: np.ndarray, t_s: np.ndarray, orders, dt_s: float, *,
                event_half_s: float | None = 120.0,
-               event_difference: np.ndarray | None = None) -> list[Selection]:
+               event_difference: np.ndarray | None = None,
+               events: str = "pulse", event_guard_s: float = 15.0) -> list[Selection]:
     """Selections of the pair from the stage's orders (see the module docstring).
 
     Every order's ``highpass_s`` is applied before its selection; event intervals use
     the first order's. Events are detected in ``event_difference`` (default
     ``b_i - b_j``; the chain passes the raw difference of the pair, where the
     midnight ramps stand out before earlier stages have removed most of them).
+    ``events = "interval"``: one selection per ``+-event_half_s`` interval that holds no
+    other step or spike (:func:`event_intervals`). ``events = "pulse"``: every event
+    with the samples within ``event_guard_s`` of other spikes and steps left out
+    (:func:`event_masks`), the ambient removed where a wave interpolates across it
+    (:func:`flank_ambient_error`), projected on its pulse shape
+    (:func:`pulse_selection`), and all events pooled into one selection
+    (:func:`pool_pulses`).
     """
+    if events not in EVENT_MODES:
+        raise InputError(f"events must be one of {EVENT_MODES}, got {events!r}")
     t_s = np.asarray(t_s, float)
     out = []
     for k, o in enumerate(orders, start=1):
@@ -197,19 +487,41 @@ def selections(b_i: np.ndarray, b_j: np.ndarray, t_s: np.ndarray, orders, dt_s: 
             out.append(Selection(f"window {o.window_s:g} s", x, y, m & mask))
         else:
             out.append(Selection(f"order {k}", x, y, mask))
-    if event_half_s:
-        hp = highpass_samples(orders[0].highpass_s, dt_s)
-        x, y = (highpass(b_i, hp), highpass(b_j, hp)) if hp else (b_i, b_j)
-        ev = (b_i - b_j) if event_difference is None else event_difference
+    if not event_half_s:
+        return out
+    hp = highpass_samples(orders[0].highpass_s, dt_s)
+    x, y = (highpass(b_i, hp), highpass(b_j, hp)) if hp else (b_i, b_j)
+    ev = (b_i - b_j) if event_difference is None else event_difference
+    if events == "interval":
         for lo, hi in event_intervals(ev, t_s, half_s=event_half_s):
             out.append(Selection(f"event {lo:.0f}-{hi:.0f} s", x, y,
                                  (t_s >= lo) & (t_s <= hi)))
+        return out
+    pulses = []
+    for p, m, other in _event_windows(ev, t_s, event_half_s, event_guard_s, 60.0, 0.3, 6.0):
+        idx = np.flatnonzero(m)
+        name = f"event {t_s[idx[0]]:.0f}-{t_s[idx[-1]]:.0f} s"
+        try:
+            cand = [pulse_selection(name + (" (ambient removed)" if amb else ""),
+                                    x, y, t_s, t_s[p], m, other, ambient=amb)
+                    for amb in (False, True)]
+        except InputError:
+            continue        # an event at the edge of the data: no pulse selection
+        # keep the variant whose pulse stands out more above its own chance level
+        cand = [c for c in cand if np.isfinite(pulse_snr(c))]
+        if cand:
+            pulses.append(max(cand, key=pulse_snr))
+    if pulses:
+        out.append(pool_pulses(pulses))
     return out
 
 
 def fit_joint(sels: list[Selection], dt_s: float, *, min_snr: float = 5.0,
-              n_iter: int = 30, power: float = 0.5) -> JointFit:
+              pulse_min_snr: float = 2.5, n_iter: int = 30, power: float = 0.5) -> JointFit:
     """Joint minimax fit of ``K`` over the selections (module docstring).
+
+    Selections with a known chance level (pulse selections) are kept from
+    ``pulse_min_snr``, the others from ``min_snr``.
 
     Examples
     --------
@@ -225,15 +537,20 @@ def fit_joint(sels: list[Selection], dt_s: float, *, min_snr: float = 5.0,
     (True, True)
     """
     mom, snr = {}, {}
+    threshold = {}
     for s in sels:
         c = _moments(s.b_i, s.b_i - s.b_j, s.mask)
         if c is None:
             continue
         p0 = coherent_power(*c)
         mom[s.name] = c
-        snr[s.name] = (p0 / chance_level(s.b_i, s.b_j, s.mask, dt_s) if s.lag_null
-                       else float("inf"))
-    keys = [k for k in mom if snr[k] >= min_snr]
+        threshold[s.name] = min_snr if s.chance is None else pulse_min_snr
+        if s.chance is not None:
+            snr[s.name] = p0 / s.chance[0] if s.chance[0] > 0 else float("inf")
+        else:
+            ch = chance_level(s.b_i, s.b_j, s.mask, dt_s) if s.lag_null else 0.0
+            snr[s.name] = p0 / ch if ch > 0 else float("inf")
+    keys = [k for k in mom if snr[k] >= threshold[k]]
     if not keys:
         raise InputError(f"no selection of the pair has a cross-covariance {min_snr:g} "
                          "times above its chance level")
@@ -255,4 +572,5 @@ def fit_joint(sels: list[Selection], dt_s: float, *, min_snr: float = 5.0,
 
 def swap(sels: list[Selection]) -> list[Selection]:
     """The same selections with the roles of the two sensors exchanged."""
-    return [Selection(s.name, s.b_j, s.b_i, s.mask, s.lag_null) for s in sels]
+    return [Selection(s.name, s.b_j, s.b_i, s.mask, s.lag_null,
+                      None if s.chance is None else s.chance[::-1]) for s in sels]

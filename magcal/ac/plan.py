@@ -19,7 +19,11 @@
     # joint = true                   # optional: one constant 3x3 per sensor fitted jointly
                                      # over the selections of all orders and event
                                      # intervals (magcal.ac.joint); event_half_s = 120
-                                     # (0: no events), min_snr = 5
+                                     # (0: no events), min_snr = 5, events = "pulse"
+                                     # (matched filter on each event's pulse, other
+                                     # spikes masked, ambient waves removed, events
+                                     # pooled; kept from pulse_min_snr = 2.5) or
+                                     # "interval" (whole intervals free of other events)
     [[stage]]                        # extension: non-orthogonal regression gradiometer
     regression = ["fgmo"]
     references = ["fgmi", "amr1"]
@@ -166,12 +170,17 @@ def plan_from_dict(doc: dict, *, file=None) -> tuple[Plan, dict]:
             if not isinstance(joint, bool):
                 raise InputError(f"{where}: joint must be true or false", file=file)
             extra = {}
-            for key in ("event_half_s", "min_snr"):
+            for key in ("event_half_s", "min_snr", "pulse_min_snr"):
                 if key in st:
                     v = st[key]
                     if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0:
                         raise InputError(f"{where}: {key} must be a number >= 0", file=file)
-                    extra[key] = float(v) if (v or key == "min_snr") else None
+                    extra[key] = float(v) if (v or key != "event_half_s") else None
+            if "events" in st:
+                if st["events"] not in ("pulse", "interval"):
+                    raise InputError(f"{where}: events must be \"pulse\" or \"interval\", "
+                                     f"got {st['events']!r}", file=file)
+                extra["events"] = st["events"]
             stages.append(Stage("pair", tuple(_check_name(s, file, where) for s in pair),
                                 orders=orders, joint=joint, **extra))
         else:
@@ -211,7 +220,8 @@ def plan_to_dict(plan: Plan) -> dict:
         if st.references:
             d["references"] = list(st.references)
         if st.joint:
-            d.update(joint=True, event_half_s=st.event_half_s, min_snr=st.min_snr)
+            d.update(joint=True, event_half_s=st.event_half_s, min_snr=st.min_snr,
+                     events=st.events, pulse_min_snr=st.pulse_min_snr)
         d["orders"] = [{"window_s": o.window_s, "interval": list(o.interval) if o.interval else None,
                         "cone_deg": o.cone_deg, "detrend_s": o.detrend_s,
                         "direction": o.direction, "highpass_s": o.highpass_s,
