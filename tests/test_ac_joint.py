@@ -167,3 +167,27 @@ def test_cli_fit_apply_joint_plan(tmp_path, rng):
     clean = pd.read_csv(out)[["x", "y", "z"]].to_numpy()
     # both disturbers gone (the ambient's chance correlation with them is the remnant)
     assert np.std(clean - amb, axis=0).max() < 0.02 * np.std(s @ po, axis=0).max()
+
+
+@pytest.mark.slow
+def test_joint_pair_day_interval_events_keep_the_earlier_fit():
+    # events = "interval" is the earlier behaviour: the numbers pinned before pulse
+    # events (seed 20190304); on seed 2 it leaves md_edge at 1.5x
+    from dataclasses import replace
+
+    from magcal.simulate.geostationary import GeostationaryConfig, simulate_geostationary
+
+    sim = simulate_geostationary(GeostationaryConfig.gk2a_like(),
+                                 rng=np.random.default_rng(20190304))
+    truth = sim.truth
+    t_s = (sim.times - sim.times[0]).total_seconds().to_numpy()
+    data = {s: sim.sensor(s) for s in ("fgmo", "fgmi", "amr1", "amr2")}
+    md = (truth.events["midnight"][0] - sim.times[0]).total_seconds()
+    plan = joint_day_plan(md)
+    plan = replace(plan, stages=(plan.stages[0], replace(plan.stages[1], events="interval")))
+    res = run_chain(data, t_s, plan)
+    ratios = [disturbance_power_ratio(truth.disturbances[d]["fgmo"],
+                                      apply_weights({k: truth.disturbances[d][k]
+                                                     for k in res.M}, res.M))
+              for d in LINEAR]
+    assert_allclose(ratios, [79163.4, 15.5, 14.7, 13.1, 94.5, 17.3], rtol=0.02)

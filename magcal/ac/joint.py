@@ -18,9 +18,27 @@ it: it is dropped (``min_snr``).
 
 Selections (from the stage's orders, see :func:`selections`): the windows a
 ``window_s`` scan selects, a ``band_hz`` band-pass over the whole record, an
-``interval``; and intervals of ``event_half_s`` around the largest steps of the
-difference (the midnight ramps with their edge pulses) that hold no other detected
-step or spike.
+``interval``; and the events, ``+-event_half_s`` around the largest steps of the
+difference (the midnight ramps with their edge pulses).
+
+Events (``events = "pulse"``, the default): an edge pulse is seen at only two events a
+day, and the ambient field, common to both sensors but present in the cleaned one,
+correlates with it by chance; a Pc5 wave during an event can be larger than the pulse.
+PiCoG decorrelates the cleaned sensor from the difference, so only the ambient's part
+along the pulse matters, and each event is made a matched filter (Constantinescu et
+al. 2020 §2: a disturbance is a fixed moment times a time profile, ``M(t) = m(t) M0``,
+and its profile is seen in the difference free of the ambient; §4: the disturbances'
+own timescales help decouple them): samples near other spikes and steps are masked
+(:func:`event_masks`) instead of dropping the interval; both sensors are projected on
+the event's pulse shape in their difference (:func:`pulse_selection`), once as they are
+and once after subtracting the ambient interpolated across the event from its flanks
+(polynomial plus the best Pc4-5 sinusoid, :func:`flank_ambient`; the same field is
+subtracted from both sensors, so the difference is unchanged); the variant whose
+projection stands out more above its chance level (the same projection with the
+template moved to other times) is kept, and the events of the pair are pooled into one
+rank-one selection with inverse-chance weights (:func:`pool_pulses`), kept from
+``pulse_min_snr``. ``events = "interval"`` keeps the earlier behaviour: one selection per
+whole interval that holds no other detected step or spike (:func:`event_intervals`).
 """
 
 from __future__ import annotations
