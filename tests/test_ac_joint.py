@@ -92,10 +92,10 @@ def joint_day_plan(md_start_s: float) -> Plan:
 #: default pulse events (seed 2: both edge pulses sit in Pc5 waves, the ambient is
 #: interpolated from the flanks)
 PINNED = {
-    20190304: {"midnight": 94139.1, "md_edge": 15.8, "spikes": 14.0, "hf_noise": 13.9,
+    20190304: {"midnight": 94137.0, "md_edge": 15.8, "spikes": 14.0, "hf_noise": 13.9,
                "steps": 113.2, "tone_6s": 17.8},
-    1: {"midnight": 118937.1, "md_edge": 24.3, "spikes": 13.6, "hf_noise": 12.7,
-        "steps": 27.4, "tone_6s": 19.8},
+    1: {"midnight": 116935.1, "md_edge": 25.3, "spikes": 13.5, "hf_noise": 12.6,
+        "steps": 26.8, "tone_6s": 19.6},
     2: {"midnight": 6420.5, "md_edge": 20.4, "spikes": 17.8, "hf_noise": 16.7,
         "steps": 28.8, "tone_6s": 14.6},
 }

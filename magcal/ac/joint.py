@@ -252,13 +252,13 @@ AMBIENT_PERIODS_S = tuple(float(p) for p in range(120, 901, 20))
 
 def flank_ambient(x: np.ndarray, t_s: np.ndarray, centre_s: float, *,
                   core_s: float = 100.0, flank_s: float = 600.0, degree: int = 3,
-                  periods_s=AMBIENT_PERIODS_S, exclude: np.ndarray | None = None
-                  ) -> np.ndarray:
+                  periods_s=AMBIENT_PERIODS_S, exclude: np.ndarray | None = None,
+                  steps_s=()) -> np.ndarray:
     """Ambient field across an event core interpolated from its flanks.
 
     Fits a polynomial of ``degree`` plus the best single sinusoid (period from
-    ``periods_s``, or none) to ``x`` on ``core_s < |t - centre_s| <= flank_s`` (rows in
-    ``exclude`` left out) by least squares and evaluates it on ``|t - centre_s| <=
+    ``periods_s``, or none) and steps at ``centre_s + steps_s`` to ``x`` on
+    ``core_s < |t - centre_s| <= flank_s`` (rows in ``exclude`` left out) by least squares and evaluates it on ``|t - centre_s| <=
     flank_s`` (NaN elsewhere). Subtracted from both sensors of a pair it leaves their
     difference unchanged and removes most of a ULF wave from the event core, which
     would otherwise correlate with the event's pulse by chance.
@@ -278,7 +278,8 @@ def flank_ambient(x: np.ndarray, t_s: np.ndarray, centre_s: float, *,
     if exclude is not None:
         fit &= ~np.asarray(exclude, bool)
     u = (t_s[span] - centre_s) / flank_s
-    poly = [u ** k for k in range(degree + 1)]
+    poly = [u ** k for k in range(degree + 1)] + [
+        np.clip(t_s[span] - centre_s - st, -1.0, 1.0) for st in steps_s]
     best = None
     for period in (None, *periods_s):
         cols = poly if period is None else poly + [
@@ -331,16 +332,18 @@ def flank_ambient_error(x: np.ndarray, t_s: np.ndarray, centre_s: float, *,
 PULSE_LAGS_S = tuple(float(v) for v in np.r_[-np.arange(1800, 299, -100), np.arange(300, 1801, 100)])
 
 
-def _pulse_template(dd: np.ndarray, tt: np.ndarray) -> np.ndarray:
+def _pulse_template(dd: np.ndarray, tt: np.ndarray, steps_s=()) -> np.ndarray:
     """Main temporal component of the difference ``dd`` (rows of one event) with its
-    mean and the ramp (a step at ``tt = 0``) regressed out."""
-    nuis = np.column_stack([np.ones(len(tt)), np.clip(tt / 15.0, -1.0, 1.0)])
+    mean, the ramp (a step at ``tt = 0``) and other steps (at ``steps_s``) regressed
+    out."""
+    nuis = np.column_stack([np.ones(len(tt)), np.clip(tt / 15.0, -1.0, 1.0)]
+                           + [np.clip((tt - s) / 1.0, -1.0, 1.0) for s in steps_s])
     r = dd - nuis @ np.linalg.lstsq(nuis, dd, rcond=None)[0]
     _, _, vt = np.linalg.svd(r, full_matrices=False)
     return r @ vt[0]
 
 
-def _pulse_coef(z, cm, t_s, centre_s, offsets_s, u, ambient, exclude):
+def _pulse_coef(z, cm, t_s, centre_s, offsets_s, u, ambient, exclude, steps_s=()):
     """Projection coefficients (3,) of ``z`` on the template ``u`` placed at
     ``centre_s + offsets_s`` (None where that window leaves the data or meets another
     event); the ambient interpolated from the flanks of ``cm`` removed first if asked."""
@@ -351,7 +354,7 @@ def _pulse_coef(z, cm, t_s, centre_s, offsets_s, u, ambient, exclude):
         return None
     v = z[rows]
     if ambient:
-        v = v - flank_ambient(cm, t_s, centre_s, exclude=exclude)[rows]
+        v = v - flank_ambient(cm, t_s, centre_s, exclude=exclude, steps_s=steps_s)[rows]
     if not np.all(np.isfinite(v)):
         return None
     return u @ (v - v.mean(axis=0)) / (u @ u)
@@ -359,7 +362,7 @@ def _pulse_coef(z, cm, t_s, centre_s, offsets_s, u, ambient, exclude):
 
 def pulse_selection(name: str, x: np.ndarray, y: np.ndarray, t_s: np.ndarray,
                     centre_s: float, mask: np.ndarray, other: np.ndarray | None = None, *,
-                    ambient: bool = False, lags_s=PULSE_LAGS_S) -> Selection:
+                    ambient: bool = False, lags_s=PULSE_LAGS_S, steps_s=()) -> Selection:
     """A rank-one selection of one event (a matched filter): both sensors projected on
     the event's pulse shape in their difference (:func:`_pulse_template`, free of the
     ambient field), after removing the ambient interpolated from the flanks of their
@@ -381,10 +384,10 @@ def pulse_selection(name: str, x: np.ndarray, y: np.ndarray, t_s: np.ndarray,
     t_s = np.asarray(t_s, float)
     rows = np.flatnonzero(mask)
     off = t_s[rows] - centre_s
-    u = _pulse_template((x - y)[rows], off)
+    u = _pulse_template((x - y)[rows], off, steps_s)
     cm = 0.5 * (x + y)
-    cx = _pulse_coef(x, cm, t_s, centre_s, off, u, ambient, None)
-    cy = _pulse_coef(y, cm, t_s, centre_s, off, u, ambient, None)
+    cx = _pulse_coef(x, cm, t_s, centre_s, off, u, ambient, None, steps_s)
+    cy = _pulse_coef(y, cm, t_s, centre_s, off, u, ambient, None, steps_s)
     if cx is None or cy is None:
         raise InputError(f"event {name}: the pulse window leaves the data or holds NaN")
     scale = (u @ u) / len(rows)
@@ -463,6 +466,26 @@ def pool_pulses(pulses: list[Selection]) -> Selection:
                      lag_null=False, chance=chance)
 
 
+def _cleaned_events(dc: np.ndarray, dt_s: float, guard_s: float, n_sigma: float = 6.0):
+    """(spike mask with guard, indices of step peaks) of a cleaned difference."""
+    x = np.where(np.isfinite(dc), dc, 0.0)
+    sp = np.linalg.norm(x - ndimage.median_filter(x, size=(21, 1), mode="nearest"), axis=1)
+    g = max(1, int(round(guard_s / dt_s)))
+    spikes = ndimage.binary_dilation(sp > _robust_threshold(sp, n_sigma),
+                                     np.ones(2 * g + 1, bool))
+    n = max(2, int(round(10.0 / dt_s)))
+    m = running_mean(x, n)
+    s = np.zeros(len(x))
+    s[n:-n] = np.linalg.norm(m[2 * n:] - m[:-2 * n], axis=1)
+    s[spikes] = 0.0
+    thr = _robust_threshold(s[n:-n], n_sigma)
+    # a step makes a peak of the step signal; the slope of a pulse only a plateau
+    local = ndimage.median_filter(s, size=12 * n + 1, mode="nearest")
+    peaks = np.flatnonzero((s > thr) & (s > 3.0 * local)
+                           & (s >= ndimage.maximum_filter1d(s, 4 * n + 1)))
+    return spikes, peaks
+
+
 def selections(b_i: np.ndarray, b_j: np.ndarray, t_s: np.ndarray, orders, dt_s: float, *,
                event_half_s: float | None = 120.0,
                event_difference: np.ndarray | None = None,
@@ -515,13 +538,19 @@ def selections(b_i: np.ndarray, b_j: np.ndarray, t_s: np.ndarray, orders, dt_s: 
             out.append(Selection(f"event {lo:.0f}-{hi:.0f} s", x, y,
                                  (t_s >= lo) & (t_s <= hi)))
         return out
+    # spikes and steps next to the ramp hide in its detection signals of the raw
+    # difference; in the cleaned difference the ramp is (mostly) gone
+    spikes_c, steps_c = _cleaned_events(x - y, dt_s, event_guard_s)
     pulses = []
     for p, m, other in _event_windows(ev, t_s, event_half_s, event_guard_s, 60.0, 0.3, 6.0):
+        m = m & ~spikes_c
         idx = np.flatnonzero(m)
         name = f"event {t_s[idx[0]]:.0f}-{t_s[idx[-1]]:.0f} s"
+        st = [t_s[k] - t_s[p] for k in steps_c
+              if idx[0] <= k <= idx[-1] and abs(t_s[k] - t_s[p]) > 20.0]
         try:
             cand = [pulse_selection(name + (" (ambient removed)" if amb else ""),
-                                    x, y, t_s, t_s[p], m, other, ambient=amb)
+                                    x, y, t_s, t_s[p], m, other, ambient=amb, steps_s=st)
                     for amb in (False, True)]
         except InputError:
             continue        # an event at the edge of the data: no pulse selection
