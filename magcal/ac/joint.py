@@ -29,7 +29,9 @@ along the pulse matters, and each event is made a matched filter (Constantinescu
 al. 2020 §2: a disturbance is a fixed moment times a time profile, ``M(t) = m(t) M0``,
 and its profile is seen in the difference free of the ambient; §4: the disturbances'
 own timescales help decouple them): samples near other spikes and steps are masked
-(:func:`event_masks`) instead of dropping the interval; both sensors are projected on
+(:func:`event_masks`) instead of dropping the interval, and so are spikes found in the
+cleaned difference (where the ramp no longer hides those next to it), while steps found
+there inside the interval are regressed out with the ramp; both sensors are projected on
 the event's pulse shape in their difference (:func:`pulse_selection`), once as they are
 and once after subtracting the ambient interpolated across the event from its flanks
 (polynomial plus the best Pc4-5 sinusoid, :func:`flank_ambient`; the same field is
