@@ -229,3 +229,39 @@ def plan_to_dict(plan: Plan) -> dict:
                        for o in st.orders]
         stages.append(d)
     return {"target": plan.target, "stages": stages}
+
+
+#: Stage keys of a joint pair stage, as :func:`plan_to_dict` writes them
+JOINT_KEYS = ("joint", "event_half_s", "min_snr", "events", "pulse_min_snr")
+
+
+def plan_from_json(doc: dict, *, shift_s: float = 0.0) -> Plan:
+    """Inverse of :func:`plan_to_dict` (the ``plan`` kept in PARAMS.json).
+
+    ``shift_s`` moves interval orders (e.g. by whole days for a daily refit).
+
+    Examples
+    --------
+    >>> plan = Plan("o", (Stage("pair", ("o", "i"), joint=True,
+    ...                         orders=(Order(interval=(0.0, 10.0)),)),))
+    >>> back = plan_from_json(plan_to_dict(plan), shift_s=5.0)
+    >>> back.stages[0].orders[0].interval, back.stages[0].events == plan.stages[0].events
+    ((5.0, 15.0), True)
+    """
+    stages = []
+    for st in doc["stages"]:
+        orders = []
+        for o in st["orders"]:
+            iv = o.get("interval")
+            orders.append(Order(
+                window_s=o.get("window_s"),
+                interval=None if iv is None else (iv[0] + shift_s, iv[1] + shift_s),
+                cone_deg=o.get("cone_deg", 2.5), detrend_s=o.get("detrend_s"),
+                direction=o.get("direction", "variance"), highpass_s=o.get("highpass_s"),
+                band_hz=None if o.get("band_hz") is None else tuple(o["band_hz"])))
+        joint = {k: st[k] for k in JOINT_KEYS if k in st}
+        stages.append(Stage(st["kind"], tuple(st["sensors"]), reference=st.get("reference"),
+                            references=tuple(st.get("references", ())), orders=tuple(orders),
+                            **joint))
+    return Plan(doc["target"], tuple(stages))
+

@@ -303,7 +303,8 @@ def remnants(raw: np.ndarray, clean: np.ndarray, diff: np.ndarray, t_s: np.ndarr
 def plan_from_params(plan_doc: dict, shift_s: float = 0.0):
     """:class:`~magcal.ac.chain.Plan` from the ``plan`` key of PARAMS.json.
 
-    ``shift_s`` moves interval orders (e.g. by whole days for a daily refit).
+    ``shift_s`` moves interval orders (e.g. by whole days for a daily refit); see
+    :func:`magcal.ac.plan.plan_from_json`.
 
     Examples
     --------
@@ -312,24 +313,9 @@ def plan_from_params(plan_doc: dict, shift_s: float = 0.0):
     >>> plan_from_params(doc, 86400.0).stages[0].orders[0].interval
     (86400.0, 86410.0)
     """
-    from magcal.ac.chain import Order, Plan, Stage
+    from magcal.ac.plan import plan_from_json
 
-    stages = []
-    for st in plan_doc["stages"]:
-        orders = []
-        for o in st["orders"]:
-            iv = o.get("interval")
-            orders.append(Order(
-                window_s=o.get("window_s"),
-                interval=None if iv is None else (iv[0] + shift_s, iv[1] + shift_s),
-                cone_deg=o.get("cone_deg", 2.5), detrend_s=o.get("detrend_s"),
-                direction=o.get("direction", "variance"), highpass_s=o.get("highpass_s"),
-                band_hz=None if o.get("band_hz") is None else tuple(o["band_hz"])))
-        joint = {k: st[k] for k in ("joint", "event_half_s", "min_snr") if k in st}
-        stages.append(Stage(st["kind"], tuple(st["sensors"]), reference=st.get("reference"),
-                            references=tuple(st.get("references", ())), orders=tuple(orders),
-                            **joint))
-    return Plan(plan_doc["target"], tuple(stages))
+    return plan_from_json(plan_doc, shift_s=shift_s)
 
 
 def _shift_for_day(plan_doc: dict, day_start_s: float) -> float:
