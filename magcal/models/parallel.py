@@ -125,6 +125,28 @@ def run_shared(n_items: int, work, n_jobs: int) -> int:
     return int(missing.size)
 
 
+def tapered(chunks: list, n_jobs: int, pieces: int = 4) -> list:
+    """Split the last ``2 * n_jobs`` chunks in ``pieces``: the processes finish together.
+
+    Items are claimed in order, so the wait at the end is about half a chunk: smaller
+    chunks there make it smaller (guided scheduling).
+
+    Examples
+    --------
+    >>> [c.stop - c.start for c in tapered([slice(0, 8), slice(8, 16), slice(16, 24)], 1)]
+    [8, 2, 2, 2, 2, 2, 2, 2, 2]
+    """
+    cut = max(0, len(chunks) - 2 * n_jobs)
+    out = list(chunks[:cut])
+    for c in chunks[cut:]:
+        if isinstance(c, slice):
+            bounds = np.linspace(c.start, c.stop, pieces + 1).astype(int)
+            out.extend(slice(int(a), int(z)) for a, z in zip(bounds[:-1], bounds[1:]) if z > a)
+        else:
+            out.extend(part for part in np.array_split(c, pieces) if part.size)
+    return out
+
+
 def evaluate_parallel(t, xyz, model, inputs, options, n_jobs=None, transform=None,
                       out=None):
     """:func:`irbem.evaluate_geo` over forked processes; returns (b, invalid, reasons, backend).
@@ -155,6 +177,8 @@ def evaluate_parallel(t, xyz, model, inputs, options, n_jobs=None, transform=Non
     chunks = plan.chunks()
     parallel = (n_jobs > 1 and plan.n >= MIN_PARALLEL_POINTS and len(chunks) > 1
                 and fork_available())
+    if parallel:
+        chunks = tapered(chunks, n_jobs)
     # every valid row is written by exactly one chunk; finish() sets the others to NaN
     if parallel:
         if plan.backend == "ctypes":
