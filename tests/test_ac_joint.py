@@ -98,6 +98,10 @@ PINNED = {
         "steps": 26.8, "tone_6s": 19.6},
     2: {"midnight": 6420.5, "md_edge": 20.4, "spikes": 17.8, "hf_noise": 16.7,
         "steps": 28.8, "tone_6s": 14.6},
+    # a toggle step 7 s after the first midnight ramp; the other toggles carry the
+    # steps disturber only as pooled step events (5.5x before them)
+    13: {"midnight": 1713340.2, "md_edge": 12.9, "spikes": 16.6, "hf_noise": 17.2,
+         "steps": 12.3, "tone_6s": 14.5},
 }
 
 

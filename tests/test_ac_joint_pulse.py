@@ -146,3 +146,27 @@ def test_pulse_events_mask_a_spike_on_the_ramp_and_model_a_step_in_the_window(rn
     fit = fit_joint([pooled], 1.0)
     # measured 0.01-0.02 (0.79 when neither is masked nor modelled)
     assert remnant(fit.K, e_i, e_j) < 0.05
+
+
+def test_step_events_pool_one_disturbers_steps_and_recover_its_signature(rng):
+    from magcal.ac.joint import fit_joint, pool_pulses, step_group, step_selection
+
+    # a unit toggling at 4 times (signature 2 at x, 5 at y along Y) under a slow
+    # ambient wave; one step of another unit (along X) must not join the group
+    t = np.arange(20000.0)
+    amb = 3.0 * np.sin(2 * np.pi * t / 700.0)[:, None] * [1.0, 0.7, 0.2]
+    amb = amb + rng.normal(0, 0.03, (20000, 3))
+    lev = np.zeros(20000)
+    for c in (3000.0, 7000.0, 11000.0, 15000.0):
+        lev += np.clip((t - c) / 20 + 0.5, 0, 1) * (1 if c in (3000.0, 11000.0) else -1)
+    other = np.clip((t - 18000) / 20 + 0.5, 0, 1)
+    x = amb + lev[:, None] * [0.0, 2.0, 0.0] + other[:, None] * [1.0, 0.0, 0.0]
+    y = amb + lev[:, None] * [0.0, 5.0, 0.0] + other[:, None] * [4.0, 0.0, 0.0]
+    keep = np.ones(20000, bool)
+    sels = [step_selection(f"{c:g}", x, y, t, c, keep)
+            for c in (3000.0, 7000.0, 11000.0, 15000.0, 18000.0)]
+    group = step_group(sels)
+    assert [s.name for s in group] == ["3000 step", "7000 step", "11000 step", "15000 step"]
+    fit = fit_joint([pool_pulses(group)], 1.0)
+    # x + K (x - y) nulls the unit's signature: K_yy = -2 / (2 - 5)
+    assert_allclose(fit.K[1, 1], 2.0 / 3.0, atol=0.01)
