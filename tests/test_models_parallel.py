@@ -98,3 +98,17 @@ def test_cached_product_written_in_place_is_private_and_identical(tmp_path):
     assert_array_equal(again.b_hpen_nT[0], keep)
     assert_array_equal(again.b_hpen_nT[1:], serial.b_hpen_nT[1:])
     assert not list(tmp_path.glob(".*.part"))  # no temporary file left behind
+
+
+def test_failed_request_leaves_no_partial_cache_file(tmp_path, monkeypatch):
+    import magcal.models.field as field
+
+    def broken(*args, out=None, **kwargs):
+        out[:5] = 1.0  # a worker had started writing into the cache file
+        raise RuntimeError("IRBEM failed")
+
+    monkeypatch.setattr(field, "evaluate_parallel", broken)
+    t, kp = _year_of_minutes(30_000)
+    with pytest.raises(RuntimeError, match="IRBEM failed"):
+        model_field_hpen(t, 128.2, 0.0, 6.6, "T89", kp=kp, n_jobs=2, cache_dir=tmp_path)
+    assert [p.name for p in tmp_path.rglob("*") if p.is_file()] == []

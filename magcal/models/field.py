@@ -407,8 +407,14 @@ def model_field_hpen(times, lon_deg, lat_deg, r_re, model: str = "T89", kp=None,
     # With no grid, the workers' output is the product: write it straight into the cache
     direct = path is not None and plan is None and to_hpen is not None and n > 0
     target = _cache_open_field(path, n) if direct else None
-    b_hpen, bad, reasons, backend = evaluate_parallel(t_eval, xyz, model, inp_e, opts, n_jobs,
-                                                      transform=to_hpen, out=target)
+    try:
+        b_hpen, bad, reasons, backend = evaluate_parallel(t_eval, xyz, model, inp_e, opts,
+                                                          n_jobs, transform=to_hpen, out=target)
+    except BaseException:
+        if direct:  # leave no half-written entry behind
+            del target
+            _cache_temp_names(path)[0].unlink(missing_ok=True)
+        raise
     if plan is not None:
         _, k, w = plan
         k1 = np.minimum(k + 1, t_eval.size - 1)
