@@ -15,7 +15,12 @@ What the files hold (checked on GOES-16 ``dr_...v1_0_1`` and ``dn_...v2_0_0`` fi
   likewise);
   the residual is a small longitude offset (the file's EPN axes follow the actual
   orbit, while ``orbit_llr_geo`` holds -89.5 deg).
-* ``b_gse``, ``b_gsm``, ``b_eci`` (combined field), ``b_total``.
+* ``b_gse``, ``b_gsm``, ``b_eci``, ``b_brf`` (combined field; BRF is the spacecraft body
+  frame), ``b_total``.
+
+Files are decoded through xarray (h5netcdf engine): CF time units and ``_FillValue``
+masking come from xarray; the reader adds the fills some files do not declare (-9999,
+-1e31), the ``valid_min``/``valid_max`` check, and counts every repair.
 * per-sensor frames other than ``_sensor`` (``b_ib_epn``, ``b_ob_gse``, ...): all fill
   (-9999) in both file versions; the reader returns ``ib_Hp``... only when they hold
   data and lists all-fill variables in ``attrs["all_fill"]``.
@@ -31,7 +36,6 @@ without restriction").
 from __future__ import annotations
 
 import os
-import re
 from pathlib import Path
 from typing import Iterable
 
@@ -53,13 +57,13 @@ _VECTORS = (
     ("b_epn", ("Hp", "He", "Hn"), (1, 0, 2), True),
     ("b_gse", ("gse_x", "gse_y", "gse_z"), (0, 1, 2), True),
     ("b_gsm", ("gsm_x", "gsm_y", "gsm_z"), (0, 1, 2), True),
+    ("b_brf", ("brf_x", "brf_y", "brf_z"), (0, 1, 2), False),
     ("b_eci", ("eci_x", "eci_y", "eci_z"), (0, 1, 2), False),
     ("b_ib_epn", ("ib_Hp", "ib_He", "ib_Hn"), (1, 0, 2), False),
     ("b_ob_epn", ("ob_Hp", "ob_He", "ob_Hn"), (1, 0, 2), False),
 )
 _SCALARS = (("b_total", "b_total", False),)
 _OPTIONAL_IF_ALL_FILL = {"b_ib_epn", "b_ob_epn"}
-_TIME_UNITS = re.compile(r"seconds since (\d{4}-\d{2}-\d{2})[ T](\d{2}:\d{2}:\d{2})")
 
 
 def _files(paths) -> list[Path]:
@@ -88,13 +92,10 @@ def _text(value) -> str:
     return str(value).strip().strip("'\"")
 
 
-def _fill_mask(values: np.ndarray, var) -> np.ndarray:
-    """True where a value is a fill: the variable's _FillValue, -9999, the -1e31 family, NaN."""
-    mask = ~np.isfinite(values) | (values == -9999.0) | (np.abs(values) >= 1e30)
-    fill = var.attrs.get("_FillValue")
-    if fill is not None:
-        mask |= values == np.asarray(fill, dtype=values.dtype)
-    return mask
+def _fill_mask(values: np.ndarray) -> np.ndarray:
+    """True where a decoded value is a fill: NaN (xarray's masked ``_FillValue``), -9999 or
+    the -1e31 family (fills some files do not declare)."""
+    return ~np.isfinite(values) | (values == -9999.0) | (np.abs(values) >= 1e30)
 
 
 def _range_mask(values: np.ndarray, var) -> np.ndarray:
@@ -108,10 +109,11 @@ def _range_mask(values: np.ndarray, var) -> np.ndarray:
     return mask
 
 
-def _clean(values: np.ndarray, var) -> tuple[np.ndarray, int, int]:
-    """Float copy with fills and out-of-range values as NaN, and the two counts (values)."""
-    out = np.array(values, dtype=float)
-    fill = _fill_mask(out, var)
+def _clean(var) -> tuple[np.ndarray, int, int]:
+    """Float copy of a decoded variable with fills and out-of-range values as NaN, and the
+    two counts (values)."""
+    out = np.array(var.values, dtype=float)
+    fill = _fill_mask(out)
     out[fill] = np.nan
     bad = _range_mask(out, var) & ~fill
     out[bad] = np.nan
@@ -119,28 +121,37 @@ def _clean(values: np.ndarray, var) -> tuple[np.ndarray, int, int]:
 
 
 def _times_ns(var, path: Path, name: str) -> tuple[np.ndarray, np.ndarray]:
-    """Nanoseconds since 1970 (int64) and a validity mask from a J2000-seconds variable."""
-    units = _text(var.attrs.get("units", ""))
-    m = _TIME_UNITS.search(units)
-    if m is None:
+    """Nanoseconds since 1970 (int64) and a validity mask of a time variable decoded by
+    xarray (CF ``seconds since <epoch>``; fills decode to NaT)."""
+    values = np.asarray(var.values)
+    if not np.issubdtype(values.dtype, np.datetime64):
+        units = _text(var.attrs.get("units", var.encoding.get("units", "")))
         raise InputError(f"time units {units!r} are not 'seconds since <date> <time>'",
                          file=path, column=name)
-    epoch = np.datetime64(f"{m.group(1)}T{m.group(2)}", "ns").astype(np.int64)
-    raw = np.asarray(var[...], dtype=float)
-    ok = ~_fill_mask(raw, var)
-    micro = np.round(np.where(ok, raw, 0.0) * 1e6).astype(np.int64)
-    return epoch + micro * 1000, ok
+    t = values.astype("datetime64[ns]")
+    ok = ~np.isnat(t)
+    # xarray decodes to the nearest ns; round to the microsecond the files resolve
+    t_ns = np.where(ok, t.astype(np.int64), 0)
+    return (t_ns + 500) // 1000 * 1000, ok
+
+
+def _open(path: Path):
+    """The file as an xarray Dataset (h5netcdf engine, CF decoding of fills and times)."""
+    import xarray as xr
+
+    try:
+        return xr.open_dataset(path, engine="h5netcdf", mask_and_scale=True,
+                               decode_times=True, decode_timedelta=False)
+    except (OSError, ValueError, TypeError) as exc:
+        if "time" in str(exc) and "unable to decode" in str(exc).lower():
+            raise InputError(f"time units are not 'seconds since <date> <time>' ({exc})",
+                             file=path, column="time") from None
+        raise InputError(f"not a readable netCDF4/HDF5 file ({exc})", file=path) from None
 
 
 def _read_file(path: Path) -> tuple[dict, dict, np.ndarray, dict]:
-    import h5netcdf
-
-    try:
-        handle = h5netcdf.File(path, "r")
-    except (OSError, ValueError) as exc:
-        raise InputError(f"not a readable netCDF4/HDF5 file ({exc})", file=path) from None
-    with handle as f:
-        variables = f.variables
+    with _open(path) as ds:
+        variables = ds.variables
         if "time" not in variables:
             raise InputError("no 'time' variable: not a GOES-R MAG L2 file", file=path,
                              column="time")
@@ -155,11 +166,10 @@ def _read_file(path: Path) -> tuple[dict, dict, np.ndarray, dict]:
                     raise InputError("variable missing", file=path, column=var_name)
                 continue
             var = variables[var_name]
-            values = np.asarray(var[...])
-            if values.shape[0] != n:
-                raise InputError(f"{values.shape[0]} rows but {n} times", file=path,
+            if var.shape[0] != n:
+                raise InputError(f"{var.shape[0]} rows but {n} times", file=path,
                                  column=var_name)
-            clean, n_fill, n_range = _clean(values, var)
+            clean, n_fill, n_range = _clean(var)
             if order is not None:
                 clean = clean[:, list(order)]
             else:
@@ -171,9 +181,9 @@ def _read_file(path: Path) -> tuple[dict, dict, np.ndarray, dict]:
         counts["orbit_llr_geo"] = orbit_counts
         columns["lon_deg"], columns["lat_deg"] = lon, lat
         columns["r_re"] = r_m / (EARTH_RADIUS_KM * 1000.0)
-        meta = {"platform": _text(f.attrs.get("platform", "")).lower(),
-                "id": _text(f.attrs.get("id", path.name)),
-                "algorithm_version": _text(f.attrs.get("algorithm_version", ""))}
+        meta = {"platform": _text(ds.attrs.get("platform", "")).lower(),
+                "id": _text(ds.attrs.get("id", path.name)),
+                "algorithm_version": _text(ds.attrs.get("algorithm_version", ""))}
     return columns, counts, np.where(t_ok, t_ns, np.iinfo(np.int64).min), meta
 
 
@@ -181,15 +191,15 @@ def _orbit(variables, path: Path, t_ns: np.ndarray):
     if "orbit_llr_geo" not in variables:
         raise InputError("variable missing", file=path, column="orbit_llr_geo")
     var = variables["orbit_llr_geo"]
-    llr, n_fill, _ = _clean(np.asarray(var[...]), var)
+    llr, n_fill, _ = _clean(var)
     units = _text(var.attrs.get("units", ""))
     radius = llr[:, 2]
     if "kilomet" in units or ("met" not in units and np.nanmedian(radius) < 1e5):
         radius = radius * 1000.0
     counts = {"fill": n_fill, "range": 0, "size": llr.size}
-    if var.dimensions[0] == "time":
+    if var.dims[0] == "time":
         return llr[:, 0], llr[:, 1], radius, counts
-    t_name = var.dimensions[0]
+    t_name = var.dims[0]
     if t_name not in variables:
         raise InputError(f"orbit time variable {t_name!r} missing", file=path, column=t_name)
     t_orbit, ok = _times_ns(variables[t_name], path, t_name)
@@ -224,7 +234,8 @@ def read_goes_mag(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> pd.
         * ``ib_x, ib_y, ib_z`` / ``ob_x, ob_y, ob_z``: inboard / outboard sensor, each in
           its own sensor frame;
         * ``Hp, He, Hn``: combined field in Hpen (the file's EPN reordered, module doc);
-        * ``gse_x..z``, ``gsm_x..z``, ``eci_x..z``: combined field in GSE, GSM, ECI;
+        * ``gse_x..z``, ``gsm_x..z``, ``eci_x..z``, ``brf_x..z``: combined field in GSE,
+          GSM, ECI and the body reference frame (BRF, when the file has it);
         * ``b_total``: field magnitude;
         * ``ib_Hp..`` / ``ob_Hp..``: per-sensor EPN, only if not all fill;
         * ``lon_deg, lat_deg, r_re``: geographic position (r in Earth radii of 6371.2 km).
