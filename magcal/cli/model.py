@@ -4,12 +4,8 @@ from __future__ import annotations
 
 import sys
 
-import numpy as np
-
 from magcal.cli._common import add_output, existing_file
-from magcal.errors import InputError
-
-GEO_R_RE = 6.6
+from magcal.models.inputs import MODELS
 
 
 def add_model_arguments(p) -> None:
@@ -17,8 +13,7 @@ def add_model_arguments(p) -> None:
     p.add_argument("--kp", required=True, metavar="KP_FILE",
                    help="Kp file: GFZ Kp_ap_Ap_SN_F107 text, GFZ Kp_def CSV, CelesTrak "
                         "space-weather text or CSV time,kp (format detected)")
-    p.add_argument("--model", default="T89", type=str.upper,
-                   choices=("IGRF", "T89", "T96", "T01", "T04"),
+    p.add_argument("--model", default="T89", type=str.upper, choices=MODELS,
                    help="field model: IGRF only, or IGRF + T89 (Kp), T96, T01, T04 = "
                         "TS04/TS05 (solar-wind drivers, --drivers); default T89")
     p.add_argument("--drivers", metavar="FILE",
@@ -31,31 +26,6 @@ def add_model_arguments(p) -> None:
                    help="on-disk cache of model evaluations (reruns are near free)")
     p.add_argument("--jobs", type=int, default=None,
                    help="worker processes for the model (default: all usable cores)")
-
-
-def load_inputs(args, frame):
-    """Position, Kp series and drivers for the rows of ``frame``; raises InputError."""
-    from magcal.indices import read_drivers, read_kp
-
-    src = frame.attrs.get("source")
-    if args.longitude is not None:
-        if not -360.0 <= args.longitude <= 360.0:
-            raise InputError(f"--longitude {args.longitude} is not an angle in degrees")
-        lon, lat, r = float(args.longitude), 0.0, GEO_R_RE
-    else:
-        cols = ("lon_deg", "lat_deg", "r_re")
-        missing = [c for c in cols if c not in frame.columns]
-        if missing:
-            raise InputError("give --longitude or columns lon_deg,lat_deg,r_re "
-                             f"(missing {', '.join(missing)})", file=src, column=missing[0])
-        lon, lat, r = (frame[c].to_numpy(dtype=float) for c in cols)
-    kp = read_kp(existing_file(args.kp))
-    drivers = None
-    if args.drivers:
-        drivers = read_drivers(existing_file(args.drivers))
-    elif args.model in ("T96", "T01", "T04"):
-        raise InputError(f"model {args.model} needs --drivers (solar-wind inputs)")
-    return lon, lat, r, kp, drivers
 
 
 def register(subparsers) -> None:
@@ -75,26 +45,16 @@ def register(subparsers) -> None:
 def run(args) -> int:
     import pandas as pd
 
-    from magcal.indices import drivers_at, kp_at
     from magcal.io.csv import read_csv_frame, write_csv_frame
-    from magcal.models.field import model_field_hpen
+    from magcal.models.inputs import model_field_for, model_inputs
 
-    path = existing_file(args.input)
-    frame = read_csv_frame(path)
-    lon, lat, r, kp, drivers = load_inputs(args, frame)
-    times = frame.index.tz_convert("UTC").tz_localize(None).to_numpy()
-    kp_values = kp_at(kp, frame.index)
-    drv = drivers_at(drivers, frame.index) if drivers is not None else None
-    if args.model == "T89" and np.all(np.isnan(kp_values)):
-        raise InputError("the Kp file does not cover the data times", file=args.kp)
-    res = model_field_hpen(times, lon, lat, r, model=args.model, kp=kp_values, drivers=drv,
-                           cadence_s=args.cadence, n_jobs=args.jobs,
-                           cache_dir=args.cache_dir)
+    frame = read_csv_frame(existing_file(args.input))
+    inp = model_inputs(frame, longitude_deg=args.longitude, kp_path=args.kp,
+                       drivers_path=args.drivers, model=args.model)
+    res = model_field_for(frame, inp, cadence_s=args.cadence, n_jobs=args.jobs,
+                          cache_dir=args.cache_dir)
     out = pd.DataFrame(res.b_hpen_nT, index=frame.index, columns=["Hp", "He", "Hn"])
-    prov = res.provenance
-    prov["inputs"] = [str(path), str(args.kp)] + ([str(args.drivers)] if args.drivers else [])
-    prov["report"] = res.summary()
-    write_csv_frame(args.output, out, provenance=prov)
+    write_csv_frame(args.output, out, provenance=res.provenance)
     why = ", ".join(f"{k}: {v}" for k, v in res.reasons.items()
                     if not k.startswith("info:")) or "none"
     info = "; ".join(f"{k[5:].strip()}: {v}" for k, v in res.reasons.items()

@@ -7,8 +7,9 @@ import sys
 import numpy as np
 
 from magcal.cli._common import add_output, existing_file
-from magcal.cli.model import add_model_arguments, load_inputs
+from magcal.cli.model import add_model_arguments
 from magcal.errors import InputError
+from magcal.offsets.estimator import MIN_DAY_COVERAGE, MIN_LT_COVERAGE
 
 
 def register(subparsers) -> None:
@@ -31,6 +32,15 @@ def register(subparsers) -> None:
     fit.add_argument("--step-days", type=float, default=7.0, help="step (default 7)")
     fit.add_argument("--min-used", type=int, default=720,
                      help="fewest quiet 1-min samples for a valid window (default 720)")
+    fit.add_argument("--min-day-coverage", type=float, default=MIN_DAY_COVERAGE,
+                     metavar="FRACTION",
+                     help="fewest of a window's days that must hold quiet samples, as a "
+                          f"fraction (default {MIN_DAY_COVERAGE:g}); thinner windows are NaN")
+    fit.add_argument("--min-lt-coverage", type=float, default=MIN_LT_COVERAGE,
+                     metavar="FRACTION",
+                     help="fewest of the 24 local-time hours that must hold quiet samples, "
+                          f"as a fraction (default {MIN_LT_COVERAGE:g}); thinner windows "
+                          "are NaN")
     fit.add_argument("--method", choices=("median", "lt_balanced"), default="median",
                      help="median (default, CONTRACTS §2) or lt_balanced: mean over 24 "
                           "local-time bins of per-bin medians")
@@ -49,27 +59,29 @@ def register(subparsers) -> None:
 
 def run_fit(args) -> int:
     from magcal.io.csv import read_csv_frame
-    from magcal.offsets import fit_offsets, write_offsets_csv
+    from magcal.models.inputs import model_inputs
+    from magcal.offsets import fit_offsets_frame, write_offsets_csv
     from magcal.provenance import make_provenance
 
     path = existing_file(args.input)
     frame = read_csv_frame(path, required=["Hp", "He", "Hn"])
-    if not 0 <= args.kp_max <= 9:
-        raise InputError(f"--kp-max {args.kp_max} outside [0, 9]")
-    lon, lat, r, kp, drivers = load_inputs(args, frame)
-    times = frame.index.tz_convert("UTC").tz_localize(None).to_numpy()
-    inputs = [path, args.kp] + ([args.drivers] if args.drivers else [])
+    inp = model_inputs(frame, longitude_deg=args.longitude, kp_path=args.kp,
+                       drivers_path=args.drivers, model=args.model)
     params = {k: getattr(args, k) for k in ("model", "kp_max", "window_days", "step_days",
-                                            "min_used", "method", "longitude")}
-    table, details = fit_offsets(
-        times, frame[["Hp", "He", "Hn"]].to_numpy(), lon, lat, r, kp, model=args.model,
-        drivers=drivers, kp_max=args.kp_max, window_days=args.window_days,
+                                            "min_used", "method", "longitude",
+                                            "min_day_coverage", "min_lt_coverage")}
+    table, details = fit_offsets_frame(
+        frame, inp, kp_max=args.kp_max, window_days=args.window_days,
         step_days=args.step_days, min_used=args.min_used, method=args.method,
+        min_day_fraction=args.min_day_coverage, min_lt_fraction=args.min_lt_coverage,
         n_jobs=args.jobs, cache_dir=args.cache_dir,
-        provenance=make_provenance("offsets fit", params, inputs=inputs))
+        provenance=make_provenance("offsets fit", params, inputs=[path, *inp.files]))
     write_offsets_csv(args.output, table)
-    ok = int(table.valid.sum())
-    print(f"magcal offsets fit: {len(table)} windows ({ok} valid), "
+    for warning in table.warnings:
+        print(f"magcal offsets fit: warning: {warning}", file=sys.stderr)
+    thin = sum(r.startswith("coverage too thin") for r in table.reason)
+    print(f"magcal offsets fit: {len(table)} windows ({int(table.valid.sum())} valid"
+          f"{f', {thin} with coverage too thin to trust' if thin else ''}), "
           f"{np.mean(details['quiet']):.1%} of 1-min samples at Kp <= {args.kp_max:g}",
           file=sys.stderr)
     return 0
