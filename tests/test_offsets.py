@@ -128,9 +128,12 @@ def test_product_csv_roundtrip_and_apply(tmp_path, months):
     path = write_offsets_csv(tmp_path / "OFFSETS.csv", tab)
     header = path.read_text().splitlines()[0].split(",")
     assert tuple(header[:11]) == CONTRACT_COLUMNS
-    assert header[11:] == ["Hp_mad", "He_mad", "Hn_mad", "n_available", "reason"]
+    assert header[11:] == ["Hp_mad", "He_mad", "Hn_mad", "n_available", "reason",
+                           "days_covered", "lt_hours_covered"]
     assert (tmp_path / "OFFSETS.csv.provenance.json").exists()
     back = read_offsets_csv(path)
+    assert_array_equal(back.days_covered, tab.days_covered)
+    assert_array_equal(back.lt_hours_covered, tab.lt_hours_covered)
     assert_allclose(back.offset_nT, tab.offset_nT, atol=6e-5)
     assert_array_equal(back.center, tab.center)
     corrected, off, flag = apply_offsets(stormy.times, stormy.measured_nT, back)

@@ -4,8 +4,8 @@
   across gaps);
 * :mod:`magcal.offsets.windows` - :func:`window_grid`, :func:`window_statistics` (the
   28-day / 7-day sliding-window medians);
-* :mod:`magcal.offsets.estimator` - :class:`OffsetEstimator` and :func:`fit_offsets`
-  (data minus model, Kp <= kp_max selection);
+* :mod:`magcal.offsets.estimator` - :class:`OffsetEstimator`, :func:`fit_offsets` and
+  :func:`fit_offsets_frame` (data minus model, Kp <= kp_max selection, coverage checks);
 * :mod:`magcal.offsets.apply` - :func:`interpolate_offsets`, :func:`apply_offsets`;
 * :mod:`magcal.offsets.table` - :class:`OffsetTable` and the ``OFFSETS.csv`` reader and
   writer;
@@ -16,11 +16,12 @@
 from magcal.offsets.apply import FLAG_MEANING, apply_offsets, interpolate_offsets
 from magcal.offsets.averaging import average_to_cadence
 from magcal.offsets.diagnostics import local_time_hours, residual_by_local_time
-from magcal.offsets.estimator import OffsetEstimator, fit_offsets, quiet_mask
+from magcal.offsets.estimator import (OffsetEstimator, fit_offsets, fit_offsets_frame,
+                                      quiet_mask)
 from magcal.offsets.table import OffsetTable, read_offsets_csv, write_offsets_csv
-from magcal.offsets.windows import window_grid, window_statistics
+from magcal.offsets.windows import window_coverage, window_grid, window_statistics
 
 __all__ = ["FLAG_MEANING", "OffsetEstimator", "OffsetTable", "apply_offsets",
-           "average_to_cadence", "fit_offsets", "interpolate_offsets", "local_time_hours",
-           "quiet_mask", "read_offsets_csv", "residual_by_local_time", "window_grid",
-           "window_statistics", "write_offsets_csv"]
+           "average_to_cadence", "fit_offsets", "fit_offsets_frame", "interpolate_offsets",
+           "local_time_hours", "quiet_mask", "read_offsets_csv", "residual_by_local_time",
+           "window_coverage", "window_grid", "window_statistics", "write_offsets_csv"]

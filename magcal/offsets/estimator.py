@@ -4,6 +4,13 @@ Data minus model in Hpen, at 1-min resolution, restricted to samples with
 ``Kp <= kp_max`` (default 1.0; Kp in thirds, so 1+ = 4/3 is excluded), summarised per
 sliding window (28 days stepped by 7) by the median per component. Windows with too
 little quiet data are kept in the product with NaN and a reason.
+
+A window's median is trusted only when the samples it uses cover enough of the window:
+at least :data:`MIN_DAY_COVERAGE` of its days and :data:`MIN_LT_COVERAGE` of the 24
+local-time hours (see :func:`magcal.offsets.windows.window_coverage`); thinner windows
+get NaN and the reason. A record far shorter than the window (less than
+:data:`SHORT_RECORD_FRACTION` of it) is said in every window's reason and in
+``OffsetTable.warnings``.
 """
 
 from __future__ import annotations
@@ -15,10 +22,42 @@ import numpy as np
 from magcal.errors import InputError
 from magcal.offsets.apply import apply_offsets
 from magcal.offsets.table import OffsetTable
-from magcal.offsets.windows import DAY_NS, window_grid, window_statistics
+from magcal.offsets.windows import (DAY_NS, thin_coverage_reason, window_coverage,
+                                    window_grid, window_statistics)
 
 #: Kp values within this of ``kp_max`` count as equal (thirds stored as floats).
 KP_TOLERANCE = 1e-6
+#: Fewest of a window's days (fraction) that must hold used samples (7 of 28 days).
+MIN_DAY_COVERAGE = 0.25
+#: Fewest of the 24 local-time hours (fraction) that must hold used samples (12 of 24).
+MIN_LT_COVERAGE = 0.5
+#: A record spanning less than this fraction of the window is "far shorter" than it.
+SHORT_RECORD_FRACTION = 0.25
+
+
+def _duration_text(days: float) -> str:
+    """A span in the unit a reader would use (``7 min``, ``5.0 h``, ``3.2 days``)."""
+    if days < 2 / 24:
+        return f"{days * 1440:.0f} min"
+    if days < 2:
+        return f"{days * 24:.1f} h"
+    return f"{days:.1f} days"
+
+
+def short_record_warning(span_days: float, window_days: float) -> str:
+    """Warning when the record is far shorter than the window ('' otherwise).
+
+    Examples
+    --------
+    >>> short_record_warning(7 / 1440, 28)
+    'record spans 7 min, far shorter than the 28-day window'
+    >>> short_record_warning(30, 28)
+    ''
+    """
+    if span_days >= SHORT_RECORD_FRACTION * window_days:
+        return ""
+    return (f"record spans {_duration_text(span_days)}, far shorter than the "
+            f"{window_days:g}-day window")
 
 
 def quiet_mask(kp, kp_max: float = 1.0) -> np.ndarray:
@@ -52,11 +91,21 @@ class OffsetEstimator:
         over 24 local-time bins of the per-bin medians (needs ``lon_deg`` in
         :meth:`fit`); insensitive to an uneven local-time spread of the quiet samples
         when the data carry a local-time field the model lacks.
+    min_day_fraction : float
+        Fewest of the window's days, as a fraction, that must hold used samples
+        (default :data:`MIN_DAY_COVERAGE`); thinner windows are NaN with the reason.
+    min_lt_fraction : float
+        Fewest of the 24 local-time hours, as a fraction, that must hold used samples
+        (default :data:`MIN_LT_COVERAGE`; checked when :meth:`fit` gets ``lon_deg``).
 
     Attributes
     ----------
     table_ : OffsetTable
         The fitted windows.
+    warnings_ : tuple of str
+        Record-level warnings (e.g. a record far shorter than the window).
+    span_days_ : float
+        Length of the record (last minus first time plus one sample spacing), days.
 
     Examples
     --------
@@ -70,20 +119,25 @@ class OffsetEstimator:
     """
 
     def __init__(self, kp_max: float = 1.0, window_days: float = 28.0, step_days: float = 7.0,
-                 min_used: int = 720, origin=None, method: str = "median"):
+                 min_used: int = 720, origin=None, method: str = "median",
+                 min_day_fraction: float = MIN_DAY_COVERAGE,
+                 min_lt_fraction: float = MIN_LT_COVERAGE):
         self.kp_max = kp_max
         self.window_days = window_days
         self.step_days = step_days
         self.min_used = min_used
         self.origin = origin
         self.method = method
+        self.min_day_fraction = min_day_fraction
+        self.min_lt_fraction = min_lt_fraction
 
     def get_params(self) -> dict:
         """Constructor parameters (JSON-ready)."""
         origin = None if self.origin is None else str(np.datetime64(self.origin, "s"))
         return {"kp_max": self.kp_max, "window_days": self.window_days,
                 "step_days": self.step_days, "min_used": self.min_used, "origin": origin,
-                "method": self.method}
+                "method": self.method, "min_day_fraction": self.min_day_fraction,
+                "min_lt_fraction": self.min_lt_fraction}
 
     def fit(self, times, data_hpen, model_hpen, kp, lon_deg=None,
             provenance: dict | None = None):
@@ -126,25 +180,49 @@ class OffsetEstimator:
         if self.method not in ("median", "lt_balanced"):
             raise InputError(f"unknown offset method {self.method!r}")
         lt = None
-        if self.method == "lt_balanced":
-            if lon_deg is None:
-                raise InputError("method 'lt_balanced' needs the longitude")
+        if lon_deg is not None:
             from magcal.offsets.diagnostics import local_time_hours
 
             lt = local_time_hours(t.astype("datetime64[ns]"), lon_deg)
-        stats = window_statistics(t, data - model, quiet_mask(kp, self.kp_max), starts,
-                                  ends, self.min_used, local_time_h=lt)
+        elif self.method == "lt_balanced":
+            raise InputError("method 'lt_balanced' needs the longitude")
+        diff = data - model
+        used = quiet_mask(kp, self.kp_max) & np.all(np.isfinite(diff), axis=1)
+        stats = window_statistics(t, diff, used, starts, ends, self.min_used,
+                                  local_time_h=lt if self.method == "lt_balanced" else None)
+        cover = window_coverage(t, used, starts, ends, local_time_h=lt)
+        step = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+        self.span_days_ = float((t[-1] - t[0] + step) / DAY_NS)
+        warning = short_record_warning(self.span_days_, self.window_days)
+        self.warnings_ = (warning,) if warning else ()
+        reasons = self._judge_coverage(stats, cover, warning)
         centre = starts + (ends - starts) // 2
         self.table_ = OffsetTable(
             center=centre.astype("datetime64[ns]"), start=starts.astype("datetime64[ns]"),
             end=ends.astype("datetime64[ns]"), offset_nT=stats["median"],
             std_nT=stats["std"], mad_nT=stats["mad"], n_used=stats["n_used"],
             n_available=stats["n_available"], fraction_used=stats["fraction_used"],
-            reason=tuple(stats["reason"]), parameters=self.get_params(),
-            provenance=dict(provenance or {}))
+            reason=tuple(reasons), parameters=self.get_params(),
+            provenance=dict(provenance or {}), days_covered=cover["days_covered"],
+            lt_hours_covered=cover["lt_hours_covered"], warnings=self.warnings_)
         self.n_quiet_ = int(np.count_nonzero(quiet_mask(kp, self.kp_max)))
-        self.span_days_ = float((t[-1] - t[0]) / DAY_NS)
         return self
+
+    def _judge_coverage(self, stats: dict, cover: dict, warning: str) -> list:
+        """Set windows with thin coverage to NaN and return every window's reason."""
+        reasons = []
+        for i, why in enumerate(stats["reason"]):
+            if not why:
+                why = thin_coverage_reason(
+                    int(cover["days_covered"][i]), float(cover["window_days"][i]),
+                    int(cover["lt_hours_covered"][i]), self.min_day_fraction,
+                    self.min_lt_fraction)
+                if why:
+                    stats["median"][i] = np.nan
+            if warning:
+                why = f"{why}; {warning}" if why else f"caution: {warning}"
+            reasons.append(why)
+        return reasons
 
     def apply(self, times, data_hpen):
         """Corrected data, the offsets used, and the flag (see :mod:`magcal.offsets.apply`)."""
@@ -156,7 +234,8 @@ class OffsetEstimator:
 def fit_offsets(times, data_hpen, lon_deg, lat_deg, r_re, kp, model: str = "T89",
                 drivers=None, kp_max: float = 1.0, window_days: float = 28.0,
                 step_days: float = 7.0, min_used: int = 720, method: str = "median",
-                cadence_s: float = 60.0,
+                cadence_s: float = 60.0, min_day_fraction: float = MIN_DAY_COVERAGE,
+                min_lt_fraction: float = MIN_LT_COVERAGE,
                 n_jobs: int | None = None, cache_dir=None, provenance: dict | None = None):
     """Whole offset step: 1-min averages, model field, quiet selection, windows.
 
@@ -166,7 +245,8 @@ def fit_offsets(times, data_hpen, lon_deg, lat_deg, r_re, kp, model: str = "T89"
     lon_deg, lat_deg, r_re : position (scalars or per sample).
     kp : Kp per sample (array) or a time-indexed Kp Series (3-hour interval starts).
     model, drivers, n_jobs, cache_dir : see :func:`magcal.models.field.model_field_hpen`.
-    kp_max, window_days, step_days, min_used, method : see :class:`OffsetEstimator`.
+    kp_max, window_days, step_days, min_used, method, min_day_fraction, min_lt_fraction :
+        see :class:`OffsetEstimator`.
     cadence_s : averaging cadence (60 s).
 
     Returns
@@ -208,7 +288,8 @@ def fit_offsets(times, data_hpen, lon_deg, lat_deg, r_re, kp, model: str = "T89"
     res = model_field_hpen(t1, lon1, lat1, r1, model=model, kp=kp1, drivers=drivers,
                            cadence_s=None, n_jobs=n_jobs, cache_dir=cache_dir)
     est = OffsetEstimator(kp_max=kp_max, window_days=window_days, step_days=step_days,
-                          min_used=min_used, method=method)
+                          min_used=min_used, method=method,
+                          min_day_fraction=min_day_fraction, min_lt_fraction=min_lt_fraction)
     prov = dict(provenance or {})
     prov.setdefault("model_field", res.summary())
     est.fit(t1, d1, res.b_hpen_nT, kp1, lon_deg=lon1, provenance=prov)
@@ -218,3 +299,52 @@ def fit_offsets(times, data_hpen, lon_deg, lat_deg, r_re, kp, model: str = "T89"
     return table, {"times": t1, "data": d1, "model": res.b_hpen_nT, "kp": kp1,
                    "quiet": quiet_mask(kp1, kp_max), "lon_deg": lon1,
                    "model_report": res.summary()}
+
+
+def fit_offsets_frame(frame, inputs, *, kp_max: float = 1.0, window_days: float = 28.0,
+                      step_days: float = 7.0, min_used: int = 720, method: str = "median",
+                      min_day_fraction: float = MIN_DAY_COVERAGE,
+                      min_lt_fraction: float = MIN_LT_COVERAGE, cadence_s: float = 60.0,
+                      n_jobs: int | None = None, cache_dir=None,
+                      provenance: dict | None = None):
+    """The ``offsets fit`` product for a validated data frame and its model inputs.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        ``Hp, He, Hn`` with a UTC DatetimeIndex (:func:`magcal.io.csv.read_csv_frame`).
+    inputs : magcal.models.inputs.ModelInputs
+        Position, Kp and drivers (:func:`magcal.models.inputs.model_inputs`).
+    kp_max, window_days, step_days, min_used, method, min_day_fraction, min_lt_fraction,
+    cadence_s, n_jobs, cache_dir, provenance
+        See :func:`fit_offsets` and :class:`OffsetEstimator`.
+
+    Returns
+    -------
+    table : OffsetTable
+    details : dict
+        As :func:`fit_offsets`.
+
+    Raises
+    ------
+    InputError
+        Kp threshold outside [0, 9], coverage fractions outside [0, 1], or missing
+        ``Hp, He, Hn`` columns.
+    """
+    if not 0 <= kp_max <= 9:
+        raise InputError(f"kp_max {kp_max} outside [0, 9]")
+    for name, value in (("min_day_fraction", min_day_fraction),
+                        ("min_lt_fraction", min_lt_fraction)):
+        if not 0 <= value <= 1:
+            raise InputError(f"{name} {value} outside [0, 1]")
+    missing = [c for c in ("Hp", "He", "Hn") if c not in frame.columns]
+    if missing:
+        raise InputError(f"missing column(s) {', '.join(missing)}",
+                         file=frame.attrs.get("source"), column=missing[0])
+    times = frame.index.tz_convert("UTC").tz_localize(None).to_numpy()
+    return fit_offsets(times, frame[["Hp", "He", "Hn"]].to_numpy(), *inputs.position(),
+                       inputs.kp, model=inputs.model, drivers=inputs.drivers, kp_max=kp_max,
+                       window_days=window_days, step_days=step_days, min_used=min_used,
+                       method=method, cadence_s=cadence_s, min_day_fraction=min_day_fraction,
+                       min_lt_fraction=min_lt_fraction, n_jobs=n_jobs, cache_dir=cache_dir,
+                       provenance=provenance)

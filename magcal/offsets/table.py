@@ -3,7 +3,10 @@
 Columns, in this order: ``center,start,end,Hp,He,Hn,Hp_std,He_std,Hn_std,n_used,
 fraction_used`` (the contract), then ``Hp_mad,He_mad,Hn_mad`` (median absolute
 deviation scaled to a standard deviation), ``n_available`` (samples with data and model
-in the window) and ``reason`` (empty when the window is valid, else why it is NaN).
+in the window), ``reason`` (why the window is NaN; empty for a valid window, or
+``caution: ...`` when a valid window carries a warning such as a record far shorter
+than the window), ``days_covered`` (UTC days of the window holding used samples) and
+``lt_hours_covered`` (of the 24 local-time hours; empty when the longitude is unknown).
 Provenance is written beside the CSV as ``<file>.provenance.json``.
 """
 
@@ -24,7 +27,8 @@ from magcal.io.jsonio import product_dict, to_jsonable
 COMPONENTS = ("Hp", "He", "Hn")
 CONTRACT_COLUMNS = ("center", "start", "end", "Hp", "He", "Hn", "Hp_std", "He_std", "Hn_std",
                     "n_used", "fraction_used")
-EXTRA_COLUMNS = ("Hp_mad", "He_mad", "Hn_mad", "n_available", "reason")
+EXTRA_COLUMNS = ("Hp_mad", "He_mad", "Hn_mad", "n_available", "reason", "days_covered",
+                 "lt_hours_covered")
 
 
 @dataclass(frozen=True)
@@ -41,9 +45,14 @@ class OffsetTable:
     n_used, n_available : ndarray of int, shape (k,)
     fraction_used : ndarray, shape (k,)
     reason : tuple of str
-        '' for valid windows.
+        Why a window is NaN; '' or ``caution: ...`` for valid windows.
     parameters : dict
     provenance : dict
+    days_covered, lt_hours_covered : ndarray of int, shape (k,), optional
+        Days of the window and local-time hours (of 24) holding used samples; -1 where
+        unknown.
+    warnings : tuple of str
+        Record-level warnings (e.g. a record far shorter than the window).
     """
 
     center: np.ndarray
@@ -58,6 +67,9 @@ class OffsetTable:
     reason: tuple = ()
     parameters: dict = dc_field(default_factory=dict)
     provenance: dict = dc_field(default_factory=dict)
+    days_covered: np.ndarray | None = None
+    lt_hours_covered: np.ndarray | None = None
+    warnings: tuple = ()
 
     def __len__(self) -> int:
         return int(self.center.size)
@@ -80,6 +92,12 @@ class OffsetTable:
             cols[f"{c}_mad"] = self.mad_nT[:, j]
         cols["n_available"] = self.n_available
         cols["reason"] = list(self.reason) if len(self.reason) else [""] * len(self)
+        for name in ("days_covered", "lt_hours_covered"):
+            values = getattr(self, name)
+            values = np.full(len(self), -1) if values is None else np.asarray(values)
+            column = pd.array(values, dtype="Int64")
+            column[values < 0] = pd.NA
+            cols[name] = column
         return pd.DataFrame(cols)
 
     def to_json(self) -> dict:
@@ -87,7 +105,9 @@ class OffsetTable:
         frame = self.to_frame()
         for c in ("center", "start", "end"):
             frame[c] = np.datetime_as_string(frame[c].to_numpy(dtype="datetime64[s]"))
+        frame = frame.astype(object).where(frame.notna(), None)
         return product_dict({"windows": frame.to_dict(orient="records"),
+                             "warnings": list(self.warnings),
                              "parameters": self.parameters, "provenance": self.provenance})
 
 
@@ -100,7 +120,8 @@ def write_offsets_csv(path, table: OffsetTable, float_format: str = "%.4f") -> P
     with atomic_path(path) as tmp:
         frame.to_csv(tmp, index=False, float_format=float_format, na_rep="NaN")
         with atomic_path(side) as tmp_side:
-            payload = {"parameters": table.parameters, "provenance": table.provenance}
+            payload = {"parameters": table.parameters, "warnings": list(table.warnings),
+                       "provenance": table.provenance}
             tmp_side.write_text(json.dumps(product_dict(to_jsonable(payload)), indent=2) + "\n")
     return Path(path)
 
@@ -154,7 +175,9 @@ def read_offsets_csv(path) -> OffsetTable:
     n_used = np.nan_to_num(num("n_used"), nan=0).astype(np.int64)
     n_av = np.nan_to_num(num("n_available", -1), nan=-1).astype(np.int64)
     reason = tuple(raw["reason"]) if "reason" in raw.columns else ("",) * len(raw)
+    cover = {c: np.nan_to_num(num(c, -1), nan=-1).astype(np.int64)
+             for c in ("days_covered", "lt_hours_covered")}
     return OffsetTable(center=times["center"], start=times["start"], end=times["end"],
                        offset_nT=offset, std_nT=std, mad_nT=mad, n_used=n_used,
                        n_available=n_av, fraction_used=num("fraction_used"), reason=reason,
-                       parameters={"source": os.fspath(p)})
+                       parameters={"source": os.fspath(p)}, **cover)

@@ -18,6 +18,8 @@ from magcal.errors import InputError
 DAY_NS = 86_400 * 10**9
 #: MAD -> standard deviation of a normal distribution.
 MAD_TO_STD = 1.482602218505602
+#: Local-time bins (one hour each) over which a window's coverage is counted.
+LT_BINS = 24
 
 
 def window_grid(first_ns: int, last_ns: int, window_days: float = 28.0,
@@ -143,3 +145,89 @@ def window_statistics(t_ns, diff, selected, starts_ns, ends_ns, min_used: int = 
         frac = np.where(n_av > 0, n_used / np.maximum(n_av, 1), np.nan)
     return {"median": median, "std": std, "mad": mad, "n_used": n_used.astype(np.int64),
             "n_available": n_av.astype(np.int64), "fraction_used": frac, "reason": reasons}
+
+
+def window_coverage(t_ns, selected, starts_ns, ends_ns, local_time_h=None,
+                    lt_bins: int = LT_BINS) -> dict:
+    """How many of each window's days and local-time hours hold selected samples.
+
+    A median over a window stands for the whole window only if the samples it uses are
+    spread over the window's days (a slow drift is averaged, not sampled once) and over
+    local time (a local-time field the model lacks averages out instead of biasing the
+    offset). This counts both; the thresholds are applied by the caller.
+
+    Parameters
+    ----------
+    t_ns : array_like of int64, shape (n,)
+        Sample times in ns, non-decreasing.
+    selected : array_like of bool, shape (n,)
+        Samples used by the window statistics (quiet and with data and model).
+    starts_ns, ends_ns : array_like of int64, shape (k,)
+        Window bounds ``[start, end)``.
+    local_time_h : array_like, shape (n,), optional
+        Local time of each sample in hours; without it ``lt_hours_covered`` is -1.
+    lt_bins : int
+        Number of equal local-time bins (default 24, one hour each).
+
+    Returns
+    -------
+    dict
+        ``days_covered`` (k,) int: distinct UTC days with a selected sample;
+        ``window_days`` (k,) float: window length in days; ``lt_hours_covered`` (k,)
+        int: local-time bins with a selected sample (-1 without local time).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> t = np.array([0, 1, 2 * DAY_NS, 9 * DAY_NS]) + 3600 * 10**9
+    >>> cov = window_coverage(t, [True, True, True, False], [0], [28 * DAY_NS],
+    ...                       local_time_h=[1.0, 1.5, 13.0, 5.0])
+    >>> cov["days_covered"].tolist(), cov["lt_hours_covered"].tolist()
+    ([2], [2])
+    """
+    t = np.asarray(t_ns, dtype=np.int64)
+    sel = np.asarray(selected, dtype=bool)
+    if t.shape != sel.shape:
+        raise InputError("times and selection differ in length")
+    starts = np.asarray(starts_ns, dtype=np.int64)
+    ends = np.asarray(ends_ns, dtype=np.int64)
+    t_sel = t[sel]
+    day = np.floor_divide(t_sel, DAY_NS)
+    lt_bin = None
+    if local_time_h is not None:
+        lt = np.asarray(local_time_h, dtype=float)
+        if lt.shape != t.shape:
+            raise InputError("local_time_h differs in length from the times")
+        lt_bin = np.minimum((np.mod(lt[sel], 24.0) / 24.0 * lt_bins).astype(int), lt_bins - 1)
+    lo, hi = np.searchsorted(t_sel, starts), np.searchsorted(t_sel, ends)
+    days = np.array([np.unique(day[a:b]).size for a, b in zip(lo, hi)], dtype=np.int64)
+    if lt_bin is None:
+        hours = np.full(starts.size, -1, dtype=np.int64)
+    else:
+        hours = np.array([np.unique(lt_bin[a:b]).size for a, b in zip(lo, hi)],
+                         dtype=np.int64)
+    return {"days_covered": days, "window_days": (ends - starts) / DAY_NS,
+            "lt_hours_covered": hours}
+
+
+def thin_coverage_reason(days_covered: int, window_days: float, lt_hours_covered: int,
+                         min_day_fraction: float, min_lt_fraction: float,
+                         lt_bins: int = LT_BINS) -> str:
+    """Why a window's coverage is too thin to trust ('' when it is not).
+
+    Examples
+    --------
+    >>> thin_coverage_reason(1, 28.0, 20, 0.25, 0.5)
+    'coverage too thin to trust: used samples on 1 of 28 days (< 25%)'
+    >>> thin_coverage_reason(20, 28.0, -1, 0.25, 0.5)
+    ''
+    """
+    parts = []
+    if days_covered < min_day_fraction * window_days:
+        parts.append(f"used samples on {days_covered} of {window_days:g} days "
+                     f"(< {min_day_fraction:.0%})")
+    if lt_hours_covered >= 0 and lt_hours_covered < min_lt_fraction * lt_bins:
+        where = "in" if parts else "used samples in"
+        parts.append(f"{where} {lt_hours_covered} of {lt_bins} local-time hours "
+                     f"(< {min_lt_fraction:.0%})")
+    return ("coverage too thin to trust: " + " and ".join(parts)) if parts else ""
