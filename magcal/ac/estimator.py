@@ -8,9 +8,12 @@ row by row.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import pandas as pd
 
+from magcal.ac.bandcheck import BandCheck, band_check
 from magcal.ac.chain import ChainResult, Plan, apply_weights, run_chain
 from magcal.ac.plan import plan_to_dict
 from magcal.errors import InputError
@@ -49,8 +52,138 @@ def sensor_array(frame: pd.DataFrame, sensor: str) -> np.ndarray:
     return frame[cols].to_numpy(dtype=float)
 
 
+#: Time-stamp resolutions tried by :func:`stamp_resolution_s` (s), coarsest first.
+STAMP_RESOLUTIONS_S = (1.0, 0.1, 0.01, 1e-3, 1e-4, 1e-5)
+
+
+def stamp_resolution_s(t_s: np.ndarray) -> float:
+    """Resolution of the time stamps: the coarsest of :data:`STAMP_RESOLUTIONS_S` that
+    every time (relative to the first) is a multiple of, else 0.
+
+    Examples
+    --------
+    >>> stamp_resolution_s(np.array([0.0, 0.008, 0.016, 0.023]))
+    0.001
+    """
+    rel = np.asarray(t_s, dtype=float) - float(t_s[0])
+    for r in STAMP_RESOLUTIONS_S:
+        q = rel / r
+        # epoch seconds as float64 carry about 0.2 us of rounding
+        if np.all(np.abs(q - np.round(q)) * r < 1e-6 + 1e-9 * r):
+            return r
+    return 0.0
+
+
+@dataclass(frozen=True)
+class TimeGrid:
+    """A uniform time grid fitted to sample times (least squares start and spacing).
+
+    ``slots`` maps each sample to its grid index; ``jitter`` is sample time minus grid
+    time. Samples are accepted when ``|jitter| <= tolerance_s``, with ``tolerance_s =
+    resolution_s / 2 + tolerance_fraction * dt_s``: rounding the stamps to their
+    resolution moves them by up to half of it, and the fraction of the spacing allows
+    for clock jitter that cannot move a sample into the next slot.
+    """
+
+    slots: np.ndarray
+    n_grid: int
+    t0_s: float
+    dt_s: float
+    resolution_s: float
+    tolerance_s: float
+    jitter_rms_s: float
+    jitter_max_s: float
+    n_missing: int
+
+    @property
+    def times_s(self) -> np.ndarray:
+        """Grid times (s, the same base as the input times)."""
+        return self.t0_s + self.dt_s * np.arange(self.n_grid)
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (kept as ``time_grid`` in PARAMS.json)."""
+        return {"dt_s": self.dt_s, "rate_hz": 1.0 / self.dt_s, "n_samples": int(len(self.slots)),
+                "n_grid": self.n_grid, "n_missing": self.n_missing,
+                "stamp_resolution_s": self.resolution_s, "tolerance_s": self.tolerance_s,
+                "jitter_rms_s": self.jitter_rms_s, "jitter_max_s": self.jitter_max_s}
+
+
+def _slot_guess(t_s: np.ndarray) -> np.ndarray:
+    """Grid indices from the spacing: consecutive samples one slot apart unless their
+    spacing says more (gaps), with the spacing averaged over single-slot steps so
+    rounded stamps do not bias it."""
+    d = np.diff(t_s)
+    med = float(np.median(d))
+    if not med > 0:
+        raise InputError("times must be strictly increasing")
+    single = (d > 0.5 * med) & (d < 1.5 * med)
+    dt = float(np.mean(d[single])) if single.any() else med
+    steps = np.maximum(1, np.round(d / dt)).astype(np.int64)
+    return np.concatenate([[0], np.cumsum(steps)])
+
+
+def fit_time_grid(t_s: np.ndarray, tolerance: float = 0.05, *, n_iter: int = 5) -> TimeGrid:
+    """Fit a uniform grid to sample times and check the jitter (see :class:`TimeGrid`).
+
+    The start and spacing come from a least-squares line through (slot, time), with
+    the slots re-assigned from the fitted grid until they no longer change, so the
+    error of a rounded spacing does not accumulate along the record.
+
+    Parameters
+    ----------
+    t_s : ndarray
+        Strictly increasing sample times (s).
+    tolerance : float
+        Allowed jitter as a fraction of the spacing, on top of half the stamp resolution.
+
+    Raises
+    ------
+    InputError
+        A sample further than the tolerance from the grid (irregular sampling).
+
+    Examples
+    --------
+    128 Hz stamped to the millisecond (spacings of 7 and 8 ms):
+
+    >>> t = np.round(np.arange(5000) / 128.0, 3)
+    >>> g = fit_time_grid(t)
+    >>> round(g.dt_s, 7), g.n_grid, g.resolution_s, g.jitter_max_s < 0.0006
+    (0.0078125, 5000, 0.001, True)
+    """
+    t_s = np.asarray(t_s, dtype=float)
+    if t_s.size < 2:
+        raise InputError("need at least two samples")
+    rel = t_s - t_s[0]
+    k = _slot_guess(rel)
+    for _ in range(n_iter):
+        slope, icpt = np.polyfit(k.astype(float), rel, 1)
+        k_new = np.round((rel - icpt) / slope).astype(np.int64)
+        k_new -= k_new[0]
+        if np.array_equal(k_new, k):
+            break
+        k = k_new
+    if np.any(np.diff(k) < 1):
+        raise InputError("irregular sampling: two samples fall into one slot of the "
+                         f"{slope:.6g} s grid; resample the input to one cadence")
+    slope, icpt = np.polyfit(k.astype(float), rel, 1)
+    jitter = rel - (icpt + slope * k)
+    res = stamp_resolution_s(t_s)
+    tol = 0.5 * res + tolerance * slope
+    off = np.abs(jitter)
+    if np.max(off) > tol:
+        bad = int(np.argmax(off > tol))
+        raise InputError(f"irregular sampling: sample {bad} is {off[bad]:.3g} s off the "
+                         f"{slope:.6g} s grid (tolerance {tol:.3g} s: half the "
+                         f"{res:g} s stamp resolution plus {tolerance:g} of the spacing); "
+                         "resample the input to one cadence")
+    return TimeGrid(slots=k, n_grid=int(k[-1]) + 1, t0_s=float(t_s[0] + icpt),
+                    dt_s=float(slope), resolution_s=res, tolerance_s=float(tol),
+                    jitter_rms_s=float(np.sqrt(np.mean(jitter ** 2))),
+                    jitter_max_s=float(np.max(off)), n_missing=int(k[-1]) + 1 - len(k))
+
+
 def uniform_grid(t_s: np.ndarray, tolerance: float = 0.05):
-    """Map sample times onto a uniform grid of the median spacing.
+    """Map sample times onto a fitted uniform grid (:func:`fit_time_grid`).
 
     Returns
     -------
@@ -63,24 +196,15 @@ def uniform_grid(t_s: np.ndarray, tolerance: float = 0.05):
     Raises
     ------
     InputError
-        Samples further than ``tolerance * dt`` from the grid (irregular sampling).
+        Samples further than the tolerance from the grid (irregular sampling).
 
     Examples
     --------
     >>> uniform_grid(np.array([0.0, 1.0, 2.0, 4.0]))[0].tolist()
     [0, 1, 2, 4]
     """
-    t_s = np.asarray(t_s, dtype=float)
-    if t_s.size < 2:
-        raise InputError("need at least two samples")
-    dt = float(np.median(np.diff(t_s)))
-    k = np.round((t_s - t_s[0]) / dt).astype(np.int64)
-    off = np.abs(t_s - (t_s[0] + k * dt))
-    if np.max(off) > tolerance * dt:
-        bad = int(np.argmax(off > tolerance * dt))
-        raise InputError(f"irregular sampling: sample {bad} is {off[bad]:.3g} s off the "
-                         f"{dt:.6g} s grid; resample the input to one cadence")
-    return k, int(k[-1]) + 1, dt
+    g = fit_time_grid(t_s, tolerance)
+    return g.slots, g.n_grid, g.dt_s
 
 
 class PiCoG:
@@ -97,6 +221,9 @@ class PiCoG:
     alpha_method : {"decorrelate", "variance"}
     keep_scans : bool
         Keep per-window scan results in ``result_.scans`` (for plots).
+    check_bands : bool
+        Compare raw and cleaned spectra per band and component after the fit
+        (:func:`magcal.ac.bandcheck.band_check`).
 
     Attributes
     ----------
@@ -104,6 +231,9 @@ class PiCoG:
     M_ : dict, G_ : ndarray, steps_ : tuple
     plan_ : Plan (the plan fitted; chosen by auto if ``auto``)
     auto_report_ : dict or None (why each automatic choice was made)
+    time_grid_ : TimeGrid (fitted sample grid and the time-stamp jitter found)
+    band_check_ : BandCheck or None (raw vs cleaned power per band and component)
+    warnings_ : list of str (bands worse than raw, a large correction offset G)
 
     Examples
     --------
@@ -113,27 +243,28 @@ class PiCoG:
     >>> df = pd.DataFrame({"o_x": 1 + 2 * s, "o_y": 2.0, "o_z": 3.0,
     ...                    "a_x": 1 + 40 * s, "a_y": 2.0, "a_z": 3.0}, index=idx)
     >>> model = PiCoG(Plan("o", (Stage("reference", ("o",), reference="a"),))).fit(df)
-    >>> out = model.transform(df)
-    >>> np.allclose(out[["x", "y", "z"]].to_numpy(), [1.0, 2.0, 3.0])
+    >>> out = model.transform(df)          # sum_k M_k B_k + G: the target's mean kept
+    >>> np.allclose(out[["x", "y", "z"]].to_numpy() - model.G_, [1.0, 2.0, 3.0])
     True
     """
 
     def __init__(self, plan: Plan | None = None, *, target: str | None = None,
                  auto: bool = False, alpha_method: str = "decorrelate",
-                 keep_scans: bool = False):
+                 keep_scans: bool = False, check_bands: bool = True):
         self.plan = plan
         self.target = target
         self.auto = auto
         self.alpha_method = alpha_method
         self.keep_scans = keep_scans
+        self.check_bands = check_bands
 
     def fit(self, frame: pd.DataFrame) -> "PiCoG":
         """Fit the chain on ``frame`` (all rows; plan intervals select sub-ranges)."""
         if len(frame) < 3:
             raise InputError("need at least 3 samples to fit")
-        t_s = epoch_seconds(frame.index)
-        slots, n_grid, dt = uniform_grid(t_s)
-        grid_t = t_s[0] + dt * np.arange(n_grid)
+        grid = fit_time_grid(epoch_seconds(frame.index))
+        slots, n_grid, grid_t = grid.slots, grid.n_grid, grid.times_s
+        self.time_grid_ = grid
         names = sensors_in_frame(frame)
 
         def gridded(sensor):
@@ -164,11 +295,34 @@ class PiCoG:
         self.G_ = self.result_.G
         self.steps_ = self.result_.steps
         self.target_ = plan.target
+        raw = data[plan.target]
+        self.band_check_ = self._band_check(raw, self.result_.corrected + self.G_, grid.dt_s)
+        self.warnings_ = product_warnings(self.band_check_, self.G_, raw, plan.target)
         return self
 
-    def transform(self, frame: pd.DataFrame, *, pure_ac: bool = False) -> pd.DataFrame:
-        """Cleaned target ``sum_k M_k B_k`` (+ ``G`` with ``pure_ac``) as ``x, y, z, flag``."""
-        return apply_upload(frame, self.M_, self.G_, pure_ac=pure_ac)
+    def _band_check(self, raw, clean, dt_s) -> BandCheck | None:
+        if not self.check_bands:
+            return None
+        try:
+            return band_check(raw, clean, dt_s)
+        except InputError:      # too short or a component without samples: no check
+            return None
+
+    def summary_lines(self) -> list[str]:
+        """What a user should see after a fit: the automatic choices (with ``auto``) and
+        the power reduction per band and component of the cleaned target."""
+        lines = list((self.auto_report_ or {}).get("choices", []))
+        if self.band_check_ is not None:
+            lines.append(f"power reduction of {self.target_} per band (raw / cleaned):")
+            lines += ["  " + ln for ln in self.band_check_.lines()]
+        return lines
+
+    def transform(self, frame: pd.DataFrame, *, pure_ac: bool = False,
+                  keep_correction_offset: bool = False) -> pd.DataFrame:
+        """Cleaned target ``sum_k M_k B_k + G`` as ``x, y, z, flag`` (see
+        :func:`apply_upload`)."""
+        return apply_upload(frame, self.M_, self.G_, pure_ac=pure_ac,
+                            keep_correction_offset=keep_correction_offset)
 
     def to_params(self, provenance: dict | None = None) -> dict:
         """PARAMS.json payload (CONTRACTS §1) without the schema keys."""
@@ -181,7 +335,13 @@ class PiCoG:
             "identity_error": res.identity_error,
             "alpha_method": self.alpha_method,
             "plan": plan_to_dict(self.plan_),
+            "time_grid": self.time_grid_.to_dict(),
+            "worse_than_raw": ([] if self.band_check_ is None
+                               else self.band_check_.worse_than_raw),
+            "warnings": list(self.warnings_),
         }
+        if self.band_check_ is not None:
+            payload["band_check"] = self.band_check_.to_dict()
         if self.auto_report_ is not None:
             payload["auto"] = self.auto_report_
         if provenance is not None:
@@ -193,23 +353,103 @@ class PiCoG:
         return product_dict(self.to_params(provenance))
 
 
-def apply_upload(frame: pd.DataFrame, M: dict, G=None, *, pure_ac: bool = False) -> pd.DataFrame:
-    """Apply upload matrices to a multi-sensor frame.
+#: |G| above this fraction of the target's mean |B| is reported (see :func:`offset_warning`)
+LARGE_OFFSET_FRACTION = 0.5
+
+
+def offset_warning(G, target_field: np.ndarray, target: str = "target") -> str | None:
+    """A warning when the correction's DC offset ``G`` is large against the field.
+
+    ``sum_k M_k B_k`` carries the steady fields of all sensors through the upload
+    matrices (an inboard sensor near the spacecraft sees a large one); ``G`` (Eq. 31)
+    is that offset. When ``|G|`` exceeds :data:`LARGE_OFFSET_FRACTION` of the target's
+    mean ``|B|``, the output without ``G`` is not a field a user can read.
+
+    Examples
+    --------
+    >>> offset_warning([300.0, 0.0, 0.0], np.array([[100.0, 0.0, 0.0]]), "bos")[:30]
+    '|G| = 300 nT of the correction'
+    >>> offset_warning([1.0, 0.0, 0.0], np.array([[100.0, 0.0, 0.0]])) is None
+    True
+    """
+    if G is None:
+        return None
+    g = float(np.linalg.norm(np.asarray(G, dtype=float)))
+    b = np.asarray(target_field, dtype=float)
+    b = b[np.all(np.isfinite(b), axis=1)]
+    if not b.size:
+        return None
+    field = float(np.mean(np.linalg.norm(b, axis=1)))
+    if g <= LARGE_OFFSET_FRACTION * field:
+        return None
+    return (f"|G| = {g:.4g} nT of the correction is large against the {field:.4g} nT mean "
+            f"|B| of {target}: the sensors' steady fields enter through the upload matrices, "
+            "so the output is only a field estimate with G added back (the default; "
+            "--keep-correction-offset leaves it out)")
+
+
+def product_warnings(check: BandCheck | None, G, target_field, target: str) -> list[str]:
+    """Warnings of a fitted product: bands worse than raw and a large offset ``G``."""
+    out = []
+    if check is not None and check.worse_than_raw:
+        worst = sorted(check.worse_than_raw, key=lambda w: w["reduction"])
+        listed = ", ".join(f"{w['band_hz'][0]:.3g}-{w['band_hz'][1]:.3g} Hz {w['component']} "
+                           f"({1 / w['reduction']:.2f}x the raw power)" for w in worst[:4])
+        more = f" and {len(worst) - 4} more" if len(worst) > 4 else ""
+        out.append(f"the cleaned {target} is worse than raw (more power) in {len(worst)} "
+                   f"band/component(s): "
+                   f"{listed}{more} (PARAMS.json worse_than_raw)")
+    msg = offset_warning(G, target_field, target)
+    if msg:
+        out.append(msg)
+    return out
+
+
+def apply_upload(frame: pd.DataFrame, M: dict, G=None, *, pure_ac: bool = False,
+                 keep_correction_offset: bool = False) -> pd.DataFrame:
+    """Apply upload matrices to a multi-sensor frame: ``sum_k M_k B_k + G``.
+
+    The DC offset ``G`` of the correction (Eq. 31) is added back by default, so the
+    product keeps the target's mean field; ``keep_correction_offset=True`` leaves it
+    out (the bare ``sum_k M_k B_k``, which carries the other sensors' steady fields).
+    ``pure_ac=True`` is the former name of the default and is kept for compatibility.
+    Without ``G`` (None) the bare sum is returned.
 
     Rows where a sensor with a non-zero matrix is missing get NaN and ``flag = 1``;
     good rows have ``flag = 0``.
     """
+    if pure_ac and keep_correction_offset:
+        raise InputError("--pure-ac adds G back and --keep-correction-offset leaves it out: "
+                         "give one of them")
+    if pure_ac and G is None:
+        raise InputError("--pure-ac needs the DC offset G in the parameters")
     data = {k: sensor_array(frame, k) for k in M}
     clean = apply_weights(data, {k: np.asarray(v, dtype=float) for k, v in M.items()})
-    if pure_ac:
-        if G is None:
-            raise InputError("--pure-ac needs the DC offset G in the parameters")
+    if G is not None and not keep_correction_offset:
         clean = clean + np.asarray(G, dtype=float)
     bad = ~np.all(np.isfinite(clean), axis=1)
     clean[bad] = np.nan
     out = pd.DataFrame(clean, index=frame.index, columns=list(COMPONENTS))
     out["flag"] = bad.astype(int)
     return out
+
+
+def apply_params(frame: pd.DataFrame, doc: dict, *, pure_ac: bool = False,
+                 keep_correction_offset: bool = False, file=None) -> tuple[pd.DataFrame, list]:
+    """Clean ``frame`` with a PARAMS.json document: (CLEAN frame, warnings).
+
+    See :func:`apply_upload` for the offset options; the warning says when ``G`` is
+    large against the target's field (:func:`offset_warning`).
+    """
+    M, G, target = params_from_json(doc, file=file)
+    out = apply_upload(frame, M, G, pure_ac=pure_ac,
+                       keep_correction_offset=keep_correction_offset)
+    warnings = []
+    if target in sensors_in_frame(frame):
+        msg = offset_warning(G, sensor_array(frame, target), target)
+        if msg:
+            warnings.append(msg)
+    return out, warnings
 
 
 def params_from_json(doc: dict, *, file=None) -> tuple[dict, np.ndarray | None, str]:

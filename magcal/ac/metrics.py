@@ -23,8 +23,16 @@ from magcal.errors import InputError
 PAPER_BANDS_S = ((2.0, 60.0), (60.0, 6 * 3600.0))
 
 
-def _fill_nan(x: np.ndarray) -> np.ndarray:
-    """Linear interpolation over NaN gaps (per column) so spectra can be computed."""
+def fill_nan(x: np.ndarray) -> np.ndarray:
+    """Linear interpolation over NaN gaps per column, as an (n, k) copy.
+
+    Spectra and median filters need finite input; ends are held at the nearest value.
+
+    Examples
+    --------
+    >>> fill_nan(np.array([1.0, np.nan, 3.0, np.nan])).ravel().tolist()
+    [1.0, 2.0, 3.0, 3.0]
+    """
     x = np.array(x, dtype=float, copy=True)
     if x.ndim == 1:
         x = x[:, None]
@@ -62,7 +70,7 @@ def psd(b: np.ndarray, dt_s: float, segment_s: float | None = 512.0):
     >>> float(f[np.argmax(p)])
     0.0625
     """
-    x = _fill_nan(b)
+    x = fill_nan(b)
     fs = 1.0 / dt_s
     if segment_s is None:
         f, p = signal.periodogram(x, fs=fs, window="boxcar", detrend="constant", axis=0)
