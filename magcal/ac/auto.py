@@ -24,6 +24,8 @@ the variance of the cleaned target after removing running means of ``highpass_s`
 ambient field is common to every candidate, so its slow variation is removed and the
 rest of it cancels in the comparison).
 
+Filter lengths and windows scale with the record (:func:`record_scales`).
+
 Speed: orders are fitted incrementally. Each candidate window costs one scan of the
 current pair (windows sliding by about 1 % of their length) and one objective; the
 chain is never re-run per trial, so a simulated day takes a few seconds.
@@ -32,11 +34,20 @@ chain is never re-run per trial, so a simulated day takes a few seconds.
 from __future__ import annotations
 
 import numpy as np
+from scipy.stats import median_abs_deviation
 
-from magcal.ac.chain import (Order, Plan, Stage, _wcombine, apply_weights, fit_order, run_chain,
-                             sample_period_s)
+from magcal.ac.chain import (
+    Order,
+    Plan,
+    Stage,
+    _wcombine,
+    apply_weights,
+    fit_order,
+    run_chain,
+    sample_period_s,
+)
 from magcal.ac.core import correction_matrix
-from magcal.ac.nonorthogonal import _running_mean
+from magcal.ac.filters import running_mean
 from magcal.errors import InputError
 
 CANDIDATE_WINDOWS_S = (30.0, 100.0, 300.0, 700.0, 2000.0, 6000.0, 16000.0)
@@ -49,7 +60,7 @@ def noise_sigma(b: np.ndarray) -> float:
     d2 = d2[np.all(np.isfinite(d2), axis=1)]
     if d2.shape[0] < 10:
         return float("nan")
-    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0) / 0.6745
+    mad = median_abs_deviation(d2, axis=0, scale="normal")
     return float(np.sqrt(np.sum((mad / np.sqrt(6.0)) ** 2)))
 
 
@@ -58,7 +69,7 @@ def objective(b: np.ndarray, highpass_n: int) -> float:
     b = np.asarray(b, dtype=float)
     ok = np.all(np.isfinite(b), axis=1)
     x = b[ok]
-    x = x - _running_mean(x, highpass_n)
+    x = x - running_mean(x, highpass_n)
     return float(np.sum(np.var(x, axis=0)))
 
 
@@ -99,9 +110,153 @@ def _pair_update(cur, w, i, j, A_ij, e_ij):
     return cur, w
 
 
+def record_scales(n: int, dt_s: float, candidate_windows_s=CANDIDATE_WINDOWS_S) -> dict:
+    """Filter lengths and candidate windows scaled to a record of ``n`` samples.
+
+    The objective's running mean is a 24th of the record (at most 3600 s), the fit's
+    high-pass half of that (at most 1800 s): on a day of data these are the lengths the
+    paper's timescales call for, on a two-minute record they keep the ambient field's
+    slow variation out of a fit that has only seconds of disturbance to go on. Windows
+    are the fixed candidates that hold at least 10 samples and at most a quarter of the
+    record; when fewer than three fit, a geometric grid (factor 3) down from a quarter
+    of the record is used instead.
+
+    Examples
+    --------
+    >>> s = record_scales(86400, 1.0)
+    >>> s["highpass_s"], s["fit_highpass_s"], s["windows_s"][-1]
+    (3600.0, 1800.0, 16000.0)
+    >>> s = record_scales(15153, 1 / 128)
+    >>> round(s["highpass_s"], 2), [round(w, 2) for w in s["windows_s"]]
+    (4.93, [0.12, 0.37, 1.1, 3.29, 9.87, 29.6])
+    """
+    record_s = n * dt_s
+    windows = [float(w) for w in candidate_windows_s
+               if 10 <= int(round(w / dt_s)) <= n // 4]
+    if len(windows) < 3:
+        windows, w = [], record_s / 4
+        while int(round(w / dt_s)) >= 10:
+            windows.insert(0, float(w))
+            w /= 3.0
+    return {"record_s": record_s, "highpass_s": min(3600.0, record_s / 24),
+            "fit_highpass_s": min(1800.0, record_s / 48), "windows_s": windows}
+
+
+def _fmt_s(value) -> str:
+    return "none" if value is None else f"{value:.4g} s"
+
+
+def _fmt_window(win) -> str:
+    return "the whole record" if win is None else f"window {win:.4g} s"
+
+
+def _reference_stage(data, t_s, target, partner, others, ctx, report):
+    """Step 1: the best first-order reference (if it pays), applied to target and
+    partner. Returns (stages, cur, w, objective)."""
+    dt, hp, sigma, base = ctx["dt"], ctx["hp"], ctx["sigma"], ctx["base"]
+    ref_order = Order(direction=ctx["direction"], highpass_s=ctx["fit_highpass_s"])
+    ref_rows, ref_fits = [], {}
+    for r in others:
+        try:
+            alpha, e_i, e_ij, _ = fit_order(data[target], data[r], t_s, ref_order, dt_s=dt,
+                                            alpha_method=ctx["alpha_method"])
+        except InputError as exc:
+            ref_rows.append({"reference": r, "usable": False, "why": str(exc)})
+            continue
+        A = correction_matrix(alpha, e_i, e_ij)
+        ref_fits[r] = A
+        obj = objective(data[target] + (data[target] - data[r]) @ A.T, hp)
+        ref_rows.append({"reference": r, "usable": True, "alpha": float(alpha),
+                         "injected_noise_nT": abs(alpha) * sigma[r],
+                         "objective_nT2": obj, "gain": 1 - obj / base})
+    report["reference_candidates"] = ref_rows
+    cur = {s: np.asarray(data[s], dtype=float) for s in (target, partner)}
+    w = {s: {s: np.eye(3)} for s in (target, partner)}
+    usable = [row for row in ref_rows if row["usable"]]
+    best = max(usable, key=lambda row: row["gain"]) if usable else None
+    if best is None or best["gain"] < ctx["min_gain"] or best["reference"] == partner:
+        report["choices"].append("no reference stage: no other sensor removes at least "
+                                 f"{ctx['min_gain']:.0%} of the target variance as a "
+                                 "first-order reference, or the best one is the boom partner")
+        return [], cur, w, base
+    ref = best["reference"]
+    noise = best["injected_noise_nT"]
+    report["choices"].append(
+        f"reference stage with {ref}: removes {best['gain']:.0%} of the target variance "
+        + (f"but injects {noise:.3g} nT noise" if noise > sigma[target] else
+           f"and injects only |alpha| sigma = {noise:.3g} nT of its noise (target noise "
+           f"{sigma[target]:.3g} nT)"))
+    b_ref = np.asarray(data[ref], dtype=float)
+    alpha, e_i, e_ij, _ = fit_order(cur[partner], b_ref, t_s, ref_order, dt_s=dt,
+                                    alpha_method=ctx["alpha_method"])
+    for s_, A in ((target, ref_fits[ref]), (partner, correction_matrix(alpha, e_i, e_ij))):
+        cur[s_] = cur[s_] + (cur[s_] - b_ref) @ A.T
+        w[s_] = _wcombine(w[s_], {ref: np.eye(3)}, A)
+    stages = [Stage("reference", (target, partner), reference=ref, orders=(ref_order,))]
+    return stages, cur, w, objective(cur[target], hp)
+
+
+def _best_order(cur, t_s, target, partner, windows, ctx):
+    """Best window (or whole record) for the next pair order: (objective, window, A,
+    e_ij, trials) or None."""
+    trials = []
+    for win in windows + [None]:
+        order = Order(window_s=win, direction=ctx["direction"],
+                      highpass_s=ctx["fit_highpass_s"])
+        step = 1 if win is None else max(1, int(round(win / ctx["dt"])) // 100)
+        try:
+            alpha, e_i, e_ij, _ = fit_order(cur[target], cur[partner], t_s, order,
+                                            dt_s=ctx["dt"], alpha_method=ctx["alpha_method"],
+                                            scan_step=step)
+        except InputError:
+            continue
+        A = correction_matrix(alpha, e_i, e_ij)
+        trial = cur[target] + (cur[target] - cur[partner]) @ A.T
+        trials.append((objective(trial, ctx["hp"]), win, A, e_ij))
+    if not trials:
+        return None
+    obj, win, A, e_ij = min(trials, key=lambda x: x[0])
+    return obj, win, A, e_ij, trials
+
+
+def _pair_orders(data, t_s, stages, cur, w, target, partner, obj_before, ctx, report):
+    """Step 2-3: pair orders added while each reduces the objective by ``min_gain``.
+    Returns (orders, objective)."""
+    direction, alpha_method = ctx["direction"], ctx["alpha_method"]
+    orders: list[Order] = []
+    order_rows = []
+    for k in range(ctx["max_orders"]):
+        best = _best_order(cur, t_s, target, partner, ctx["windows"], ctx)
+        if best is None:
+            break
+        obj, win, A, e_ij, trials = best
+        gain = 1 - obj / obj_before
+        order_rows.append({"order": k + 1, "best_window_s": win, "objective_nT2": obj,
+                           "gain": gain, "tried": [{"window_s": tw, "objective_nT2": to}
+                                                   for to, tw, _, _ in trials]})
+        if gain < ctx["min_gain"]:
+            report["choices"].append(f"stop after {k} pair order(s): the best order {k + 1} "
+                                     f"({_fmt_window(win)}) reduces the objective by only "
+                                     f"{gain:.1%}")
+            break
+        orders.append(Order(window_s=win, direction=direction,
+                            highpass_s=ctx["fit_highpass_s"]))
+        report["choices"].append(f"pair order {k + 1}: {_fmt_window(win)} reduces the "
+                                 f"objective by {gain:.0%} (best of {len(trials)} candidates)")
+        if direction == "coherent":
+            cur, w = _pair_update(cur, w, target, partner, A, np.asarray(e_ij, float))
+        else:
+            res = run_chain(data, t_s, Plan(target, tuple(stages) + (Stage(
+                "pair", (target, partner), orders=tuple(orders)),)), alpha_method=alpha_method)
+            cur = {target: res.corrected, partner: apply_weights(data, res.weights[partner])}
+        obj_before = obj
+    report["pair_orders"] = order_rows
+    return orders, obj_before
+
+
 def auto_plan(data: dict, t_s: np.ndarray, target: str, *, alpha_method: str = "decorrelate",
-              highpass_s: float = 3600.0, min_gain: float = 0.05, max_orders: int = 3,
-              candidate_windows_s=CANDIDATE_WINDOWS_S, fit_highpass_s: float | None = 1800.0,
+              highpass_s: float | None = None, min_gain: float = 0.05, max_orders: int = 3,
+              candidate_windows_s=CANDIDATE_WINDOWS_S, fit_highpass_s="scaled",
               direction: str = "coherent") -> tuple[Plan, dict]:
     """Choose references, pair, windows and orders; return the plan and the reasons.
 
@@ -110,12 +265,16 @@ def auto_plan(data: dict, t_s: np.ndarray, target: str, *, alpha_method: str = "
     data : dict sensor -> (n, 3) on a uniform grid
     t_s : ndarray (n,)
     target : str
-    highpass_s : float
-        Running-mean length removed before computing the objective.
+    highpass_s : float, optional
+        Running-mean length removed before computing the objective (also the
+        regression's ``detrend_s``); default from :func:`record_scales`.
     min_gain : float
         Minimum relative reduction of the objective for an order (or stage) to be kept.
-    fit_highpass_s : float or None
-        ``highpass_s`` of every fitted order (running means removed before the fit).
+    candidate_windows_s : sequence of float
+        Pair-order windows tried (scaled to the record by :func:`record_scales`).
+    fit_highpass_s : float, None or "scaled"
+        ``highpass_s`` of every fitted order (running means removed before the fit;
+        None: no filtering; "scaled": from :func:`record_scales`).
     direction : {"coherent", "variance"}
         Direction method of every order (see :class:`magcal.ac.chain.Order`).
 
@@ -131,135 +290,59 @@ def auto_plan(data: dict, t_s: np.ndarray, target: str, *, alpha_method: str = "
     if not others:
         raise InputError("--auto needs at least one sensor besides the target")
     dt = sample_period_s(t_s)
-    n = len(t_s)
+    scales = record_scales(len(t_s), dt, candidate_windows_s)
+    highpass_s = scales["highpass_s"] if highpass_s is None else float(highpass_s)
+    if isinstance(fit_highpass_s, str):
+        fit_highpass_s = scales["fit_highpass_s"]
     hp = max(3, int(round(highpass_s / dt)))
     sigma = {s: noise_sigma(data[s]) for s in data}
-    report: dict = {"noise_sigma_nT": sigma, "highpass_s": highpass_s,
-                    "fit_highpass_s": fit_highpass_s, "direction": direction, "choices": []}
+    report: dict = {"noise_sigma_nT": sigma, "record_s": scales["record_s"],
+                    "highpass_s": highpass_s, "fit_highpass_s": fit_highpass_s,
+                    "candidate_windows_s": scales["windows_s"], "direction": direction,
+                    "choices": [f"filters scaled to the {scales['record_s']:.4g} s record at "
+                                f"{dt:.4g} s: objective high-pass {_fmt_s(highpass_s)}, fit "
+                                f"high-pass {_fmt_s(fit_highpass_s)}, windows "
+                                f"{[float(f'{v:.3g}') for v in scales['windows_s']]} s"]}
     base = objective(data[target], hp)
     report["objective_raw_nT2"] = base
-
-    # 1. reference stage
-    ref_order = Order(direction=direction, highpass_s=fit_highpass_s)
-    ref_rows = []
-    ref_fits = {}
-    for r in others:
-        try:
-            alpha, e_i, e_ij, _ = fit_order(data[target], data[r], t_s, ref_order, dt_s=dt,
-                                            alpha_method=alpha_method)
-        except InputError as exc:
-            ref_rows.append({"reference": r, "usable": False, "why": str(exc)})
-            continue
-        A = correction_matrix(alpha, e_i, e_ij)
-        ref_fits[r] = A
-        cleaned = data[target] + (data[target] - data[r]) @ A.T
-        obj = objective(cleaned, hp)
-        ref_rows.append({"reference": r, "usable": True, "alpha": float(alpha),
-                         "injected_noise_nT": abs(alpha) * sigma[r],
-                         "objective_nT2": obj, "gain": 1 - obj / base})
-    report["reference_candidates"] = ref_rows
-    partner_pool = sorted(others, key=lambda s: sigma[s])
-    stages = []
-    current = base
-    usable = [row for row in ref_rows if row["usable"]]
-    best_ref = max(usable, key=lambda row: row["gain"]) if usable else None
-    partner = partner_pool[0]
-    cur = {s: np.asarray(data[s], dtype=float) for s in (target, partner)}
-    w = {s: {s: np.eye(3)} for s in (target, partner)}
-    if best_ref is not None and best_ref["gain"] >= min_gain and best_ref["reference"] != partner:
-        ref = best_ref["reference"]
-        if best_ref["injected_noise_nT"] > sigma[target]:
-            report["choices"].append(
-                f"reference stage with {ref}: removes {best_ref['gain']:.0%} of the target "
-                f"variance but injects {best_ref['injected_noise_nT']:.3g} nT noise")
-        else:
-            report["choices"].append(
-                f"reference stage with {ref}: removes {best_ref['gain']:.0%} of the target "
-                f"variance and injects only |alpha| sigma = {best_ref['injected_noise_nT']:.3g}"
-                f" nT of its noise (target noise {sigma[target]:.3g} nT)")
-        stages.append(Stage("reference", (target, partner), reference=ref, orders=(ref_order,)))
-        b_ref = np.asarray(data[ref], dtype=float)
-        alpha, e_i, e_ij, _ = fit_order(cur[partner], b_ref, t_s, ref_order, dt_s=dt,
-                                        alpha_method=alpha_method)
-        A_p = correction_matrix(alpha, e_i, e_ij)
-        for s_, A in ((target, ref_fits[ref]), (partner, A_p)):
-            cur[s_] = cur[s_] + (cur[s_] - b_ref) @ A.T
-            w[s_] = _wcombine(w[s_], {ref: np.eye(3)}, A)
-        current = objective(cur[target], hp)
-    else:
-        report["choices"].append("no reference stage: no other sensor removes at least "
-                                 f"{min_gain:.0%} of the target variance as a first-order "
-                                 "reference, or the best one is the boom partner")
+    ctx = {"dt": dt, "hp": hp, "sigma": sigma, "base": base, "direction": direction,
+           "fit_highpass_s": fit_highpass_s, "alpha_method": alpha_method,
+           "min_gain": min_gain, "max_orders": max_orders, "windows": scales["windows_s"]}
+    partner = sorted(others, key=lambda s: sigma[s])[0]
+    stages, cur, w, current = _reference_stage(data, t_s, target, partner, others, ctx, report)
     report["partner"] = partner
     report["choices"].append(f"pair partner {partner}: lowest noise "
                              f"({sigma[partner]:.3g} nT) of the other sensors")
-
-    # 2. timescales and windows, fitted incrementally on the current pair
     report["timescales"] = timescales(cur[target] - cur[partner], dt)
-    windows = [x for x in candidate_windows_s if int(round(x / dt)) <= n // 4
-               and int(round(x / dt)) >= 10]
-    orders: list[Order] = []
-    order_rows = []
-    obj_before = current
-    for k in range(max_orders):
-        trials = []
-        for win in windows + [None]:
-            order = Order(window_s=win, direction=direction, highpass_s=fit_highpass_s)
-            step = 1 if win is None else max(1, int(round(win / dt)) // 100)
-            try:
-                alpha, e_i, e_ij, _ = fit_order(cur[target], cur[partner], t_s, order, dt_s=dt,
-                                                alpha_method=alpha_method, scan_step=step)
-            except InputError:
-                continue
-            A = correction_matrix(alpha, e_i, e_ij)
-            trial = cur[target] + (cur[target] - cur[partner]) @ A.T
-            trials.append((objective(trial, hp), win, A, e_ij))
-        if not trials:
-            break
-        obj, win, A, e_ij = min(trials, key=lambda x: x[0])
-        gain = 1 - obj / obj_before
-        order_rows.append({"order": k + 1, "best_window_s": win, "objective_nT2": obj,
-                           "gain": gain, "tried": [{"window_s": tw, "objective_nT2": to}
-                                                   for to, tw, _, _ in trials]})
-        if gain < min_gain:
-            report["choices"].append(f"stop after {k} pair order(s): the best order {k + 1} "
-                                     f"(window {win}) reduces the objective by only {gain:.1%}")
-            break
-        orders.append(Order(window_s=win, direction=direction, highpass_s=fit_highpass_s))
-        report["choices"].append(f"pair order {k + 1}: window {win} s reduces the objective "
-                                 f"by {gain:.0%} (best of {len(trials)} candidates)")
-        if direction == "coherent":
-            cur, w = _pair_update(cur, w, target, partner, A, np.asarray(e_ij, float))
-        else:
-            res = run_chain(data, t_s, Plan(target, tuple(stages) + (Stage(
-                "pair", (target, partner), orders=tuple(orders)),)), alpha_method=alpha_method)
-            cur = {target: res.corrected, partner: apply_weights(data, res.weights[partner])}
-        obj_before = obj
-    report["pair_orders"] = order_rows
+    orders, picog_obj = _pair_orders(data, t_s, stages, cur, w, target, partner, current,
+                                     ctx, report)
     picog_stages = tuple(stages) + ((Stage("pair", (target, partner), orders=tuple(orders)),)
                                     if orders else ())
-    picog_obj = obj_before
+    return _choose_method(data, t_s, target, others, picog_stages, picog_obj, highpass_s,
+                          ctx, report)
 
-    # 4. regression gradiometer with all sensors
+
+def _choose_method(data, t_s, target, others, picog_stages, picog_obj, highpass_s, ctx,
+                   report):
+    """Step 4: the regression gradiometer with all sensors replaces the PiCoG chain when
+    it reduces the objective further."""
     reg_plan = Plan(target, (Stage("regression", (target,), references=tuple(others),
                                    orders=(Order(detrend_s=highpass_s),)),))
     try:
-        reg_obj = objective(run_chain(data, t_s, reg_plan).corrected, hp)
+        reg_obj = objective(run_chain(data, t_s, reg_plan).corrected, ctx["hp"])
     except InputError as exc:
         reg_obj = float("inf")
         report["regression_error"] = str(exc)
     report["objective_picog_nT2"] = picog_obj
     report["objective_regression_nT2"] = reg_obj
-    if reg_obj < picog_obj * (1 - min_gain) or not picog_stages:
-        plan = reg_plan
+    if reg_obj < picog_obj * (1 - ctx["min_gain"]) or not picog_stages:
         report["choices"].append(
-            f"regression gradiometer with {', '.join(others)}: objective {reg_obj:.4g} nT^2 "
-            f"vs {picog_obj:.4g} for the PiCoG chain (non-orthogonal or more disturbers "
-            "than one pair can separate)")
+            f"regression gradiometer with {', '.join(others)} (detrend {highpass_s:.4g} s): "
+            f"objective {reg_obj:.4g} nT^2 vs {picog_obj:.4g} for the PiCoG chain "
+            "(non-orthogonal or more disturbers than one pair can separate)")
         report["method"] = "regression"
-    else:
-        plan = Plan(target, picog_stages)
-        report["choices"].append(f"PiCoG chain kept: objective {picog_obj:.4g} nT^2 vs "
-                                 f"{reg_obj:.4g} for the regression gradiometer")
-        report["method"] = "picog"
-    return plan, report
+        return reg_plan, report
+    report["choices"].append(f"PiCoG chain kept: objective {picog_obj:.4g} nT^2 vs "
+                             f"{reg_obj:.4g} for the regression gradiometer")
+    report["method"] = "picog"
+    return Plan(target, picog_stages), report

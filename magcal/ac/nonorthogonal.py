@@ -25,19 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from magcal.ac.filters import running_mean
 from magcal.errors import InputError
-
-
-def _running_mean(x: np.ndarray, n: int) -> np.ndarray:
-    """Centered running mean over ``n`` samples of a NaN-free (m, k) array."""
-    if n <= 1:
-        return np.zeros_like(x)
-    cs = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
-    m = x.shape[0]
-    half = n // 2
-    lo = np.clip(np.arange(m) - half, 0, m)
-    hi = np.clip(np.arange(m) - half + n, 0, m)
-    return (cs[hi] - cs[lo]) / (hi - lo)[:, None]
 
 
 def fit_regression(b_target: np.ndarray, references: list, *, mask=None,
@@ -94,9 +83,9 @@ def fit_regression(b_target: np.ndarray, references: list, *, mask=None,
                          f"{d.shape[1]} difference channels")
     x = b_t[ok]
     dd = d[ok]
-    if detrend_n:
-        x = x - _running_mean(x, int(detrend_n))
-        dd = dd - _running_mean(dd, int(detrend_n))
+    if detrend_n and int(detrend_n) > 1:
+        x = x - running_mean(x, int(detrend_n))
+        dd = dd - running_mean(dd, int(detrend_n))
     x = x - x.mean(axis=0)
     dd = dd - dd.mean(axis=0)
     scale = dd.std(axis=0)
