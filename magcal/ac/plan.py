@@ -32,7 +32,12 @@
 Interval times are ISO-8601 UTC; they become seconds since 1970-01-01 UTC, the time
 base :class:`magcal.ac.estimator.PiCoG` uses. ``direction`` and ``highpass_s`` may also
 be given per order (``highpass_s = 0`` switches filtering off); without them an order
-follows the paper (maximum-variance direction of the sensor, no filtering). With a
+follows the paper (maximum-variance direction of the sensor, no filtering); the
+plan-level ``direction`` and ``highpass_s`` are defaults of the PiCoG (reference and
+pair) orders. A key that a part of the plan does not use (``band_hz`` or ``window_s``
+in a regression order, ``detrend_s`` in a PiCoG order, event keys of a pair stage
+without ``joint = true``, a misspelt key) is refused with the key and the stage named,
+never ignored. With a
 varying ambient field (daily variation, substorms) use ``direction = "coherent"`` and
 ``highpass_s = 1800``: on the simulated GK-2A-like day this takes the contract's plan
 from 3x to about 290x disturbance-power reduction.
@@ -70,6 +75,35 @@ def to_epoch_s(value, *, file=None) -> float:
     return ts.value / 1e9
 
 
+#: Keys each part of a plan understands; anything else is refused (exit 2), not ignored.
+PLAN_KEYS = frozenset({"target", "alpha_method", "direction", "highpass_s", "stage"})
+_PICOG_ORDER = frozenset({"interval", "window_s", "cone_deg", "direction", "highpass_s",
+                          "band_hz"})
+ORDER_KEYS = {"reference": _PICOG_ORDER, "pair": _PICOG_ORDER,
+              "regression": frozenset({"interval", "detrend_s"})}
+JOINT_STAGE_KEYS = frozenset({"joint", "event_half_s", "min_snr", "pulse_min_snr", "events"})
+STAGE_KEYS = {"reference": frozenset({"reference", "sensors", "orders"}),
+              "pair": frozenset({"pair", "orders"}) | JOINT_STAGE_KEYS,
+              "regression": frozenset({"regression", "references", "orders"})}
+
+
+def _check_keys(table: dict, allowed, file, where: str, what: str) -> None:
+    """InputError naming the first key of ``table`` that ``what`` does not understand.
+
+    Examples
+    --------
+    >>> _check_keys({"band_hz": [1, 2]}, ORDER_KEYS["regression"], None, "stage 1 order 1",
+    ...             "an order of a regression stage")
+    Traceback (most recent call last):
+    ...
+    magcal.errors.InputError: stage 1 order 1: key 'band_hz' is not supported in an order of a regression stage (supported: detrend_s, interval)
+    """
+    for key in table:
+        if key not in allowed:
+            raise InputError(f"{where}: key {key!r} is not supported in {what} (supported: "
+                             f"{', '.join(sorted(allowed))})", file=file)
+
+
 def _check_name(name, file, where):
     if not isinstance(name, str) or not _NAME.match(name):
         raise InputError(f"{where}: sensor name {name!r} must be lowercase letters, digits "
@@ -77,14 +111,11 @@ def _check_name(name, file, where):
     return name
 
 
-def _order(spec, file, where, defaults=None) -> Order:
+def _order(spec, file, where, defaults=None, kind="pair") -> Order:
     if not isinstance(spec, dict):
         raise InputError(f"{where}: each order must be a table like {{ window_s = 100 }}",
                          file=file)
-    unknown = set(spec) - {"interval", "window_s", "cone_deg", "detrend_s", "direction",
-                           "highpass_s", "band_hz"}
-    if unknown:
-        raise InputError(f"{where}: unknown order key(s) {sorted(unknown)}", file=file)
+    _check_keys(spec, ORDER_KEYS[kind], file, where, f"an order of a {kind} stage")
     interval = None
     if "interval" in spec:
         iv = spec["interval"]
@@ -149,15 +180,31 @@ def plan_from_dict(doc: dict, *, file=None) -> tuple[Plan, dict]:
     defaults = {"direction": _direction(doc.get("direction", "variance"), file, "plan"),
                 "highpass_s": _highpass(doc.get("highpass_s"), file, "plan")}
     stages = []
-    for k, st in enumerate(doc.get("stage", []), start=1):
+    _check_keys(doc, PLAN_KEYS, file, "plan", "the top level of a plan")
+    stage_list = doc.get("stage", [])
+    if not isinstance(stage_list, list):
+        raise InputError("'stage' must be an array of tables ([[stage]])", file=file)
+    for k, st in enumerate(stage_list, start=1):
         where = f"stage {k}"
-        orders = tuple(_order(o, file, f"{where} order {n}", defaults)
-                       for n, o in enumerate(st.get("orders", [{}]), start=1))
+        if not isinstance(st, dict):
+            raise InputError(f"{where}: must be a table ([[stage]])", file=file)
         kinds = [key for key in ("reference", "pair", "regression") if key in st]
         if len(kinds) != 1:
             raise InputError(f"{where}: give exactly one of 'reference' (with 'sensors'), "
                              "'pair' or 'regression' (with 'references')", file=file)
         kind = kinds[0]
+        where = f"stage {k} ({kind})"
+        _check_keys(st, STAGE_KEYS[kind], file, where, f"a {kind} stage")
+        if kind == "pair" and st.get("joint") is not True:
+            extra = sorted(set(st) & (JOINT_STAGE_KEYS - {"joint"}))
+            if extra:
+                raise InputError(f"{where}: key {extra[0]!r} only applies with joint = true",
+                                 file=file)
+        order_list = st.get("orders", [{}])
+        if not isinstance(order_list, list) or not order_list:
+            raise InputError(f"{where}: orders must be a non-empty array of tables", file=file)
+        orders = tuple(_order(o, file, f"{where} order {n}", defaults, kind)
+                       for n, o in enumerate(order_list, start=1))
         if kind == "reference":
             sensors = tuple(_check_name(s, file, where) for s in st.get("sensors", []))
             ref = _check_name(st["reference"], file, where)
