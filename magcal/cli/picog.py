@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 from magcal.cli._common import add_output, existing_file
 from magcal.errors import InputError
 
@@ -27,12 +29,20 @@ def register(subparsers) -> None:
     f.set_defaults(func=run_fit)
 
     a = sub.add_parser("apply", help="apply PARAMS.json and write the cleaned target",
-                       description="Cleaned target = sum_k M[k] @ B_k; rows where a needed "
-                                   "sensor is missing are NaN with flag=1.")
+                       description="Cleaned target = sum_k M[k] @ B_k + G (G: the DC offset "
+                                   "of the correction, Eq. 31); rows where a needed sensor "
+                                   "is missing are NaN with flag=1.")
     a.add_argument("input", help="multi-sensor CSV")
     a.add_argument("--params", required=True, help="PARAMS.json from 'picog fit'")
-    a.add_argument("--pure-ac", action="store_true",
-                   help="add back the DC offset G of the correction (Eq. 32)")
+    offset = a.add_mutually_exclusive_group()
+    offset.add_argument("--keep-correction-offset", action="store_true",
+                        help="leave the DC offset G of the correction in the output (the bare "
+                             "sum_k M[k] @ B_k, which carries the other sensors' steady "
+                             "fields); by default G is added back so the product keeps the "
+                             "target's mean field")
+    offset.add_argument("--pure-ac", action="store_true",
+                        help="add back the DC offset G of the correction (Eq. 32); now the "
+                             "default, kept for compatibility")
     add_output(a, help_text="CLEAN.csv (time,x,y,z,flag)")
     a.set_defaults(func=run_apply)
 
@@ -71,22 +81,32 @@ def run_fit(args) -> int:
                                          "alpha_method": alpha_method},
                            inputs=inputs)
     write_json(args.output, model.to_params(prov))
+    if args.auto:
+        for line in model.summary_lines():
+            print(line)
+    for warning in model.warnings_:
+        print(f"magcal picog fit: warning: {warning}", file=sys.stderr)
     return 0
 
 
 def run_apply(args) -> int:
-    from magcal.ac.estimator import apply_upload, params_from_json
+    from magcal.ac.estimator import apply_params
     from magcal.io.csv import read_csv_frame, write_csv_frame
     from magcal.io.jsonio import read_json
 
     src = existing_file(args.input)
     params_path = existing_file(args.params)
     doc = read_json(params_path, required=("M", "target"))
-    M, G, _target = params_from_json(doc, file=params_path)
     frame = read_csv_frame(src)
     try:
-        out = apply_upload(frame, M, G, pure_ac=args.pure_ac)
+        out, warnings = apply_params(frame, doc, pure_ac=args.pure_ac,
+                                     keep_correction_offset=args.keep_correction_offset,
+                                     file=params_path)
     except InputError as exc:
+        if exc.file is not None:
+            raise
         raise InputError(exc.message, file=src, column=exc.column) from None
     write_csv_frame(args.output, out, float_format="%.6f")
+    for warning in warnings:
+        print(f"magcal picog apply: warning: {warning}", file=sys.stderr)
     return 0
