@@ -1,0 +1,224 @@
+"""The chain configuration (``CHAIN.toml``): parsed with :mod:`tomllib`, checked key by key.
+
+Every section is a frozen dataclass; an unknown section or key, a wrong type or a
+missing required key is an :class:`~magcal.errors.InputError` naming the file, the
+section and the key. Paths are relative to the TOML file. The schema, with defaults,
+is documented in the README ("Chain configuration") and in :data:`SCHEMA`.
+"""
+
+from __future__ import annotations
+
+import glob
+import tomllib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from magcal.errors import InputError
+
+_MISSING = object()
+
+#: section -> key -> (type(s), default; _MISSING = required). Documented in the README.
+SCHEMA: dict[str, dict[str, tuple]] = {
+    "input": {"files": (list, _MISSING), "format": (str, "auto"), "target": (str, None),
+              "sensors": (list, None), "frame": (str, "hpen"), "simulate": (dict, None),
+              "spacecraft": (str, None)},
+    "frames": {"to_common": (dict, {}), "reference": (str, None),
+               "to_hpen": ((str, list), None), "hpen_reference": (str, ""),
+               "fit_offset": ((str, bool), "auto")},
+    "position": {"longitude_deg": ((int, float), None), "latitude_deg": ((int, float), 0.0),
+                 "r_re": ((int, float), 6.6), "columns": (bool, False)},
+    "kp": {"file": (str, None)},
+    "model": {"name": (str, "T89"), "drivers": (str, None), "cache_dir": (str, None),
+              "cadence_s": ((int, float), 60.0), "jobs": (int, None)},
+    "picog": {"plan": (str, "auto"), "on_worse": (str, "raw")},
+    "offsets": {"kp_max": ((int, float), 1.0), "window_days": ((int, float), 28.0),
+                "step_days": ((int, float), 7.0), "method": (str, "median"),
+                "min_used": (int, 720), "cadence_s": ((int, float), 60.0)},
+    "alignment": {"reference": (str, "model"), "mcmc": (bool, False), "seed": (int, 0),
+                  "lt_harmonics": ((str, int), "auto"), "window_days": ((str, int, float), "auto"),
+                  "kp_max": ((int, float), 1.0), "enabled": (bool, True)},
+    "discover": {"enabled": (bool, True), "max_effects": (int, 8), "covariates": (str, None)},
+    "report": {"enabled": (bool, True), "pdf": (bool, False)},
+    "truth": {"file": (str, None)},
+    "spin": {"spin_period_s": ((int, float), None), "flipper": (bool, True),
+             "units": (str, "nT")},
+}
+#: Sections a spinning-spacecraft chain may hold.
+SPIN_SECTIONS = ("input", "spin", "report", "truth")
+
+
+@dataclass(frozen=True)
+class ChainConfig:
+    """A parsed, checked ``CHAIN.toml``.
+
+    Attributes
+    ----------
+    path : pathlib.Path
+        The TOML file (relative paths in it are relative to its folder).
+    sections : dict
+        ``section -> {key: value}`` with defaults filled in.
+    kind : {"geostationary", "spin"}
+        ``spin`` when the file has a ``[spin]`` section.
+    """
+
+    path: Path
+    sections: dict = field(default_factory=dict)
+    kind: str = "geostationary"
+
+    def __getitem__(self, section: str) -> dict:
+        return self.sections[section]
+
+    def resolve(self, relative: str | None) -> Path | None:
+        """A path from the file, relative to the TOML file's folder."""
+        if relative is None:
+            return None
+        p = Path(relative).expanduser()
+        return p if p.is_absolute() else (self.path.parent / p)
+
+    def input_files(self) -> list[Path]:
+        """The input files: every glob of ``[input] files`` expanded, sorted, unique."""
+        found: list[Path] = []
+        for pattern in self["input"]["files"]:
+            full = self.resolve(pattern)
+            hits = sorted(Path(h) for h in glob.glob(str(full)))
+            if not hits:
+                raise InputError(f"[input] files: {pattern!r} matches no file", file=self.path)
+            found += [h for h in hits if h.is_file() and h not in found]
+        return found
+
+    def as_dict(self) -> dict:
+        """The configuration as recorded in provenance (paths as written)."""
+        return {"path": str(self.path), "kind": self.kind, **asdict(self)["sections"]}
+
+
+def _check_type(value, types, where: str, path: Path):
+    if isinstance(value, bool) and bool not in (types if isinstance(types, tuple) else (types,)):
+        raise InputError(f"{where} must be {_type_names(types)}, not a boolean", file=path)
+    if not isinstance(value, types):
+        raise InputError(f"{where} must be {_type_names(types)}, got {value!r}", file=path)
+
+
+def _type_names(types) -> str:
+    names = {list: "a list", str: "a string", dict: "a table", bool: "true or false",
+             int: "an integer", float: "a number"}
+    types = types if isinstance(types, tuple) else (types,)
+    return " or ".join(dict.fromkeys(names.get(t, t.__name__) for t in types))
+
+
+def _section(name: str, given: Any, path: Path) -> dict:
+    schema = SCHEMA[name]
+    if not isinstance(given, dict):
+        raise InputError(f"[{name}] must be a table", file=path)
+    unknown = [k for k in given if k not in schema]
+    if unknown:
+        raise InputError(f"[{name}] unknown key {unknown[0]!r} (known: "
+                         f"{', '.join(schema)})", file=path, column=f"{name}.{unknown[0]}")
+    out = {}
+    for key, (types, default) in schema.items():
+        if key in given:
+            _check_type(given[key], types, f"[{name}] {key}", path)
+            out[key] = given[key]
+        elif default is _MISSING:
+            raise InputError(f"[{name}] needs the key {key!r}", file=path,
+                             column=f"{name}.{key}")
+        else:
+            out[key] = default
+    return out
+
+
+def parse_chain_config(text: str, path: str | Path) -> ChainConfig:
+    """Parse and check the TOML text of a chain configuration.
+
+    Examples
+    --------
+    >>> cfg = parse_chain_config('[input]\\nfiles = ["raw/*.csv"]\\ntarget = "fgmo"\\n'
+    ...                          '[position]\\nlongitude_deg = 128.2\\n', "CHAIN.toml")
+    >>> cfg["offsets"]["window_days"], cfg["picog"]["plan"], cfg.kind
+    (28.0, 'auto', 'geostationary')
+    >>> parse_chain_config('[input]\\nfiles = ["a.csv"]\\nfile = 1\\n', "C.toml")
+    Traceback (most recent call last):
+    ...
+    magcal.errors.InputError: C.toml: column input.file: [input] unknown key 'file' (known: files, format, target, sensors, frame, simulate, spacecraft)
+    """
+    path = Path(path)
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"not valid TOML ({exc})", file=path) from None
+    unknown = [k for k in doc if k not in SCHEMA]
+    if unknown:
+        raise InputError(f"unknown section [{unknown[0]}] (known: {', '.join(SCHEMA)})",
+                         file=path, column=unknown[0])
+    if "input" not in doc:
+        raise InputError("needs an [input] section with files = [...]", file=path,
+                         column="input")
+    kind = "spin" if "spin" in doc else "geostationary"
+    if kind == "spin":
+        extra = [k for k in doc if k not in SPIN_SECTIONS]
+        if extra:
+            raise InputError(f"section [{extra[0]}] does not apply to a spinning-spacecraft "
+                             f"chain (allowed: {', '.join(SPIN_SECTIONS)})", file=path,
+                             column=extra[0])
+    sections = {name: _section(name, doc.get(name, {}), path) for name in SCHEMA}
+    _check_values(sections, path, kind)
+    return ChainConfig(path=path, sections=sections, kind=kind)
+
+
+def _check_values(s: dict, path: Path, kind: str) -> None:
+    from magcal.io.formats import FORMATS
+
+    if not s["input"]["files"] or not all(isinstance(f, str) for f in s["input"]["files"]):
+        raise InputError("[input] files must be a non-empty list of paths or globs", file=path)
+    if s["input"]["format"] not in ("auto",) + FORMATS:
+        raise InputError(f"[input] format {s['input']['format']!r}: use auto or one of "
+                         f"{', '.join(FORMATS)}", file=path)
+    if kind == "spin":
+        return
+    pos = s["position"]
+    if pos["longitude_deg"] is None and not pos["columns"]:
+        raise InputError("[position] needs longitude_deg (geostationary) or columns = true "
+                         "(lon_deg,lat_deg,r_re in the input)", file=path, column="position")
+    if s["picog"]["on_worse"] not in ("raw", "keep"):
+        raise InputError(f"[picog] on_worse {s['picog']['on_worse']!r}: use raw (deliver the "
+                         "uncleaned target when cleaning makes a band worse) or keep",
+                         file=path)
+    if s["offsets"]["method"] not in ("median", "lt_balanced"):
+        raise InputError(f"[offsets] method {s['offsets']['method']!r}: use median or "
+                         "lt_balanced", file=path)
+    for key in ("window_days", "step_days"):
+        if s["offsets"][key] <= 0:
+            raise InputError(f"[offsets] {key} must be positive", file=path)
+    if s["model"]["name"].upper() not in ("IGRF", "T89", "T96", "T01", "T04"):
+        raise InputError(f"[model] name {s['model']['name']!r}: use IGRF, T89, T96, T01 or "
+                         "T04", file=path)
+    for sensor, spec in s["frames"]["to_common"].items():
+        if not (spec in ("estimate", "identity") or _is_matrix(spec)):
+            raise InputError(f"[frames] to_common.{sensor} must be \"estimate\", \"identity\" "
+                             "or a 3x3 matrix (three rows)", file=path)
+        if spec == "estimate" and not s["frames"]["reference"]:
+            raise InputError("[frames] to_common 'estimate' needs reference = <sensor holding "
+                             "the combined field in the common frame>", file=path)
+    hp = s["frames"]["to_hpen"]
+    if hp is not None and not (hp in ("estimate", "identity") or _is_matrix(hp)):
+        raise InputError("[frames] to_hpen must be \"estimate\", \"identity\" or a 3x3 "
+                         "matrix", file=path)
+
+
+def _is_matrix(spec) -> bool:
+    return (isinstance(spec, list) and len(spec) == 3
+            and all(isinstance(r, list) and len(r) == 3 for r in spec)
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                    for r in spec for v in r))
+
+
+def read_chain_config(path: str | Path) -> ChainConfig:
+    """Read ``CHAIN.toml`` (see :func:`parse_chain_config`)."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError("chain configuration not found", file=p)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read as UTF-8 text ({exc})", file=p) from None
+    return parse_chain_config(text, p)
