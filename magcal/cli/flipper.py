@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import numpy as np
-
 from magcal.cli._common import add_output, existing_file
-from magcal.cli.spincal import add_spin_arguments, load_spin_data
+from magcal.cli.spincal import add_spin_arguments
 from magcal.errors import InputError
 
 
@@ -28,45 +26,27 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from magcal.io.jsonio import read_json, write_json
     from magcal.provenance import make_provenance
-    from magcal.spin.flipper import flipper_offset
+    from magcal.spin.inputs import load_spin_data
+    from magcal.spin.product import complete_calibration, flipper
 
     src = existing_file(args.input)
-    data = load_spin_data(src, args.spin_period, args.t0)
-    if data["flip"] is None:
-        raise InputError("no flip column: flipper intervals missing (need rows with flip = 1 "
-                         "and flip = 0)", file=src, column="flip")
+    if args.complete and not args.cal:
+        raise InputError("--complete needs --cal CAL.json")
+    data = load_spin_data(src, args.spin_period, args.t0, scale=args.scale,
+                          spin_sense=args.spin_sense, require_flip=True)
     inputs = [src]
-    c = o = None
     cal_doc = None
     if args.cal:
         cal_path = existing_file(args.cal)
         cal_doc = read_json(cal_path, required=("coupling", "offsets"))
-        c = np.asarray(cal_doc["coupling"], dtype=float)
-        o = np.asarray(cal_doc["offsets"], dtype=float)
         inputs.append(cal_path)
-    elif args.complete:
-        raise InputError("--complete needs --cal CAL.json")
-    params = {"spin_period_s": args.spin_period, "t0": args.t0, "cal": args.cal}
-    try:
-        res = flipper_offset(data["t_s"], data["b"], data["phase"], data["flip"],
-                             coupling=c, offsets=o,
-                             provenance=make_provenance("flipper", params, inputs=inputs))
-    except InputError as exc:
-        raise InputError(exc.message, file=src, column=exc.column) from None
-    payload = res.to_json()
-    payload["spin_phase"] = {"source": data["phase_source"], **data["phase_info"]}
-    write_json(args.output, payload)
+    params = {"spin_period_s": args.spin_period, "t0": args.t0, "cal": args.cal,
+              "scale": args.scale, "spin_sense": args.spin_sense}
+    product = flipper(data, coupling=None if cal_doc is None else cal_doc["coupling"],
+                      offsets=None if cal_doc is None else cal_doc["offsets"],
+                      provenance=make_provenance("flipper", params, inputs=inputs))
+    write_json(args.output, product.to_json())
     if args.complete:
-        d_o3 = res.O3 - o[2]
-        o_new = o.copy()
-        o_new[:2] -= np.linalg.solve(c[:2, :2], c[:2, 2] * d_o3)
-        o_new[2] = res.O3
-        done = dict(cal_doc)
-        done["offsets"] = o_new.tolist()
-        done["determined"] = list(cal_doc.get("determined", [])) + ["O3"]
-        done["fixed"] = [n for n in cal_doc.get("fixed", []) if n != "O3"]
-        done.setdefault("std", {})["O3"] = res.O3_std
-        done["notes"] = list(cal_doc.get("notes", [])) + [
-            f"O3 from the flipper ({args.input}): O1, O2 adjusted to keep the spin plane"]
-        write_json(args.complete, done)
+        write_json(args.complete, complete_calibration(cal_doc, product.result.O3,
+                                                       product.result.O3_std, args.input))
     return 0

@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import numpy as np
-
 from magcal.cli._common import add_output, existing_file
 from magcal.errors import InputError
+from magcal.spin.inputs import SPIN_SENSES
 
 
 def register(subparsers) -> None:
@@ -32,114 +31,47 @@ def register(subparsers) -> None:
 
 
 def add_spin_arguments(p) -> None:
-    """Options shared by ``spincal`` and ``flipper``: how to get the spin phase."""
+    """Options shared by ``spincal`` and ``flipper``: phase, units and spin sense."""
     p.add_argument("--spin-period", type=float, default=None,
                    help="spin period S in seconds, used when there is no phase column")
     p.add_argument("--t0", default=None,
                    help="reference time (ISO-8601 UTC) of phase 0 with --spin-period "
                         "(default: the first sample)")
-
-
-def load_spin_data(path, spin_period_s=None, t0=None) -> dict:
-    """Read a spinning-spacecraft CSV and resolve the spin phase.
-
-    Returns a dict with ``frame`` (rows with all of b1..b3), ``t_s`` (seconds from the
-    first row), ``b`` (n, 3), ``phase`` (unwrapped), ``flip`` (or None),
-    ``phase_source`` and ``phase_info``.
-    """
-    import pandas as pd
-
-    from magcal.io.csv import read_csv_frame
-    from magcal.spin.despin import check_period_consistent, phase_from_data, phase_from_period
-
-    frame = read_csv_frame(path, required=["b1", "b2", "b3"])
-    good = frame[["b1", "b2", "b3"]].notna().all(axis=1).to_numpy()
-    n_missing = int((~good).sum())
-    frame = frame[good]
-    if len(frame) < 3:
-        raise InputError("fewer than 3 rows with all of b1, b2, b3", file=path)
-    t = (frame.index - frame.index[0]).total_seconds().to_numpy()
-    b = frame[["b1", "b2", "b3"]].to_numpy()
-    flip = None
-    if "flip" in frame.columns:
-        f = frame["flip"].to_numpy()
-        if np.isnan(f).any() or not np.all(np.isin(f, (0.0, 1.0))):
-            bad = int(np.flatnonzero(np.isnan(f) | ~np.isin(f, (0.0, 1.0)))[0])
-            raise InputError("flip must be 0 or 1", file=path, column="flip",
-                             row=int(np.flatnonzero(good)[bad]) + 2)
-        flip = f.astype(int)
-    info: dict = {}
-    # The two spin-plane sensors: b1, b2; with the flipper in position 1, b3 and b2.
-    plane_x = b[:, 0] if flip is None else np.where(flip == 1, b[:, 2], b[:, 0])
-    if "phase" in frame.columns:
-        ph = frame["phase"].to_numpy()
-        if np.isnan(ph).any():
-            bad = int(np.flatnonzero(np.isnan(ph))[0])
-            raise InputError("missing spin phase", file=path, column="phase",
-                             row=int(np.flatnonzero(good)[bad]) + 2)
-        phase = np.unwrap(ph)
-        source = "phase column"
-    elif spin_period_s is not None:
-        t0_s = None
-        if t0 is not None:
-            try:
-                ref = pd.Timestamp(t0)
-            except ValueError:
-                raise InputError(f"cannot parse --t0 {t0!r} as ISO-8601 UTC") from None
-            ref = ref.tz_localize("UTC") if ref.tzinfo is None else ref.tz_convert("UTC")
-            t0_s = (ref - frame.index[0]).total_seconds()
-        phase = phase_from_period(t, spin_period_s, t0_s)
-        source = f"spin period {spin_period_s:g} s"
-        try:
-            derived, info = phase_from_data(t, plane_x, b[:, 1])
-        except InputError:
-            derived = None
-        if derived is not None:
-            try:
-                check_period_consistent(t, derived, spin_period_s)
-            except InputError as exc:
-                raise InputError(exc.message, file=path, column="time") from None
-    else:
-        phase, info = phase_from_data(t, plane_x, b[:, 1])
-        source = "derived from the rotation of b1, b2"
-    return {"frame": frame, "t_s": t, "b": b, "phase": phase, "flip": flip,
-            "phase_source": source, "phase_info": info, "n_missing_rows": n_missing}
+    p.add_argument("--scale", type=float, default=1.0, metavar="NT_PER_UNIT",
+                   help="nT per input unit (e.g. nT per count for raw counts); the readings "
+                        "are multiplied by it (default 1: input in nT)")
+    p.add_argument("--spin-sense", choices=SPIN_SENSES, default="positive",
+                   help="spin sense about sensor 3: positive (the contract's phase "
+                        "2 pi (t - t0) / S, default), negative, or auto (taken from the "
+                        "readings); input turning the other way is refused")
 
 
 def run(args) -> int:
     from magcal.io.jsonio import read_json, write_json
     from magcal.provenance import make_provenance
-    from magcal.spin.ripple import fit_spin_ripple
+    from magcal.spin.inputs import load_spin_data
+    from magcal.spin.product import spincal
 
     src = existing_file(args.input)
-    data = load_spin_data(src, args.spin_period, args.t0)
+    data = load_spin_data(src, args.spin_period, args.t0, scale=args.scale,
+                          spin_sense=args.spin_sense, flip_state=args.flip_state)
     inputs = [src]
     c0 = o0 = None
     if args.prior:
         prior_path = existing_file(args.prior)
         prior = read_json(prior_path, required=("coupling", "offsets"))
-        c0 = np.asarray(prior["coupling"], dtype=float)
-        o0 = np.asarray(prior["offsets"], dtype=float)
-        if c0.shape != (3, 3) or o0.shape != (3,):
-            raise InputError("coupling must be 3x3 and offsets 3 numbers", file=prior_path)
+        c0, o0 = prior["coupling"], prior["offsets"]
         inputs.append(prior_path)
-    sel = np.ones(data["t_s"].size, dtype=bool)
-    if data["flip"] is not None:
-        sel = data["flip"] == args.flip_state
-        if not sel.any():
-            raise InputError(f"no rows with flip = {args.flip_state}", file=src, column="flip")
     params = {"spin_period_s": args.spin_period, "t0": args.t0, "harmonics": args.harmonics,
               "spins_per_block": args.spins_per_block, "flip_state": args.flip_state,
-              "prior": args.prior}
+              "prior": args.prior, "scale": args.scale, "spin_sense": args.spin_sense}
     try:
-        cal = fit_spin_ripple(data["t_s"][sel], data["b"][sel], data["phase"][sel],
-                              coupling0=c0, offsets0=o0, n_harmonics=args.harmonics,
-                              spins_per_block=args.spins_per_block,
-                              provenance=make_provenance("spincal", params, inputs=inputs))
+        product = spincal(data, coupling0=c0, offsets0=o0, n_harmonics=args.harmonics,
+                          spins_per_block=args.spins_per_block, flip_state=args.flip_state,
+                          provenance=make_provenance("spincal", params, inputs=inputs))
     except InputError as exc:
-        raise InputError(exc.message, file=src, column=exc.column) from None
-    payload = cal.to_json()
-    payload["spin_phase"] = {"source": data["phase_source"], **data["phase_info"]}
-    payload["n_rows_missing_values"] = data["n_missing_rows"]
-    write_json(args.output, payload)
+        if exc.file is None and args.prior:
+            raise InputError(exc.message, file=args.prior) from None
+        raise
+    write_json(args.output, product.to_json())
     return 0

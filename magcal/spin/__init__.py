@@ -1,5 +1,9 @@
 """Calibration of spinning spacecraft (Kivelson et al. 1992, Galileo magnetometer).
 
+* :mod:`magcal.spin.inputs` - reading a record, units (scale), spin sense, and the
+  checks that refuse input breaking the model (counts as nT, spin tone on all axes).
+* :mod:`magcal.spin.product` - the ``spincal`` and ``flipper`` products of a checked
+  record.
 * :mod:`magcal.spin.despin` - despinning and the spin phase (given, from a period, or
   derived from the data).
 * :mod:`magcal.spin.harmonics` - spin-harmonic content of signals spin by spin.

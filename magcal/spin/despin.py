@@ -109,7 +109,8 @@ def phase_from_data(t_s, b1, b2, *, degree: int = 2,
     --------
     >>> import numpy as np
     >>> t = np.arange(0, 200, 0.25)
-    >>> p, info = phase_from_data(t, 30 * np.cos(-2 * np.pi * t / 20 + 1), 30 * np.sin(-2 * np.pi * t / 20 + 1))
+    >>> ang = -2 * np.pi * t / 20 + 1
+    >>> p, info = phase_from_data(t, 30 * np.cos(ang), 30 * np.sin(ang))
     >>> round(info["spin_period_s"], 6)
     20.0
     """

@@ -5,8 +5,8 @@ where the ambient field only modulates it at the spin frequency: the spin averag
 its reading is its offset ``O3``. A small tilt of sensor 3 out of the spin plane lets
 the spin-axis field ``Bz`` into that average; with the coupling matrix and ``O1`` from
 the ripple fit of position 0 the leak is removed spin by spin, with ``Bz`` measured by
-sensor 1, which the flip has turned onto the spin axis. ``O3`` then completes the 12 parameters: ``O1, O2``
-are moved so that ``C (b - O)`` stays the same in the spin plane.
+sensor 1, which the flip has turned onto the spin axis. ``O3`` then completes the 12
+parameters: ``O1, O2`` are moved so that ``C (b - O)`` stays the same in the spin plane.
 """
 
 from __future__ import annotations

@@ -116,7 +116,10 @@ def _tone_from_coefs(coef: np.ndarray) -> SpinTone:
     cos = coef[:, 0::2, :]
     sin = coef[:, 1::2, :]
     amp = np.hypot(cos.mean(axis=0), sin.mean(axis=0)).T
-    var = cos.var(axis=0, ddof=1) + sin.var(axis=0, ddof=1) if nb > 1 else np.full(cos.shape[1:], np.nan)
+    if nb > 1:
+        var = cos.var(axis=0, ddof=1) + sin.var(axis=0, ddof=1)
+    else:
+        var = np.full(cos.shape[1:], np.nan)
     floor = np.sqrt(var / nb).T
     return SpinTone(amplitude_nT=amp, noise_floor_nT=floor)
 

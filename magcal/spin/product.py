@@ -1,0 +1,159 @@
+"""The ``spincal`` and ``flipper`` products from a checked :class:`~magcal.spin.inputs.SpinData`.
+
+Both verbs read the record with :func:`magcal.spin.inputs.load_spin_data`, which
+checks the model's assumptions and brings a negatively spinning triad into the
+positive sense; the fits run in that frame and the calibration is turned back into
+the file's sensor frame here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from magcal.errors import InputError
+from magcal.io.jsonio import product_dict
+from magcal.spin.inputs import SENSE_FLIP, SpinData
+from magcal.spin.ripple import PARAM_NAMES, SpinCalibration, fit_spin_ripple
+
+#: Sign each of the 12 parameters takes under ``SENSE_FLIP`` (c_ij -> r_i r_j c_ij).
+_R = np.diag(SENSE_FLIP)
+_PARAM_SIGN = np.concatenate([np.outer(_R, _R).ravel(), _R])
+
+
+@dataclass(frozen=True)
+class SpinCalProduct:
+    """CAL.json: the calibration plus how the phase and units were resolved."""
+
+    calibration: SpinCalibration
+    spin_phase: dict = field(default_factory=dict)
+    n_rows_missing_values: int = 0
+
+    def to_json(self) -> dict:
+        """CAL.json payload (CONTRACTS §4 keys, then ``spin_phase``)."""
+        out = self.calibration.to_json()
+        out["spin_phase"] = self.spin_phase
+        out["n_rows_missing_values"] = self.n_rows_missing_values
+        return product_dict(out)
+
+
+def _unflip(cal: SpinCalibration) -> SpinCalibration:
+    """Turn a calibration fitted in the ``SENSE_FLIP`` frame back into the file's frame."""
+    sign = dict(zip(PARAM_NAMES, _PARAM_SIGN))
+    cov_sign = np.array([sign[n] for n in cal.determined])
+    note = ("negative spin sense: fitted with the triad turned 180 deg about sensor 1 "
+            "(b2, b3 negated); C and O are given in the file's sensor frame, the spin "
+            "tones about -b3")
+    return dataclasses.replace(
+        cal, coupling=SENSE_FLIP @ cal.coupling @ SENSE_FLIP,
+        offsets_nT=SENSE_FLIP @ cal.offsets_nT,
+        covariance=np.asarray(cal.covariance) * np.outer(cov_sign, cov_sign),
+        notes=tuple(cal.notes) + (note,))
+
+
+def spincal(data: SpinData, *, coupling0=None, offsets0=None, n_harmonics: int = 2,
+            spins_per_block: int = 1, flip_state: int = 0,
+            provenance: dict | None = None) -> SpinCalProduct:
+    """Spin-ripple calibration of a checked record (``magcal spincal``).
+
+    Parameters
+    ----------
+    data : SpinData
+        From :func:`magcal.spin.inputs.load_spin_data`.
+    coupling0, offsets0 : array_like, optional
+        Priors in the file's sensor frame (nT after the data's scale).
+    n_harmonics, spins_per_block : int
+        See :func:`magcal.spin.ripple.fit_spin_ripple`.
+    flip_state : int
+        With a flip column, the rows calibrated.
+    provenance : dict, optional
+
+    Returns
+    -------
+    SpinCalProduct
+    """
+    c0 = np.eye(3) if coupling0 is None else np.asarray(coupling0, dtype=float)
+    o0 = np.zeros(3) if offsets0 is None else np.asarray(offsets0, dtype=float)
+    if c0.shape != (3, 3) or o0.shape != (3,):
+        raise InputError("prior coupling must be 3x3 and offsets 3 numbers")
+    if data.sense < 0:
+        c0, o0 = SENSE_FLIP @ c0 @ SENSE_FLIP, SENSE_FLIP @ o0
+    sel = np.ones(data.t_s.size, dtype=bool)
+    if data.flip is not None:
+        sel = data.flip == flip_state
+        if not sel.any():
+            raise InputError(f"no rows with flip = {flip_state}", file=data.source,
+                             column="flip")
+    try:
+        cal = fit_spin_ripple(data.t_s[sel], data.b[sel], data.phase[sel], coupling0=c0,
+                              offsets0=o0, n_harmonics=n_harmonics,
+                              spins_per_block=spins_per_block, provenance=provenance)
+    except InputError as exc:
+        raise InputError(exc.message, file=data.source, column=exc.column) from None
+    if data.sense < 0:
+        cal = _unflip(cal)
+    return SpinCalProduct(calibration=cal, spin_phase=data.phase_record(),
+                          n_rows_missing_values=data.n_missing_rows)
+
+
+@dataclass(frozen=True)
+class FlipperProduct:
+    """FLIP.json: the flipper result plus how the phase and units were resolved."""
+
+    result: object
+    spin_phase: dict = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        """FLIP.json payload (CONTRACTS §4 keys, then ``spin_phase``)."""
+        out = self.result.to_json()
+        out["spin_phase"] = self.spin_phase
+        return product_dict(out)
+
+
+def flipper(data: SpinData, *, coupling=None, offsets=None,
+            provenance: dict | None = None) -> FlipperProduct:
+    """Spin-axis offset ``O3`` from the flipper intervals of a checked record.
+
+    Raises
+    ------
+    InputError
+        No flip column, or a record spinning negatively about sensor 3 (the flipper
+        geometry of :data:`magcal.spin.flipper.FLIP_MATRIX` assumes the positive sense).
+    """
+    from magcal.spin.flipper import flipper_offset
+
+    if data.flip is None:
+        raise InputError("no flip column: flipper intervals missing (need rows with flip = 1 "
+                         "and flip = 0)", file=data.source, column="flip")
+    if data.sense < 0:
+        raise InputError("the flipper analysis assumes a positive spin about sensor 3; "
+                         "this record spins the other way", file=data.source, column="b3")
+    try:
+        res = flipper_offset(data.t_s, data.b, data.phase, data.flip, coupling=coupling,
+                             offsets=offsets, provenance=provenance)
+    except InputError as exc:
+        raise InputError(exc.message, file=data.source, column=exc.column) from None
+    return FlipperProduct(result=res, spin_phase=data.phase_record())
+
+
+def complete_calibration(cal_doc: dict, o3: float, o3_std: float, source: str) -> dict:
+    """A CAL.json document completed with the flipper's ``O3``.
+
+    ``O1, O2`` move so that ``C (b - O)`` stays the same in the spin plane.
+    """
+    c = np.asarray(cal_doc["coupling"], dtype=float)
+    o = np.asarray(cal_doc["offsets"], dtype=float)
+    d_o3 = o3 - o[2]
+    o_new = o.copy()
+    o_new[:2] -= np.linalg.solve(c[:2, :2], c[:2, 2] * d_o3)
+    o_new[2] = o3
+    done = dict(cal_doc)
+    done["offsets"] = o_new.tolist()
+    done["determined"] = list(cal_doc.get("determined", [])) + ["O3"]
+    done["fixed"] = [n for n in cal_doc.get("fixed", []) if n != "O3"]
+    done["std"] = dict(cal_doc.get("std", {}), O3=o3_std)
+    done["notes"] = list(cal_doc.get("notes", [])) + [
+        f"O3 from the flipper ({source}): O1, O2 adjusted to keep the spin plane"]
+    return done
