@@ -6,7 +6,8 @@ import pytest
 from numpy.testing import assert_allclose
 
 from magcal.ac.chain import Order, Plan, Stage, apply_weights, run_chain
-from magcal.ac.joint import Selection, event_intervals, fit_joint
+from magcal.ac.events import event_intervals
+from magcal.ac.joint import Selection, fit_joint
 from magcal.ac.metrics import disturbance_power_ratio
 from magcal.ac.plan import plan_from_dict, plan_to_dict
 from magcal.errors import InputError

@@ -8,9 +8,9 @@ import numpy as np
 from numpy.testing import assert_allclose
 
 from magcal.ac.chain import Order
+from magcal.ac.events import event_masks
 from magcal.ac.joint import (
     Selection,
-    event_masks,
     fit_joint,
     flank_ambient,
     flank_ambient_error,

@@ -9,6 +9,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from magcal.ac import events, stability
+from magcal.ac.plan import plan_from_json
+from magcal.errors import InputError
 from magcal.io.csv import write_csv_frame
 from magcal.io.jsonio import write_json
 from magcal.report import ac_quality as q
@@ -35,7 +38,7 @@ def test_remnants_of_a_known_step_spike_and_noise(rng):
     t, amb, dist = _disturbed(rng)
     raw, clean = amb + dist, amb + 0.1 * dist
     diff = 3.0 * dist + rng.normal(0, 0.001, dist.shape)   # inboard sees 4x, outboard 1x
-    out = q.remnants(raw, clean, diff, t)
+    out = events.remnants(raw, clean, diff, t)
     st, sp, hf = out["steps"], out["spikes"], out["hf"]
     assert st["n"] == 1 and sp["n"] == 1
     np.testing.assert_allclose(st["times_s"], [4999.5], atol=1.0)
@@ -59,8 +62,8 @@ def test_remnants_of_a_known_step_spike_and_noise(rng):
 def test_noise_alone_gives_no_events(rng):
     t = np.arange(20000.0)
     d = rng.normal(0, 0.3, (20000, 3))
-    assert q.detect_steps(d, t).size == 0
-    assert q.detect_spikes(d, t).size == 0
+    assert events.detect_steps(d, t).size == 0
+    assert events.detect_spikes(d, t).size == 0
 
 
 DAY = 86400.0
@@ -90,9 +93,9 @@ def _plan(interval=None):
 def test_identical_days_have_zero_spread(rng):
     u = np.array([0.0, 0.6, 0.8])
     frame, _ = _three_days(rng, [u, u, u])
-    fits = q.daily_refits(frame, _plan())
+    fits = stability.daily_refits(frame, _plan())
     assert [f["day"] for f in fits] == ["2019-03-04", "2019-03-05", "2019-03-06"]
-    out = q.stability(frame, fits)
+    out = stability.stability(frame, fits)
     row = out["steps"][0]
     np.testing.assert_allclose([row["std_direction_i_deg"], row["std_direction_ij_deg"],
                                 row["std_alpha"]], 0.0, atol=1e-6)
@@ -108,8 +111,8 @@ def test_direction_spread_and_bmaxdev_in_closed_form(rng):
     frame, s = _three_days(rng, dirs)
     # interval orders keep their time of day: the first 6 h of each day
     start = pd.Timestamp("2019-03-04", tz="UTC").value / 1e9
-    fits = q.daily_refits(frame, _plan([start, start + 6 * 3600.0]))
-    out = q.stability(frame, fits)
+    fits = stability.daily_refits(frame, _plan([start, start + 6 * 3600.0]))
+    out = stability.stability(frame, fits)
     row = out["steps"][0]
     # RMS angle to the axial mean direction u0: sqrt((0 + 3^2 + 3^2) / 3) deg
     np.testing.assert_allclose(row["std_direction_i_deg"], 3.0 * np.sqrt(2.0 / 3.0), rtol=1e-6)
@@ -129,10 +132,10 @@ def test_short_day_left_out_and_one_day_is_an_error(rng):
     u = np.array([0.0, 0.6, 0.8])
     frame, _ = _three_days(rng, [u, u, u])
     short = frame.iloc[: int(1.3 * DAY / CADENCE)]
-    fits = q.daily_refits(short, _plan())
+    fits = stability.daily_refits(short, _plan())
     assert len(fits) == 1
-    with pytest.raises(q.InputError, match="two daily refits"):
-        q.stability(short, fits)
+    with pytest.raises(InputError, match="two daily refits"):
+        stability.stability(short, fits)
 
 
 def test_write_ac_quality_product(rng, tmp_path):
@@ -142,7 +145,7 @@ def test_write_ac_quality_product(rng, tmp_path):
     write_csv_frame(raw_path, frame)
     from magcal.ac.estimator import PiCoG
 
-    model = PiCoG(q.plan_from_params(_plan())).fit(frame)
+    model = PiCoG(plan_from_json(_plan())).fit(frame)
     (tmp_path / "ac").mkdir()
     write_json(tmp_path / "ac" / "PARAMS_x.json", model.to_params())
     write_csv_frame(tmp_path / "ac" / "CLEAN_x.csv.gz", model.transform(frame))
@@ -158,14 +161,13 @@ def test_plan_round_trip_keeps_joint_and_band_orders():
     # daily refits must rebuild exactly the plan that was fitted (joint pair, band order)
     from magcal.ac.chain import Order, Plan, Stage
     from magcal.ac.plan import plan_to_dict
-    from magcal.report.ac_quality import plan_from_params
 
     plan = Plan("fgmo", (
         Stage("reference", ("fgmo", "fgmi"), reference="amr1",
               orders=(Order(interval=(10.0, 20.0)),)),
         Stage("pair", ("fgmo", "fgmi"), joint=True, event_half_s=60.0, min_snr=4.0,
               orders=(Order(window_s=100.0), Order(band_hz=(0.16, 0.17))))))
-    assert plan_from_params(plan_to_dict(plan)) == plan
+    assert plan_from_json(plan_to_dict(plan)) == plan
 
 
 def test_joint_steps_report_matrix_spread(rng):
@@ -178,5 +180,5 @@ def test_joint_steps_report_matrix_spread(rng):
         A[0, 1] += a
         refits.append({"day": day, "M": {"o": np.eye(3)}, "steps": [
             {"stage": 2, "order": 1, "i": "o", "j": "i", "kind": "joint", "A": A.tolist()}]})
-    row = q.stability(frame, refits)["steps"][0]
+    row = stability.stability(frame, refits)["steps"][0]
     np.testing.assert_allclose(row["std_matrix_max"], 0.1, rtol=1e-12)

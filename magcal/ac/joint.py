@@ -1,51 +1,33 @@
 """Joint pair fit: one constant 3x3 correction per sensor from several selections.
 
-A PiCoG pair stage fits one rank-one order per selection (window scan, band, interval)
-and chains them; each order undoes part of the previous ones. The joint fit instead
-collects, for every selection ``s`` of the same pair, the cross-covariance of the
-cleaned sensor with the difference ``C_id,s`` and the difference covariance
-``C_dd,s``, and solves for one full matrix
+A PiCoG pair stage fits one rank-one order per selection and chains them, each order
+undoing part of the previous ones. The joint fit instead collects, for every selection
+``s`` of the same pair, the cross-covariance of the cleaned sensor with the difference
+``C_id,s`` and the difference covariance ``C_dd,s``, and solves for one full matrix
 
     ``K = -(sum_s w_s C_id,s) (sum_s w_s C_dd,s)^-1``
 
-so that ``B_i + K (B_i - B_j)`` is decorrelated from the difference in the weighted
-sum of the selections. The weights are reweighted minimax-style towards the selection
-whose coherent power (the part of ``B_i`` explained by the difference,
-``tr(r C_dd^+ r^T)`` with ``r = C_id + K C_dd``) is reduced least. A selection whose
-cross-covariance is not above its own chance level (estimated from the data by lagging
-the difference) cannot be cleaned to the target and would make the reweighting chase
-it: it is dropped (``min_snr``).
+so that ``B_i + K (B_i - B_j)`` is decorrelated from the difference over all
+selections. The weights are reweighted minimax-style towards the selection whose
+coherent power (``tr(r C_dd^+ r^T)``, ``r = C_id + K C_dd``) is reduced least; a
+selection not above its own chance level (the difference lagged) is dropped
+(``min_snr``), since the reweighting would chase it.
 
-Selections (from the stage's orders, see :func:`selections`): the windows a
-``window_s`` scan selects, a ``band_hz`` band-pass over the whole record, an
-``interval``; and the events, ``+-event_half_s`` around the largest steps of the
-difference (the midnight ramps with their edge pulses).
-
-Events (``events = "pulse"``, the default): an edge pulse is seen at only two events a
-day, and the ambient field, common to both sensors but present in the cleaned one,
-correlates with it by chance; a Pc5 wave during an event can be larger than the pulse.
-PiCoG decorrelates the cleaned sensor from the difference, so only the ambient's part
-along the pulse matters, and each event is made a matched filter (Constantinescu et
-al. 2020 §2: a disturbance is a fixed moment times a time profile, ``M(t) = m(t) M0``,
-and its profile is seen in the difference free of the ambient; §4: the disturbances'
-own timescales help decouple them): samples near other spikes and steps are masked
-(:func:`event_masks`) instead of dropping the interval, and so are spikes found in the
-cleaned difference (where the ramp no longer hides those next to it), while steps found
-there inside the interval are regressed out with the ramp; both sensors are projected on
-the event's pulse shape in their difference (:func:`pulse_selection`), once as they are
-and once after subtracting the ambient interpolated across the event from its flanks
-(polynomial plus the best Pc4-5 sinusoid, :func:`flank_ambient`; the same field is
-subtracted from both sensors, so the difference is unchanged); the variant whose
-projection stands out more above its chance level (the same projection with the
-template moved to other times) is kept, and the events of the pair are pooled into one
-rank-one selection with inverse-chance weights (:func:`pool_pulses`), kept from
-``pulse_min_snr``. Steps of the cleaned difference outside the events (toggling units)
-are matched filters too (:func:`step_selection`, a quadratic regressed out over
-``+-120 s``): over the windows a step's slow level correlates with the ambient by
-chance, so the steps whose difference signature is parallel to the clearest one
-(:func:`step_group`) are pooled into one more rank-one selection (seed 13 of the
-GK-2A-like day: steps 5.5x -> 12.3x). ``events = "interval"`` keeps the earlier behaviour: one selection per
-whole interval that holds no other detected step or spike (:func:`event_intervals`).
+Selections (:func:`selections`): the windows of a ``window_s`` scan, a ``band_hz``
+band-pass, an ``interval``, and the events around the largest steps of the difference
+(found by :mod:`magcal.ac.events`). Why events are matched filters
+(``events = "pulse"``): an edge pulse is seen at few events a day and the ambient
+field, present in the cleaned sensor, correlates with it by chance. A disturbance is a
+fixed moment times a time profile (Constantinescu et al. 2020, §2), and its profile is
+seen in the difference free of the ambient, so both sensors are projected on the
+event's pulse shape (:func:`pulse_selection`), with other spikes and steps masked and,
+where it helps, the ambient interpolated across the event from its flanks
+(:func:`flank_ambient`); the events of a pair are pooled with inverse-chance weights
+(:func:`pool_pulses`). Steps of the cleaned difference outside the events are matched
+filters in the same way (:func:`step_selection`, pooled per disturber by
+:func:`step_group`). ``events = "interval"`` uses whole intervals free of other events
+instead (:func:`event_intervals`). Measured gains are in CHANGELOG.md and the
+benchmarks.
 """
 
 from __future__ import annotations
@@ -53,9 +35,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
-from magcal.ac.filters import bandpass, highpass, highpass_samples, running_mean
+from magcal.ac.events import cleaned_events, event_intervals, event_windows
+from magcal.ac.filters import bandpass, highpass, highpass_samples
 from magcal.ac.scan import scan_first_order, summarize_scan
 from magcal.errors import InputError
 
@@ -130,127 +112,6 @@ def chance_level(b_i: np.ndarray, b_j: np.ndarray, mask: np.ndarray, dt_s: float
         if m is not None:
             vals.append(coherent_power(*m))
     return float(np.mean(vals)) if vals else float("nan")
-
-
-def _step_and_spike_signals(d: np.ndarray, dt: float, span_s: float):
-    n = max(3, int(round(span_s / dt)))
-    x = np.where(np.isfinite(d), d, 0.0)
-    m = running_mean(x, n)
-    s = np.zeros(len(x))
-    s[n:-n] = np.linalg.norm(m[2 * n:] - m[:-2 * n], axis=1)
-    sp = np.linalg.norm(x - ndimage.median_filter(x, size=(21, 1), mode="nearest"), axis=1)
-    return n, s, sp
-
-
-def _largest_steps(s: np.ndarray, half_n: int, size_fraction: float) -> list[int]:
-    big = []
-    work = s.copy()
-    top = float(s.max())
-    while True:
-        p = int(np.argmax(work))
-        if work[p] < size_fraction * top:
-            break
-        # the step signal of a ramp has a flat top: its centre is between the
-        # half-height crossings, not at the (noise-placed) maximum
-        lo, hi = p, p
-        while lo > 0 and s[lo - 1] > 0.5 * s[p]:
-            lo -= 1
-        while hi < len(s) - 1 and s[hi + 1] > 0.5 * s[p]:
-            hi += 1
-        big.append((lo + hi) // 2)
-        work[max(0, p - 2 * half_n):p + 2 * half_n + 1] = 0.0
-    return sorted(big)
-
-
-def _robust_threshold(v: np.ndarray, n_sigma: float) -> float:
-    med = np.median(v)
-    return float(med + n_sigma * 1.4826 * np.median(np.abs(v - med)))
-
-
-def event_intervals(d: np.ndarray, t_s: np.ndarray, *, half_s: float = 120.0,
-                    span_s: float = 60.0, size_fraction: float = 0.3,
-                    n_sigma: float = 6.0) -> list[tuple[float, float]]:
-    """Intervals of ``+-half_s`` around the largest steps of the difference ``d``
-    (at least ``size_fraction`` of the largest), dropping those that hold another step
-    or spike (any other peak of the step or spike signal above ``n_sigma`` robust
-    sigmas).
-
-    Examples
-    --------
-    >>> t = np.arange(4000.0); rng = np.random.default_rng(1)
-    >>> d = rng.normal(0, 0.05, (4000, 3)); d[1000:3000, 2] += 20.0
-    >>> d[3060, 0] += 3.0                    # a spike near the second ramp
-    >>> [tuple(round(v) for v in iv) for iv in event_intervals(d, t)]
-    [(880, 1119)]
-    """
-    t_s = np.asarray(t_s, float)
-    dt = float(np.median(np.diff(t_s)))
-    n, s, sp = _step_and_spike_signals(d, dt, span_s)
-    if not np.any(s > 0):
-        return []
-    half_n = int(round(half_s / dt))
-    thr_s, thr_sp = _robust_threshold(s[n:-n], n_sigma), _robust_threshold(sp, n_sigma)
-    out = []
-    for p in _largest_steps(s, half_n, size_fraction):
-        lo, hi = max(0, p - half_n), min(len(s), p + half_n)
-        # the ramp itself fills the step signal for +-2n samples; a running median
-        # follows a ramp, so the spike signal sees it only near its corners
-        others_s = np.r_[s[lo:max(lo, p - 2 * n)], s[min(hi, p + 2 * n):hi]]
-        others_sp = np.r_[sp[lo:max(lo, p - n)], sp[min(hi, p + n):hi]]
-        if np.any(others_s > thr_s) or np.any(others_sp > thr_sp):
-            continue
-        out.append((float(t_s[lo]), float(t_s[hi - 1])))
-    return out
-
-
-def _event_windows(d, t_s, half_s, guard_s, span_s, size_fraction, n_sigma):
-    """(centre index, keep mask, other-event mask) per large step of ``d``."""
-    t_s = np.asarray(t_s, float)
-    dt = float(np.median(np.diff(t_s)))
-    n, s, sp = _step_and_spike_signals(d, dt, span_s)
-    if not np.any(s > 0):
-        return []
-    half_n, g = int(round(half_s / dt)), max(1, int(round(guard_s / dt)))
-    thr_s, thr_sp = _robust_threshold(s[n:-n], n_sigma), _robust_threshold(sp, n_sigma)
-    bad_s = ndimage.binary_dilation(s > thr_s, np.ones(2 * n + 1, bool))
-    lab_s, lab_sp = ndimage.label(bad_s)[0], ndimage.label(sp > thr_sp)[0]
-    dil = np.ones(2 * g + 1, bool)
-    out = []
-    for p in _largest_steps(s, half_n, size_fraction):
-        # the ramp's own detections are the event, not another one: its step signal
-        # (+-2n samples) and the spike signal at its corners (within n/2 of its centre)
-        own_s = np.unique(lab_s[p])
-        own_sp = np.unique(lab_sp[max(0, p - n // 2):p + n // 2 + 1])
-        spikes = (lab_sp > 0) & ~np.isin(lab_sp, own_sp)
-        # a spike also lifts the step signal: only step detections without a spike in
-        # them are steps (masked over the step detector's span)
-        spiky = np.unique(lab_s[spikes])
-        other = ((bad_s & ~np.isin(lab_s, own_s) & ~np.isin(lab_s, spiky))
-                 | ndimage.binary_dilation(spikes, dil))
-        keep = np.zeros(len(s), bool)
-        keep[max(0, p - half_n):p + half_n + 1] = True
-        out.append((p, keep & ~other, other))
-    return out
-
-
-def event_masks(d: np.ndarray, t_s: np.ndarray, *, half_s: float = 120.0,
-                guard_s: float = 15.0, span_s: float = 60.0, size_fraction: float = 0.3,
-                n_sigma: float = 6.0) -> list[np.ndarray]:
-    """Row masks of ``+-half_s`` around the largest steps of the difference ``d`` (at
-    least ``size_fraction`` of the largest) with the samples within ``guard_s`` of any
-    other spike (and of any other step, over the step detector's span) taken out,
-    instead of dropping the whole interval as :func:`event_intervals` does.
-
-    Examples
-    --------
-    >>> t = np.arange(4000.0); rng = np.random.default_rng(1)
-    >>> d = rng.normal(0, 0.05, (4000, 3)); d[1000:3000, 2] += 20.0
-    >>> d[3060, 0] += 3.0                    # a spike near the second ramp
-    >>> [(int(m.sum()), bool(m[3060])) for m in event_masks(d, t)]
-    [(241, False), (210, False)]
-    """
-    return [m for _, m, _ in _event_windows(d, t_s, half_s, guard_s, span_s,
-                                            size_fraction, n_sigma)]
 
 
 #: periods (s) tried for the ambient wave in :func:`flank_ambient` (Pc4-Pc5 range)
@@ -555,26 +416,6 @@ def step_group(steps: list[Selection], min_snr: float = 2.5,
     return [s for s in good if abs(float(dsig(s) @ ref)) >= min_cos]
 
 
-def _cleaned_events(dc: np.ndarray, dt_s: float, guard_s: float, n_sigma: float = 6.0):
-    """(spike mask with guard, indices of step peaks) of a cleaned difference."""
-    x = np.where(np.isfinite(dc), dc, 0.0)
-    sp = np.linalg.norm(x - ndimage.median_filter(x, size=(21, 1), mode="nearest"), axis=1)
-    g = max(1, int(round(guard_s / dt_s)))
-    spikes = ndimage.binary_dilation(sp > _robust_threshold(sp, n_sigma),
-                                     np.ones(2 * g + 1, bool))
-    n = max(2, int(round(10.0 / dt_s)))
-    m = running_mean(x, n)
-    s = np.zeros(len(x))
-    s[n:-n] = np.linalg.norm(m[2 * n:] - m[:-2 * n], axis=1)
-    s[spikes] = 0.0
-    thr = _robust_threshold(s[n:-n], n_sigma)
-    # a step makes a peak of the step signal; the slope of a pulse only a plateau
-    local = ndimage.median_filter(s, size=12 * n + 1, mode="nearest")
-    peaks = np.flatnonzero((s > thr) & (s > 3.0 * local)
-                           & (s >= ndimage.maximum_filter1d(s, 4 * n + 1)))
-    return spikes, peaks
-
-
 def selections(b_i: np.ndarray, b_j: np.ndarray, t_s: np.ndarray, orders, dt_s: float, *,
                event_half_s: float | None = 120.0,
                event_difference: np.ndarray | None = None,
@@ -630,9 +471,9 @@ def selections(b_i: np.ndarray, b_j: np.ndarray, t_s: np.ndarray, orders, dt_s: 
         return out
     # spikes and steps next to the ramp hide in its detection signals of the raw
     # difference; in the cleaned difference the ramp is (mostly) gone
-    spikes_c, steps_c = _cleaned_events(x - y, dt_s, event_guard_s)
+    spikes_c, steps_c = cleaned_events(x - y, dt_s, event_guard_s)
     pulses = []
-    wins = _event_windows(ev, t_s, event_half_s, event_guard_s, 60.0, 0.3, 6.0)
+    wins = event_windows(ev, t_s, event_half_s, event_guard_s, 60.0, 0.3, 6.0)
     for p, m, other in wins:
         m = m & ~spikes_c
         idx = np.flatnonzero(m)
