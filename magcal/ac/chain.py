@@ -128,19 +128,25 @@ class Plan:
         return out
 
 
-@dataclass(frozen=True)
+def _nan3() -> np.ndarray:
+    return np.full(3, np.nan)
+
+
+@dataclass(frozen=True, kw_only=True)
 class Step:
-    """One fitted correction (one row of PARAMS.json ``steps``)."""
+    """One fitted correction (one row of PARAMS.json ``steps``); keyword construction
+    only. Regression, joint and fixed steps have a full matrix ``A`` and no rank-one
+    parts (``alpha`` and the directions stay NaN)."""
 
     stage: int
     order: int
     i: str
     j: str
-    alpha: float
-    direction_i: np.ndarray
-    direction_ij: np.ndarray
-    window_s: float | None
     A: np.ndarray
+    alpha: float = float("nan")
+    direction_i: np.ndarray = field(default_factory=_nan3)
+    direction_ij: np.ndarray = field(default_factory=_nan3)
+    window_s: float | None = None
     alpha_variance: float = float("nan")
     correlation: float = float("nan")
     n_used: int = 0
@@ -311,8 +317,8 @@ def _joint_steps(stage_no, stage, b_i, b_j, t_s, dt, fixed, raw_diff) -> list:
     i, j = stage.sensors
     key_i, key_j = (stage_no, 1, i), (stage_no, 1, j)
     if key_i in fixed and key_j in fixed:
-        return [Step(stage_no, 1, a, b, float("nan"), np.full(3, np.nan), np.full(3, np.nan),
-                     None, np.asarray(fixed[key], dtype=float), kind="fixed")
+        return [Step(stage=stage_no, order=1, i=a, j=b, A=np.asarray(fixed[key], dtype=float),
+                     kind="fixed")
                 for a, b, key in ((i, j, key_i), (j, i, key_j))]
     sels = selections(b_i, b_j, t_s, stage.orders, dt, event_half_s=stage.event_half_s,
                       event_difference=raw_diff, events=stage.events)
@@ -320,12 +326,118 @@ def _joint_steps(stage_no, stage, b_i, b_j, t_s, dt, fixed, raw_diff) -> list:
     for a, b, ss in ((i, j, sels), (j, i, swap(sels))):
         fit = fit_joint(ss, dt, min_snr=stage.min_snr, pulse_min_snr=stage.pulse_min_snr)
         # the partner: B_j + K_ji (B_j - B_i), which is the chain's A_ji = K_ji
-        out.append(Step(stage_no, 1, a, b, float("nan"), np.full(3, np.nan),
-                        np.full(3, np.nan), None, fit.K, kind="joint",
+        out.append(Step(stage=stage_no, order=1, i=a, j=b, A=fit.K, kind="joint",
                         n_used=int(sum(s.mask.sum() for s in ss)), scan=fit.to_dict(),
                         direction_method=stage.orders[0].direction,
                         highpass_s=stage.orders[0].highpass_s))
     return out
+
+
+class _ChainState:
+    """Working state of :func:`run_chain`: current fields, weights, steps, scans."""
+
+    def __init__(self, *, data, t_s, dt, alpha_method, keep_scans, fixed):
+        self.data, self.t_s, self.dt = data, t_s, dt
+        self.alpha_method, self.keep_scans, self.fixed = alpha_method, keep_scans, fixed
+        self.cur = {s: b.copy() for s, b in data.items()}
+        self.w = {s: {s: np.eye(3)} for s in data}
+        self.steps: list[Step] = []
+        self.scans: dict = {}
+
+    def fit_step(self, stage_no, order_no, order, i, j):
+        """(A, Step) of one order of ``i`` cleaned with ``j`` (or the fixed one)."""
+        key = (stage_no, order_no, i)
+        if key in self.fixed:
+            A = np.asarray(self.fixed[key], dtype=float)
+            return A, Step(stage=stage_no, order=order_no, i=i, j=j, A=A,
+                           window_s=order.window_s, kind="fixed")
+        alpha, e_i, e_ij, info = fit_order(self.cur[i], self.cur[j], self.t_s, order,
+                                           dt_s=self.dt, alpha_method=self.alpha_method,
+                                           keep_scan=self.keep_scans)
+        if "scan_objects" in info:
+            self.scans[key] = info.pop("scan_objects")
+        A = correction_matrix(alpha, e_i, e_ij)
+        return A, Step(stage=stage_no, order=order_no, i=i, j=j, A=A, alpha=float(alpha),
+                       direction_i=np.asarray(e_i), direction_ij=np.asarray(e_ij),
+                       window_s=order.window_s, alpha_variance=info["alpha_variance"],
+                       correlation=info["correlation"], n_used=info["n_used"],
+                       interval=order.interval, scan=info.get("scan"),
+                       direction_method=order.direction, highpass_s=order.highpass_s,
+                       band_hz=order.band_hz)
+
+    def pair_update(self, i, j, A_ij, A_ji):
+        """Apply one pair order to both sensors and their weights (Eqs. 23-26)."""
+        cur, w = self.cur, self.w
+        d = cur[i] - cur[j]
+        cur[i], cur[j] = cur[i] + d @ A_ij.T, cur[j] - d @ A_ji.T
+        w[i], w[j] = _wcombine(w[i], w[j], A_ij), _wcombine(w[j], w[i], A_ji)
+
+
+def _partner_step(stage_no, order_no, order, j, i, A_ij, st_ij):
+    """The partner's correction of a coherent pair order: Eqs. 20-21 generalised, so the
+    corrected pair agrees along ``e_ij`` and the order removes exactly that direction
+    from the difference."""
+    e = np.asarray(st_ij.direction_ij, dtype=float)
+    A = -A_ij - np.outer(e, e)
+    alpha, e_j, e_ji = rank_one_parts(A)
+    return A, Step(stage=stage_no, order=order_no, i=j, j=i, A=A, alpha=alpha,
+                   direction_i=e_j, direction_ij=e_ji, window_s=order.window_s,
+                   n_used=st_ij.n_used, interval=order.interval, kind="partner",
+                   direction_method=order.direction, highpass_s=order.highpass_s,
+                   band_hz=order.band_hz)
+
+
+def _reference_stage(st: _ChainState, k: int, stage: Stage) -> None:
+    ref = stage.reference
+    for n_o, order in enumerate(stage.orders, start=1):
+        for s in stage.sensors:
+            A, step = st.fit_step(k, n_o, order, s, ref)
+            st.cur[s] = st.cur[s] + (st.cur[s] - st.cur[ref]) @ A.T
+            st.w[s] = _wcombine(st.w[s], st.w[ref], A)
+            st.steps.append(step)
+
+
+def _joint_stage(st: _ChainState, k: int, stage: Stage) -> None:
+    i, j = stage.sensors
+    raw_diff = st.data[i] - st.data[j]
+    pair_steps = _joint_steps(k, stage, st.cur[i], st.cur[j], st.t_s, st.dt, st.fixed,
+                              raw_diff)
+    st.pair_update(i, j, pair_steps[0].A, pair_steps[1].A)
+    st.steps += pair_steps
+
+
+def _pair_stage(st: _ChainState, k: int, stage: Stage) -> None:
+    i, j = stage.sensors
+    for n_o, order in enumerate(stage.orders, start=1):
+        A_ij, st_ij = st.fit_step(k, n_o, order, i, j)
+        if order.direction == "coherent" and (k, n_o, j) not in st.fixed:
+            A_ji, st_ji = _partner_step(k, n_o, order, j, i, A_ij, st_ij)
+        else:
+            A_ji, st_ji = st.fit_step(k, n_o, order, j, i)
+        st.pair_update(i, j, A_ij, A_ji)
+        st.steps += [st_ij, st_ji]
+
+
+def _regression_stage(st: _ChainState, k: int, stage: Stage) -> None:
+    from magcal.ac.nonorthogonal import fit_regression_stage
+
+    cur, w = st.cur, st.w
+    refs = list(stage.references)
+    z = np.zeros((3, 3))
+    for n_o, order in enumerate(stage.orders, start=1):
+        for s in stage.sensors:
+            mats, info = fit_regression_stage(cur[s], [cur[r] for r in refs], st.t_s,
+                                              interval=order.interval,
+                                              detrend_s=order.detrend_s)
+            cur[s] = cur[s] + sum((cur[s] - cur[r]) @ m.T for r, m in zip(refs, mats))
+            new = {key: val.copy() for key, val in w[s].items()}
+            for r, m in zip(refs, mats):
+                for key in set(w[s]) | set(w[r]):
+                    new[key] = new.get(key, z) + m @ (w[s].get(key, z) - w[r].get(key, z))
+            w[s] = new
+            st.steps += [Step(stage=k, order=n_o, i=s, j=r, A=m, n_used=info["n_used"],
+                              interval=order.interval, kind="regression")
+                         for r, m in zip(refs, mats)]
 
 
 def run_chain(data: Mapping[str, np.ndarray], t_s: np.ndarray, plan: Plan, *,
@@ -362,8 +474,6 @@ def run_chain(data: Mapping[str, np.ndarray], t_s: np.ndarray, plan: Plan, *,
     >>> bool(np.allclose(res.corrected, amb, atol=1e-9)), res.identity_error < 1e-12
     (True, True)
     """
-    from magcal.ac.nonorthogonal import fit_regression_stage
-
     t_s = np.asarray(t_s, dtype=float)
     names = plan.sensors
     for s in names:
@@ -375,91 +485,19 @@ def run_chain(data: Mapping[str, np.ndarray], t_s: np.ndarray, plan: Plan, *,
         if np.asarray(data[s]).shape != (n, 3):
             raise InputError(f"sensor {s!r} must be an (n, 3) array, got "
                              f"{np.asarray(data[s]).shape}")
-    dt = sample_period_s(t_s)
-    cur = {s: np.asarray(data[s], dtype=float).copy() for s in names}
-    w = {s: {s: np.eye(3)} for s in names}
-    steps: list[Step] = []
-    scans: dict = {}
-    fixed = dict(fixed_steps or {})
-
-    def one(stage_no, order_no, order, i, j):
-        key = (stage_no, order_no, i)
-        if key in fixed:
-            A = np.asarray(fixed[key], dtype=float)
-            return A, Step(stage_no, order_no, i, j, float("nan"), np.full(3, np.nan),
-                           np.full(3, np.nan), order.window_s, A, kind="fixed")
-        alpha, e_i, e_ij, info = fit_order(cur[i], cur[j], t_s, order, dt_s=dt,
-                                           alpha_method=alpha_method, keep_scan=keep_scans)
-        if "scan_objects" in info:
-            scans[key] = info.pop("scan_objects")
-        A = correction_matrix(alpha, e_i, e_ij)
-        return A, Step(stage_no, order_no, i, j, float(alpha), np.asarray(e_i),
-                       np.asarray(e_ij), order.window_s, A,
-                       alpha_variance=info["alpha_variance"],
-                       correlation=info["correlation"], n_used=info["n_used"],
-                       interval=order.interval, scan=info.get("scan"),
-                       direction_method=order.direction, highpass_s=order.highpass_s,
-                       band_hz=order.band_hz)
-
-    def partner_step(stage_no, order_no, order, j, i, A_ij, st_ij):
-        # Eqs. 20-21 generalised: the partner's correction makes the corrected pair agree
-        # along e_ij, so the order removes exactly that direction from the difference
-        e = np.asarray(st_ij.direction_ij, dtype=float)
-        A = -A_ij - np.outer(e, e)
-        alpha, e_j, e_ji = rank_one_parts(A)
-        return A, Step(stage_no, order_no, j, i, alpha, e_j, e_ji, order.window_s, A,
-                       n_used=st_ij.n_used, interval=order.interval, kind="partner",
-                       direction_method=order.direction, highpass_s=order.highpass_s,
-                       band_hz=order.band_hz)
-
+    st = _ChainState(data={s: np.asarray(data[s], dtype=float) for s in names}, t_s=t_s,
+                     dt=sample_period_s(t_s), alpha_method=alpha_method,
+                     keep_scans=keep_scans, fixed=dict(fixed_steps or {}))
     for k, stage in enumerate(plan.stages, start=1):
         if stage.kind == "reference":
-            ref = stage.reference
-            for n_o, order in enumerate(stage.orders, start=1):
-                for s in stage.sensors:
-                    A, step = one(k, n_o, order, s, ref)
-                    cur[s] = cur[s] + (cur[s] - cur[ref]) @ A.T
-                    w[s] = _wcombine(w[s], w[ref], A)
-                    steps.append(step)
+            _reference_stage(st, k, stage)
         elif stage.kind == "pair" and stage.joint:
-            i, j = stage.sensors
-            raw_diff = np.asarray(data[i], dtype=float) - np.asarray(data[j], dtype=float)
-            pair_steps = _joint_steps(k, stage, cur[i], cur[j], t_s, dt, fixed, raw_diff)
-            A_ij, A_ji = pair_steps[0].A, pair_steps[1].A
-            d = cur[i] - cur[j]
-            cur[i], cur[j] = cur[i] + d @ A_ij.T, cur[j] - d @ A_ji.T
-            w[i], w[j] = _wcombine(w[i], w[j], A_ij), _wcombine(w[j], w[i], A_ji)
-            steps += pair_steps
+            _joint_stage(st, k, stage)
         elif stage.kind == "pair":
-            i, j = stage.sensors
-            for n_o, order in enumerate(stage.orders, start=1):
-                A_ij, st_ij = one(k, n_o, order, i, j)
-                if order.direction == "coherent" and (k, n_o, j) not in fixed:
-                    A_ji, st_ji = partner_step(k, n_o, order, j, i, A_ij, st_ij)
-                else:
-                    A_ji, st_ji = one(k, n_o, order, j, i)
-                d = cur[i] - cur[j]
-                cur[i], cur[j] = cur[i] + d @ A_ij.T, cur[j] - d @ A_ji.T
-                w[i], w[j] = _wcombine(w[i], w[j], A_ij), _wcombine(w[j], w[i], A_ji)
-                steps += [st_ij, st_ji]
-        else:  # regression
-            for n_o, order in enumerate(stage.orders, start=1):
-                for s in stage.sensors:
-                    refs = list(stage.references)
-                    mats, info = fit_regression_stage(cur[s], [cur[r] for r in refs], t_s,
-                                                      interval=order.interval,
-                                                      detrend_s=order.detrend_s)
-                    cur[s] = cur[s] + sum((cur[s] - cur[r]) @ m.T for r, m in zip(refs, mats))
-                    new = {key: val.copy() for key, val in w[s].items()}
-                    for r, m in zip(refs, mats):
-                        for key in set(w[s]) | set(w[r]):
-                            z = np.zeros((3, 3))
-                            new[key] = new.get(key, z) + m @ (w[s].get(key, z) - w[r].get(key, z))
-                    w[s] = new
-                    for r, m in zip(refs, mats):
-                        steps.append(Step(k, n_o, s, r, float("nan"), np.full(3, np.nan),
-                                          np.full(3, np.nan), None, m, n_used=info["n_used"],
-                                          interval=order.interval, kind="regression"))
+            _pair_stage(st, k, stage)
+        else:
+            _regression_stage(st, k, stage)
+    cur, w, steps, scans = st.cur, st.w, st.steps, st.scans
     target = plan.target
     M = {key: val for key, val in w[target].items()}
     G = dc_offset({s: np.asarray(data[s], dtype=float) for s in M}, target, M)
