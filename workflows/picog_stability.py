@@ -60,7 +60,7 @@ def main(argv=None) -> int:
     from tqdm import tqdm
 
     from magcal.ac.chain import run_chain
-    from magcal.report.ac_quality import stability
+    from magcal.ac.stability import stability
     from magcal.simulate.geostationary import GeostationaryConfig, simulate_geostationary
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from picog_day import coherent_plan, joint_plan, paper_plan
