@@ -2,7 +2,10 @@
 
 Usage::
 
-    python workflows/elfin_calibration.py [--data ../shared/real-data/elfin] [--out elfin-calibration-out]
+    python workflows/elfin_calibration.py [--data DIR] [--out elfin-calibration-out]
+
+``--data`` defaults to ``../shared/real-data/elfin`` beside the repository that holds
+this script (found from the script's own path, so any working directory will do).
 
 Reads the level-1 FGS counts and the state file of 2022-01-12, splits the 12 science
 zones, repairs paired time-stamp jumps, derives the spin phase from the counts, fits
@@ -20,16 +23,30 @@ Data: ELFIN SOC (PI V. Angelopoulos, UCLA), "Open Data for Scientific Use".
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
 
+from magcal.errors import InputError
 from magcal.io.jsonio import write_json
 from magcal.offline import configure_offline
 from magcal.provenance import make_provenance
 from magcal.spin.elfin import CREDIT, calibrate_elfin
 
-DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "real-data" / "elfin"
+#: The repository holding this script (as called, and with symbolic links resolved).
+REPO_ROOTS = (Path(__file__).absolute().parents[1], Path(__file__).resolve().parents[1])
+FGS_FILE = "ela_l1_fgs_20220112_v01.cdf"
+STATE_FILE = "ela_l1_state_defn_20220112_v01.cdf"
+
+
+def default_data_dir() -> Path:
+    """``../shared/real-data/elfin`` beside the repository, wherever the script is run from."""
+    candidates = [root.parent / "shared" / "real-data" / "elfin" for root in REPO_ROOTS]
+    return next((c for c in candidates if (c / FGS_FILE).is_file()), candidates[0])
+
+
+DEFAULT_DATA = default_data_dir()
 SHIFTS_S = (-0.4, -0.2, -0.1, 0.0, 0.1, 0.2, 0.4)
 
 
@@ -60,17 +77,32 @@ def _plot(path, cal) -> None:
 
 
 def main(argv=None) -> int:
+    """Run the workflow; bad or missing input is one line on stderr and exit status 2."""
+    try:
+        return _run(argv)
+    except InputError as exc:
+        print(f"elfin_calibration: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def _run(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=DEFAULT_DATA)
-    ap.add_argument("--out", type=Path, default=Path("elfin-calibration-out"))
+    ap.add_argument("--data", type=Path, default=DEFAULT_DATA,
+                    help=f"folder with {FGS_FILE} and {STATE_FILE} (default {DEFAULT_DATA})")
+    ap.add_argument("--out", type=Path, default=Path("elfin-calibration-out"),
+                    help="output folder (default: elfin-calibration-out in the working "
+                         "directory)")
     ap.add_argument("--no-scan", action="store_true", help="skip the timing-offset scan")
     args = ap.parse_args(argv)
     configure_offline()
     from magcal.io.cdf import read_elfin_fgs, read_elfin_state
     from magcal.io.csv import write_csv_frame
 
-    fgs_path = args.data / "ela_l1_fgs_20220112_v01.cdf"
-    state_path = args.data / "ela_l1_state_defn_20220112_v01.cdf"
+    fgs_path, state_path = args.data / FGS_FILE, args.data / STATE_FILE
+    for path in (fgs_path, state_path):
+        if not path.is_file():
+            raise InputError("ELFIN file not found (give --data DIR with the ELFIN-A files "
+                             "of 2022-01-12)", file=path)
     fgs, state = read_elfin_fgs(fgs_path), read_elfin_state(state_path)
     prov = make_provenance("elfin calibration against IGRF", {"model": "IGRF (IRBEM)"},
                            inputs=[fgs_path, state_path])

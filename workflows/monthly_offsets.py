@@ -25,6 +25,17 @@ import numpy as np
 
 
 def main(argv=None) -> int:
+    """Run the workflow; bad input is one line on stderr and exit status 2."""
+    from magcal.errors import InputError
+
+    try:
+        return _run(argv)
+    except InputError as exc:
+        print(f"monthly_offsets: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def _run(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("input", nargs="?", help="DATA.csv time,Hp,He,Hn (AC-cleaned)")
     parser.add_argument("--kp", help="Kp file (any format magcal reads)")
@@ -45,9 +56,8 @@ def main(argv=None) -> int:
     from magcal.offline import configure_offline
 
     configure_offline()
-    from magcal.errors import InputError
     from magcal.io.jsonio import write_json
-    from magcal.offsets import apply_offsets, fit_offsets, write_offsets_csv
+    from magcal.offsets import apply_offsets, fit_offsets_frame, write_offsets_csv
     from magcal.offsets.plots import plot_offsets, plot_residual_local_time
     from magcal.provenance import make_provenance
 
@@ -67,29 +77,23 @@ def main(argv=None) -> int:
         args.longitude = sim.config.lon_deg if args.longitude is None else args.longitude
     if not args.input or not args.kp:
         parser.error("give DATA.csv and --kp, or --simulate-days")
-    from magcal.indices import read_drivers, read_kp
     from magcal.io.csv import read_csv_frame, write_csv_frame
+    from magcal.models.inputs import model_inputs
 
     frame = read_csv_frame(args.input, required=["Hp", "He", "Hn"])
-    inputs += [args.input, args.kp] + ([args.drivers] if args.drivers else [])
-    if args.longitude is not None:
-        lon, lat, r = args.longitude, 0.0, 6.6
-    else:
-        try:
-            lon, lat, r = (frame[c].to_numpy(float) for c in ("lon_deg", "lat_deg", "r_re"))
-        except KeyError:
-            raise InputError("give --longitude or columns lon_deg,lat_deg,r_re",
-                             file=args.input) from None
-    kp = read_kp(args.kp)
-    drivers = read_drivers(args.drivers) if args.drivers else None
+    inp = model_inputs(frame, longitude_deg=args.longitude, kp_path=args.kp,
+                       drivers_path=args.drivers, model=args.model)
+    inputs += [args.input, *inp.files]
     times = frame.index.tz_convert("UTC").tz_localize(None).to_numpy()
     params = {k: getattr(args, k) for k in ("model", "kp_max", "window_days", "step_days",
                                             "method", "longitude", "simulate_days")}
     prov = make_provenance("monthly offsets", params, inputs=inputs)
-    table, det = fit_offsets(times, frame[["Hp", "He", "Hn"]].to_numpy(), lon, lat, r, kp,
-                             model=args.model, drivers=drivers, kp_max=args.kp_max,
-                             window_days=args.window_days, step_days=args.step_days,
-                             method=args.method, cache_dir=args.cache_dir, provenance=prov)
+    table, det = fit_offsets_frame(frame, inp, kp_max=args.kp_max,
+                                   window_days=args.window_days, step_days=args.step_days,
+                                   method=args.method, cache_dir=args.cache_dir,
+                                   provenance=prov)
+    for warning in table.warnings:
+        print(f"monthly offsets: warning: {warning}", file=sys.stderr)
     write_offsets_csv(out / "OFFSETS.csv", table)
     _write_cdf(out / "OFFSETS.cdf", table, prov)
     corrected, _, flag = apply_offsets(times, frame[["Hp", "He", "Hn"]].to_numpy(), table)

@@ -60,24 +60,43 @@ def make_month_products(out: Path, seed: int = 20191101) -> Path:
 
 
 def main_(argv=None) -> int:
+    """Run the workflow; bad input is one line on stderr and exit status 2."""
+    from magcal.errors import InputError
+
+    try:
+        return _run(argv)
+    except InputError as exc:
+        print(f"uncertainty_report: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def _run(argv=None) -> int:
+    from magcal.errors import InputError
     from magcal.offline import configure_offline
 
     configure_offline()
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("products", nargs="?", default=None)
-    ap.add_argument("-o", "--outdir", default="uncertainty-report")
+    ap.add_argument("products", nargs="?", default=None,
+                    help="products folder (default: make one from the simulated month)")
+    ap.add_argument("-o", "--outdir", default="uncertainty-report",
+                    help="output folder (default: uncertainty-report in the working "
+                         "directory)")
     args = ap.parse_args(argv)
-    from magcal.cli import main
+    from magcal.report import write_html, write_pdf
+    from magcal.report.uncertainty import build_uncertainty_report
 
+    if args.products and not Path(args.products).is_dir():
+        raise InputError("products folder not found", file=args.products)
     out = Path(args.outdir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     products = Path(args.products) if args.products else make_month_products(out / "products")
-    status = main(["report", str(products), "-o", str(out / "REPORT.html"),
-                   "--pdf", str(out / "REPORT.pdf")])
+    doc = build_uncertainty_report(products, title="magcal uncertainty report")
+    write_html(doc, out / "REPORT.html")
+    write_pdf(doc, out / "REPORT.pdf")
     print(f"report of {products} -> {out / 'REPORT.html'}, {out / 'REPORT.pdf'} "
           f"({time.perf_counter() - t0:.1f} s)")
-    return status
+    return 0
 
 
 if __name__ == "__main__":
