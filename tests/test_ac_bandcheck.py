@@ -20,7 +20,6 @@ from magcal.cli import main
 
 def _record(tmp_path, rng):
     n = 20000
-    t = np.arange(n) * 0.1
     s = 5.0 * np.convolve(rng.normal(size=n), np.ones(200) / np.sqrt(200), mode="same")
     u = np.array([0.6, 0.0, 0.8])
     amb = np.array([120.0, -40.0, 15.0]) + 0.01 * rng.normal(size=(n, 3))
