@@ -88,3 +88,23 @@ def test_keep_correction_offset_gives_the_bare_sum(tmp_path, capsys):
     assert_allclose(outs[None], bare + G, atol=1e-5)
     assert_allclose(outs["--pure-ac"], outs[None], atol=1e-9)
     assert_allclose(G, 500 * 50 / 104 * 0.6 * np.array([0.6, 0.0, 0.8]), atol=4.0)
+
+
+def test_records_auto_cannot_support_are_refused(tmp_path, capsys):
+    path, plan, _, _ = _record(tmp_path, np.random.default_rng(13))
+    frame = pd.read_csv(path)
+    short = tmp_path / "short.csv"
+    frame.iloc[:100].to_csv(short, index=False)
+    out = tmp_path / "p.json"
+    assert main(["picog", "fit", str(short), "--target", "o", "--auto", "-o", str(out)]) == 2
+    assert "100 samples" in capsys.readouterr().err and not out.exists()
+    # a plan still fits, but says that the product could not be checked by band
+    assert main(["picog", "fit", str(short), "--plan", str(plan), "-o", str(out)]) == 0
+    assert "no band check" in capsys.readouterr().err
+    empty = tmp_path / "empty.csv"
+    frame.assign(r_y=np.nan).to_csv(empty, index=False)
+    for argv in (["--target", "o", "--auto"], ["--plan", str(plan)]):
+        assert main(["picog", "fit", str(empty), *argv, "-o", str(tmp_path / "e.json")]) == 2
+        err = capsys.readouterr().err
+        assert "r_y" in err and "empty.csv" in err and "Traceback" not in err
+        assert "Warning" not in err

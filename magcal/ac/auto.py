@@ -51,6 +51,9 @@ from magcal.ac.filters import running_mean
 from magcal.errors import InputError
 
 CANDIDATE_WINDOWS_S = (30.0, 100.0, 300.0, 700.0, 2000.0, 6000.0, 16000.0)
+#: fewer samples cannot support a choice of filters, windows and orders (nor the band
+#: check of the product, :func:`magcal.ac.bandcheck.record_bands_hz`)
+MIN_AUTO_SAMPLES = 256
 
 
 def noise_sigma(b: np.ndarray) -> float:
@@ -289,6 +292,9 @@ def auto_plan(data: dict, t_s: np.ndarray, target: str, *, alpha_method: str = "
     others = [s for s in data if s != target]
     if not others:
         raise InputError("--auto needs at least one sensor besides the target")
+    if len(t_s) < MIN_AUTO_SAMPLES:
+        raise InputError(f"the record has {len(t_s)} samples; --auto needs at least "
+                         f"{MIN_AUTO_SAMPLES} to choose filters and orders (give a plan)")
     dt = sample_period_s(t_s)
     scales = record_scales(len(t_s), dt, candidate_windows_s)
     highpass_s = scales["highpass_s"] if highpass_s is None else float(highpass_s)

@@ -207,6 +207,15 @@ def uniform_grid(t_s: np.ndarray, tolerance: float = 0.05):
     return g.slots, g.n_grid, g.dt_s
 
 
+def _check_valid(data: dict) -> None:
+    """InputError naming the first sensor column without a single valid sample."""
+    for sensor, arr in data.items():
+        for k, c in enumerate(COMPONENTS):
+            if not np.isfinite(arr[:, k]).any():
+                raise InputError(f"sensor {sensor!r} has no valid sample in this column",
+                                 column=f"{sensor}_{c}")
+
+
 class PiCoG:
     """Principal-component gradiometer AC cleaning (Constantinescu et al. 2020).
 
@@ -281,12 +290,14 @@ class PiCoG:
             if target not in names:
                 sensor_array(frame, target)  # raises naming the column
             data = {s: gridded(s) for s in names}
+            _check_valid(data)
             plan, report = auto_plan(data, grid_t, target, alpha_method=self.alpha_method)
         else:
             if self.plan is None:
                 raise InputError("give a plan or use auto")
             plan, report = self.plan, None
             data = {s: gridded(s) for s in plan.sensors}
+        _check_valid(data)
         self.plan_ = plan
         self.auto_report_ = report
         self.result_: ChainResult = run_chain(data, grid_t, plan, alpha_method=self.alpha_method,
@@ -298,6 +309,9 @@ class PiCoG:
         raw = data[plan.target]
         self.band_check_ = self._band_check(raw, self.result_.corrected + self.G_, grid.dt_s)
         self.warnings_ = product_warnings(self.band_check_, self.G_, raw, plan.target)
+        if self.check_bands and self.band_check_ is None:
+            self.warnings_.append(f"no band check of the product: the record ({n_grid} "
+                                  "samples) is too short to compare spectra")
         return self
 
     def _band_check(self, raw, clean, dt_s) -> BandCheck | None:
