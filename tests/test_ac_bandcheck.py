@@ -54,6 +54,8 @@ def test_worse_bands_are_recorded_and_warned(tmp_path, capsys):
     assert min(w["band_hz"][0] for w in worse) > 0.05
     assert "worse than raw" in err and "worse_than_raw" in err
     assert main(["picog", "apply", str(path), "--params", str(params), "-o", str(clean)]) == 0
+    apply_err = capsys.readouterr().err                  # the delivered product is checked
+    assert "worse than raw" in apply_err and "|G|" in apply_err
     out = pd.read_csv(clean)[["x", "y", "z"]].to_numpy()
     # the disturber (20 s boxcar-filtered noise: its power is below 0.05 Hz) is removed
     chk = band_check(target, out, 0.1)

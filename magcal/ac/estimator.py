@@ -402,7 +402,8 @@ def offset_warning(G, target_field: np.ndarray, target: str = "target") -> str |
             "--keep-correction-offset leaves it out)")
 
 
-def product_warnings(check: BandCheck | None, G, target_field, target: str) -> list[str]:
+def product_warnings(check: BandCheck | None, G, target_field, target: str, *,
+                     recorded_in: str | None = "PARAMS.json worse_than_raw") -> list[str]:
     """Warnings of a fitted product: bands worse than raw and a large offset ``G``."""
     out = []
     if check is not None and check.worse_than_raw:
@@ -412,7 +413,7 @@ def product_warnings(check: BandCheck | None, G, target_field, target: str) -> l
         more = f" and {len(worst) - 4} more" if len(worst) > 4 else ""
         out.append(f"the cleaned {target} is worse than raw (more power) in {len(worst)} "
                    f"band/component(s): "
-                   f"{listed}{more} (PARAMS.json worse_than_raw)")
+                   f"{listed}{more}" + (f" ({recorded_in})" if recorded_in else ""))
     msg = offset_warning(G, target_field, target)
     if msg:
         out.append(msg)
@@ -458,12 +459,25 @@ def apply_params(frame: pd.DataFrame, doc: dict, *, pure_ac: bool = False,
     M, G, target = params_from_json(doc, file=file)
     out = apply_upload(frame, M, G, pure_ac=pure_ac,
                        keep_correction_offset=keep_correction_offset)
-    warnings = []
-    if target in sensors_in_frame(frame):
-        msg = offset_warning(G, sensor_array(frame, target), target)
-        if msg:
-            warnings.append(msg)
-    return out, warnings
+    return out, delivered_warnings(frame, target, out, G)
+
+
+def delivered_warnings(frame: pd.DataFrame, target: str, out: pd.DataFrame, G) -> list[str]:
+    """Warnings of a delivered product (:func:`product_warnings`) on the data it was
+    applied to: the cleaned ``x, y, z`` against the raw target per band, and ``|G|``."""
+    if target not in sensors_in_frame(frame) or len(frame) < 2:
+        return []
+    raw = sensor_array(frame, target)
+    clean = out[list(COMPONENTS)].to_numpy(dtype=float)
+    try:
+        grid = fit_time_grid(epoch_seconds(frame.index))
+        on_grid = [np.full((grid.n_grid, 3), np.nan) for _ in range(2)]
+        on_grid[0][grid.slots], on_grid[1][grid.slots] = raw, clean
+        check = band_check(*on_grid, grid.dt_s)
+    except InputError as exc:
+        return product_warnings(None, G, raw, target) + [
+            f"no band check of the product: {exc.message}"]
+    return product_warnings(check, G, raw, target, recorded_in=None)
 
 
 def params_from_json(doc: dict, *, file=None) -> tuple[dict, np.ndarray | None, str]:
