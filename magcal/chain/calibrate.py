@@ -118,17 +118,24 @@ def _reference(minute: MinuteData, config: ChainConfig):
 
 def run_alignment(corrected: CorrectedData, minute: MinuteData, config: ChainConfig):
     """Rotation angles about Hp, He, Hn against the model or a reference spacecraft."""
-    from magcal.alignment.product import align_product
+    from magcal.alignment.product import AlignSettings, align_product
     from magcal.offsets import quiet_mask
 
     cfg = config["alignment"]
     ref, ref_files = _reference(minute, config)
-    quiet = quiet_mask(minute.kp, cfg["kp_max"]) if np.isfinite(minute.kp).any() else None
-    product = align_product(
-        corrected.times, corrected.hpen, ref, lon_deg=minute.lon_deg,
-        lon_source="position", quiet=quiet, mcmc=cfg["mcmc"],
-        rng=np.random.default_rng(cfg["seed"]), lt_harmonics=cfg["lt_harmonics"],
-        window_days=cfg["window_days"], kp_max=cfg["kp_max"], inputs=ref_files)
+    quiet, selection = None, {"kp_max": None}
+    if np.isfinite(minute.kp).any():
+        quiet = quiet_mask(minute.kp, cfg["kp_max"])
+        selection = {"kp_max": cfg["kp_max"], "used_rows": int(quiet.sum()),
+                     "quiet_fraction": float(quiet.mean())}
+    window = cfg["window_days"]
+    settings = AlignSettings(mcmc=cfg["mcmc"], seed=cfg["seed"],
+                             lt_harmonics=cfg["lt_harmonics"],
+                             window_days=None if window == 0 else window)
+    product = align_product(corrected.times, corrected.hpen, ref, lon_deg=minute.lon_deg,
+                            lon_source="[position]", quiet=quiet, selection=selection,
+                            settings=settings, rng=np.random.default_rng(cfg["seed"]),
+                            inputs=ref_files)
     doc = product.to_json()
     warnings = []
     if doc.get("determinable") is False:

@@ -60,19 +60,29 @@ class ChainConfig:
         ``section -> {key: value}`` with defaults filled in.
     kind : {"geostationary", "spin"}
         ``spin`` when the file has a ``[spin]`` section.
+    outdir : pathlib.Path, optional
+        The run's output folder: a path starting with ``{outdir}`` is resolved in it
+        (the input that ``[input] simulate`` writes there).
     """
 
     path: Path
     sections: dict = field(default_factory=dict)
     kind: str = "geostationary"
+    outdir: Path | None = None
 
     def __getitem__(self, section: str) -> dict:
         return self.sections[section]
 
     def resolve(self, relative: str | None) -> Path | None:
-        """A path from the file, relative to the TOML file's folder."""
+        """A path from the file: relative to the TOML file's folder, or to the output
+        folder when it starts with ``{outdir}``."""
         if relative is None:
             return None
+        if relative.startswith("{outdir}"):
+            if self.outdir is None:
+                raise InputError(f"{relative!r}: {{outdir}} is only known during a run",
+                                 file=self.path)
+            return self.outdir / relative[len("{outdir}"):].lstrip("/\\")
         p = Path(relative).expanduser()
         return p if p.is_absolute() else (self.path.parent / p)
 

@@ -175,10 +175,12 @@ def _to_hpen(series: VectorSeries, config: ChainConfig, vectors: dict, target: s
 # -------------------------------------------------------------------------------- AC
 @dataclass(frozen=True)
 class CleanedData:
-    """The AC-cleaned target in Hpen at the input cadence."""
+    """The AC-cleaned target in Hpen at the input cadence (and the raw target, to
+    compare)."""
 
     times: pd.DatetimeIndex
     hpen: np.ndarray
+    raw_hpen: np.ndarray
 
 
 def _plan_for(config: ChainConfig, target: str):
@@ -242,7 +244,7 @@ def run_ac(data: CommonFrameData, config: ChainConfig) -> tuple[CleanedData, Sta
                            inputs=plan_files, history=data.series.provenance)
     product = StageProduct(stage="ac", summary=summary, lines=tuple(lines),
                            documents=documents, provenance=prov, warnings=tuple(warnings))
-    return CleanedData(data.series.times, hpen), product
+    return CleanedData(data.series.times, hpen, raw @ data.to_hpen.T), product
 
 
 def _picog(data: CommonFrameData, kind: str, plan, opts: dict, plan_files, config):

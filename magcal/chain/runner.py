@@ -16,7 +16,7 @@ the rest complete.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Callable
 
@@ -151,10 +151,9 @@ def run_chain(config: ChainConfig | str | Path, outdir: str | Path,
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
     extras: dict = {}
+    cfg = replace(cfg, outdir=out)
     if cfg["input"]["simulate"]:
-        from magcal.simulate.archive import write_archive
-
-        extras["truth"] = write_archive(cfg, progress)
+        extras["simulated"] = _simulate_input(cfg, out, progress)
     files = cfg.input_files()
     run = _Run(out, files, progress)
     try:
@@ -183,12 +182,43 @@ def _geostationary_stages(run: _Run, cfg: ChainConfig, files, extras: dict) -> N
     corrected = run.stage("corrected", calibrate.run_corrected, cleaned, minute, table, cfg)
     extras.update(series=series, cleaned=cleaned, minute=minute, table=table,
                   corrected=corrected)
+    if cfg["truth"]["file"]:
+        from magcal.chain.truth import run_truth
+
+        extras["truth"] = run.stage("truth", run_truth, cleaned, table, cleaned.raw_hpen, cfg,
+                                    required=False)
     if cfg["alignment"]["enabled"]:
         extras["align"] = run.stage("alignment", calibrate.run_alignment, corrected, minute,
                                     cfg, required=False)
     if cfg["discover"]["enabled"]:
         extras["discover"] = run.stage("discover", calibrate.run_discovery, minute, cfg,
                                        required=False)
+
+
+def _simulate_input(cfg: ChainConfig, out: Path, progress) -> dict:
+    """Write the simulated raw archive of ``[input] simulate`` into ``OUTDIR/raw``.
+
+    ``simulate`` holds ``seed`` and any :class:`~magcal.simulate.archive.ArchiveConfig`
+    field; the configuration names the files written as ``{outdir}/raw/...``.
+    """
+    import numpy as np
+
+    from magcal.simulate.archive import ArchiveConfig, simulate_archive, write_archive_files
+
+    spec = dict(cfg["input"]["simulate"])
+    seed = spec.pop("seed", None)
+    known = {f.name for f in fields(ArchiveConfig)}
+    unknown = [k for k in spec if k not in known]
+    if not isinstance(seed, int) or unknown:
+        raise InputError("[input] simulate needs an integer seed and only "
+                         f"{', '.join(sorted(known))}" + (f" (unknown {unknown[0]!r})"
+                                                           if unknown else ""),
+                         file=cfg.path, column="input.simulate")
+    spec = {k: tuple(v) if isinstance(v, list) else v for k, v in spec.items()}
+    if progress:
+        progress(f"-> simulate the raw input (seed {seed}) into {out / 'raw'}")
+    result = simulate_archive(ArchiveConfig(**spec), rng=np.random.default_rng(seed))
+    return write_archive_files(result, out / "raw")
 
 
 def _read(cfg: ChainConfig, files):
