@@ -202,8 +202,9 @@ def _plan_for(config: ChainConfig, target: str):
 def run_ac(data: CommonFrameData, config: ChainConfig) -> tuple[CleanedData, StageProduct]:
     """PiCoG on the sensors in the common frame; the cleaned target rotated to Hpen.
 
-    The DC offset G of the correction is kept out of the product (``pure_ac``): AC
-    cleaning removes the spacecraft's varying fields, the offsets stage handles DC.
+    The DC offset G of the correction is added back (``pure_ac``), so the product keeps
+    the target's own DC level: AC cleaning removes the spacecraft's varying fields, the
+    offsets stage handles DC.
     With ``plan = "none"`` or a single sensor the target passes through unchanged.
     """
     from magcal.ac.estimator import PiCoG, apply_upload
@@ -221,10 +222,8 @@ def run_ac(data: CommonFrameData, config: ChainConfig) -> tuple[CleanedData, Sta
         documents["PARAMS.json"] = params
         summary.update(_ac_metrics(raw, cleaned, data, params), delivered="cleaned")
         lines.append(f"PiCoG ({kind}): correction removed {summary['removed_rms_nT']:.3f} nT "
-                     f"rms (AC) from {data.target}; sensor difference AC rms "
-                     f"{summary['difference_rms_before_nT']:.3f} -> "
-                     f"{summary['difference_rms_after_nT']:.3f} nT; |sum M - I| = "
-                     f"{summary['identity_error']:.1e}")
+                     f"rms (AC) from {data.target}; {summary['n_bands_worse']} band/component(s) "
+                     f"worse than raw; |sum M - I| = {summary['identity_error']:.1e}")
         warnings += [f"PiCoG: {w}" for w in params.get("warnings") or []]
         worse = params.get("worse_than_raw") or []
         if worse and config["picog"]["on_worse"] == "raw":
@@ -248,7 +247,7 @@ def run_ac(data: CommonFrameData, config: ChainConfig) -> tuple[CleanedData, Sta
 
 
 def _picog(data: CommonFrameData, kind: str, plan, opts: dict, plan_files, config):
-    """Fit PiCoG and apply it without its DC offset G; return (cleaned, PARAMS dict)."""
+    """Fit PiCoG and apply it with its DC offset G added back; return (cleaned, PARAMS)."""
     from magcal.ac.estimator import PiCoG, apply_upload
 
     frame = data.series.select(data.sensors).to_frame()
@@ -262,16 +261,12 @@ def _picog(data: CommonFrameData, kind: str, plan, opts: dict, plan_files, confi
 
 
 def _ac_metrics(raw, cleaned, data: CommonFrameData, params: dict) -> dict:
+    """What the correction took out of the target (AC part) and the band check verdict."""
     removed = raw - cleaned
     removed = removed - np.nanmean(removed, axis=0)
-    others = [s for s in data.sensors if s != data.target]
-    other = data.series[others[0]]
-    before = (raw - other) - np.nanmean(raw - other, axis=0)
-    after = (cleaned - other) - np.nanmean(cleaned - other, axis=0)
     ident = float(np.abs(sum(np.asarray(m) for m in params["M"].values()) - np.eye(3)).max())
-    return {"removed_rms_nT": _rms(removed), "difference_rms_before_nT": _rms(before),
-            "difference_rms_after_nT": _rms(after), "difference_with": others[0],
-            "identity_error": ident, "G_nT": params.get("G")}
+    return {"removed_rms_nT": _rms(removed), "identity_error": ident,
+            "G_nT": params.get("G"), "n_bands_worse": len(params.get("worse_than_raw") or [])}
 
 
 # ------------------------------------------------------------------ averages and model

@@ -125,7 +125,8 @@ class _Run:
 
 
 def run_chain(config: ChainConfig | str | Path, outdir: str | Path,
-              progress: Callable[[str], None] | None = None) -> ChainResult:
+              progress: Callable[[str], None] | None = None,
+              workers: int | None = None) -> ChainResult:
     """Run the whole chain of a configuration and write every product into ``outdir``.
 
     Parameters
@@ -136,6 +137,9 @@ def run_chain(config: ChainConfig | str | Path, outdir: str | Path,
         Output folder (created).
     progress : callable, optional
         Called with one line of text per stage start and end.
+    workers : int, optional
+        Worker processes of the parallel stages (model field); default the
+        configuration's ``[model] jobs`` or the usable cores.
 
     Returns
     -------
@@ -152,6 +156,10 @@ def run_chain(config: ChainConfig | str | Path, outdir: str | Path,
     out.mkdir(parents=True, exist_ok=True)
     extras: dict = {}
     cfg = replace(cfg, outdir=out)
+    if workers is not None:
+        if workers < 1:
+            raise InputError(f"--workers must be at least 1, got {workers}")
+        cfg.sections["model"]["jobs"] = workers
     if cfg["input"]["simulate"]:
         extras["simulated"] = _simulate_input(cfg, out, progress)
     files = cfg.input_files()

@@ -25,6 +25,9 @@ VERBS: dict[str, tuple[str, str]] = {
     "flipper": ("magcal.cli.flipper", "spin-axis offset from flipper measurements"),
     "discover": ("magcal.cli.discover", "find, name and add what the model is missing"),
     "report": ("magcal.cli.report", "uncertainty report (HTML and PDF) for a processed data set"),
+    "run": ("magcal.cli.run", "run the whole chain from a CHAIN.toml configuration"),
+    "convert": ("magcal.cli.convert", "convert instrument files (CSV, GOES-R netCDF, CDF) to "
+                                      "CSV or CDF"),
     "demo": ("magcal.cli.demo", "run the whole chain on data_samples/ (the main job)"),
 }
 

@@ -305,3 +305,35 @@ def write_any(path: str | os.PathLike, frame: pd.DataFrame, fmt: str,
                 "PI_name": "unknown", "PI_affiliation": "unknown",
                 "Mission_group": "magcal", "TEXT": f"Converted by magcal from {source}"}
     return write_cdf_product(target, frame.index, variables, globals_, provenance=provenance)
+
+
+def convert_files(inputs, output: str | os.PathLike, fmt: str, *,
+                  input_format: str = "auto") -> pd.DataFrame:
+    """Read files of any supported format, join them in time order and write ``output``.
+
+    Returns the frame written (``attrs["formats"]`` lists the input formats). Exact
+    duplicate samples of overlapping files are dropped and counted in the provenance;
+    conflicting values at one time are an error naming the time.
+    """
+    from magcal.provenance import make_provenance
+
+    paths = [Path(p) for p in inputs]
+    frames = [read_any(p, input_format) for p in paths]
+    joined = pd.concat(frames, axis=0, sort=False).sort_index(kind="stable")
+    dup = joined.index.duplicated(keep="first")
+    repairs = [dict(r, file=str(p)) for f, p in zip(frames, paths)
+               for r in f.attrs.get("repairs", [])]
+    if dup.any():
+        same = joined[joined.index.duplicated(keep=False)].groupby(level=0).nunique(dropna=False)
+        if (same > 1).to_numpy().any():
+            t = joined.index[np.flatnonzero(dup)[0]]
+            raise InputError(f"the inputs hold different values at {t.isoformat()}",
+                             file=paths[0], column="time")
+        joined = joined[~dup]
+        repairs.append({"what": "exact duplicate samples of overlapping files dropped",
+                        "column": "time", "count": int(dup.sum())})
+    joined.attrs["formats"] = [f.attrs.get("format", "?") for f in frames]
+    joined.attrs["source"] = [str(p) for p in paths]
+    prov = make_provenance("convert", {"format": fmt, "repairs": repairs}, inputs=paths)
+    write_any(output, joined, fmt, provenance=prov)
+    return joined

@@ -45,8 +45,8 @@ class ArchiveConfig:
         When the outboard offset steps.
     step_nT : tuple of 3 float
         The step.
-    inboard_offset_nT : tuple of 3 float
-        Constant inboard offset.
+    inboard_offset_delta_nT : tuple of 3 float
+        Inboard offset minus outboard offset (constant).
     heater_nT, tone_nT : float
         Amplitude of the two disturbers at the outboard sensor (4x at the inboard).
     heater_direction, tone_direction : tuple of 3 float
@@ -64,7 +64,7 @@ class ArchiveConfig:
     drift_nT_per_day: tuple = (0.04, -0.03, 0.02)
     step_time: str = "2019-12-12T00:00:00"
     step_nT: tuple = (3.0, -2.0, 1.5)
-    inboard_offset_nT: tuple = (-6.0, 4.0, 10.0)
+    inboard_offset_delta_nT: tuple = (-6.0, 4.0, 10.0)
     heater_nT: float = 2.0
     heater_direction: tuple = (0.3, 0.8, -0.5)
     tone_nT: float = 1.0
@@ -128,7 +128,7 @@ def simulate_archive(config: ArchiveConfig | None = None, *,
                    + cfg.tone_nT * np.sin(2 * np.pi * t_s / cfg.tone_period_s)[:, None]
                    * _unit(cfg.tone_direction))
     outboard = clean + disturbance
-    inboard = (clean - month.offset_nT - step + np.asarray(cfg.inboard_offset_nT)
+    inboard = (clean + np.asarray(cfg.inboard_offset_delta_nT)
                + cfg.inboard_gain * disturbance
                + noise_rng.standard_normal(clean.shape) * cfg.inboard_noise_nT)
     return ArchiveResult(times=t, outboard=outboard, inboard=inboard, offset_nT=offset,
