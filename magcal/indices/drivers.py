@@ -305,8 +305,8 @@ def _read_omni2(p: Path):
             if len(tok) < need:
                 raise ValueError(f"expected at least {need} fields, found {len(tok)}")
             year, doy, hour = int(tok[0]), int(tok[1]), int(tok[2])
-            if not (1 <= doy <= 366 and 0 <= hour <= 23):
-                raise ValueError(f"day {doy} hour {hour} out of range")
+            if not (1 <= doy <= 366 and 0 <= hour <= 23 and 1900 <= year <= 2200):
+                raise ValueError(f"year {year} day {doy} hour {hour} out of range")
             rows.append([float(tok[col]) for col, _ in _OMNI2_COLUMNS.values()])
         except ValueError as exc:
             raise InputError(f"line {lineno}: not an OMNI2 hourly data line ({exc})",
@@ -390,7 +390,8 @@ def _make_frame(p: Path, fmt: str, times, columns: dict, repairs: list) -> pd.Da
     if len(times) == 0:
         raise InputError(f"no driver records found (read as {fmt})", file=p)
     index = pd.DatetimeIndex(times, name="time")
-    index = (index.tz_localize("UTC") if index.tz is None else index.tz_convert("UTC")).as_unit("ns")
+    index = index.tz_localize("UTC") if index.tz is None else index.tz_convert("UTC")
+    index = index.as_unit("ns")
     steps = np.diff(index.asi8)
     if np.any(steps <= 0):
         k = int(np.flatnonzero(steps <= 0)[0]) + 1

@@ -429,17 +429,12 @@ def _read_noaa_dgd(p: Path):
 
 
 def _read_gfz_kp_def(p: Path):
-    try:
-        table = pd.read_csv(p, dtype=str, keep_default_na=False)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
-        raise InputError(f"not a valid CSV table: {exc}", file=p) from None
-    time_col = table.columns[0]
-    parsed = pd.to_datetime(table[time_col].str.strip(), utc=True, format="ISO8601",
-                            errors="coerce")
-    if parsed.isna().any():
-        k = int(np.flatnonzero(parsed.isna().to_numpy())[0])
-        raise InputError(f"line {k + 2}: cannot parse time {table[time_col].iloc[k]!r}",
-                         file=p)
+    from magcal.io.csv import parse_times, read_text_table
+
+    table, columns = read_text_table(p, unnamed_first="time")
+    if "Kp" not in columns:
+        raise InputError("no Kp column in the GFZ Kp_def header", file=p, row=1)
+    parsed = parse_times(table[columns[0]], file=p, column=columns[0])
     values = []
     for k, cell in enumerate(table["Kp"]):
         try:

@@ -10,8 +10,12 @@ Row numbers in error messages are line numbers of the file (the header is line 1
 
 from __future__ import annotations
 
+import gzip
 import json
+import lzma
 import os
+import re
+import zlib
 from pathlib import Path
 from typing import Iterable
 
@@ -34,8 +38,40 @@ def _line(index: int) -> int:
     return int(index) + 2
 
 
+#: The span of nanosecond time stamps (numpy/pandas ``datetime64[ns]``).
+_FIRST_NS = pd.Timestamp("1677-09-22", tz="UTC")
+_LAST_NS = pd.Timestamp("2262-04-11", tz="UTC")
+#: A time of day followed by a UTC offset (``+01:00``, ``-0500``, ``+02``).
+_OFFSET = re.compile(r"\d{2}:\d{2}(?::\d{2}(?:[.,]\d*)?)?\s*([+-])(\d{2}):?(\d{2})?$")
+#: A leap second (second 60) in a time of day.
+_LEAP = re.compile(r"(?:^|[T ])\d{2}:\d{2}:60(?:[.,]\d*)?(?:Z|[+-]\d{2}(?::?\d{2})?)?$")
+
+
+def _check_utc_stamps(raw: pd.Series, *, file=None, column: str = "time") -> None:
+    """Refuse leap-second stamps and times with a non-zero UTC offset, naming the row."""
+    suspect = raw.str.contains(r":60|\d[+-]\d{2}(?::?\d{2})?$", regex=True).to_numpy()
+    if not suspect.any():
+        return
+    for k in np.flatnonzero(suspect):
+        stamp = raw.iloc[k]
+        if _LEAP.search(stamp):
+            raise InputError(f"leap second in {stamp!r}: times are UTC without leap seconds "
+                             "(as numpy and pandas count them); drop or merge that sample",
+                             file=file, row=_line(k), column=column)
+        found = _OFFSET.search(stamp)
+        if found and (int(found.group(2)) or int(found.group(3) or 0)):
+            raise InputError(f"time {stamp!r} carries the UTC offset "
+                             f"{found.group(1)}{found.group(2)}:{found.group(3) or '00'}; "
+                             "times must be UTC ('Z', '+00:00' or no suffix)", file=file,
+                             row=_line(k), column=column)
+
+
 def parse_times(values: Iterable[str], *, file=None, column: str = "time") -> pd.DatetimeIndex:
     """Parse ISO-8601 UTC strings into a tz-aware DatetimeIndex, naming the first bad row.
+
+    Leap-second stamps (``23:59:60``) and times with a non-zero UTC offset are refused:
+    magcal's times are UTC without leap seconds, and a file mixing offsets is not the
+    CSV contract's.
 
     Examples
     --------
@@ -43,7 +79,14 @@ def parse_times(values: Iterable[str], *, file=None, column: str = "time") -> pd
     Timestamp('2019-03-04 15:10:00.500000+0000', tz='UTC')
     """
     raw = pd.Series(list(values), dtype="object").astype(str).str.strip()
+    _check_utc_stamps(raw, file=file, column=column)
     parsed = pd.to_datetime(raw, utc=True, format="ISO8601", errors="coerce")
+    with np.errstate(invalid="ignore"):
+        outside = ((parsed < _FIRST_NS) | (parsed > _LAST_NS)).to_numpy()
+    if outside.any():
+        first = int(np.flatnonzero(outside)[0])
+        raise InputError(f"time {raw.iloc[first]!r} is outside {_FIRST_NS.year}-"
+                         f"{_LAST_NS.year}", file=file, row=_line(first), column=column)
     bad = parsed.isna().to_numpy()
     if bad.any():
         first = int(np.flatnonzero(bad)[0])
@@ -89,6 +132,160 @@ def replace_fill_values(values: np.ndarray) -> tuple[np.ndarray, int]:
     return out, int(fill.sum())
 
 
+def _read_bytes(p: Path) -> bytes:
+    """The file's bytes, decompressed by the name's suffix (``.gz``, ``.bz2``, ``.xz``)."""
+    import bz2
+
+    opener = {".gz": gzip.open, ".bz2": bz2.open, ".xz": lzma.open}.get(p.suffix.lower(), open)
+    try:
+        with opener(p, "rb") as handle:
+            return handle.read()
+    except (EOFError, zlib.error, lzma.LZMAError, gzip.BadGzipFile, ValueError) as exc:
+        raise InputError(f"compressed file is damaged or cut short ({exc})", file=p) from None
+    except OSError as exc:
+        raise InputError(f"cannot read the file ({exc})", file=p) from None
+
+
+def _check_text(raw: bytes, p: Path) -> None:
+    """Refuse bytes that are not UTF-8 text, naming the line of the first bad byte."""
+    try:
+        raw.decode("utf-8")
+        pos = raw.find(b"\x00")
+    except UnicodeDecodeError as exc:
+        pos = exc.start
+    if pos >= 0:
+        raise InputError(f"not a text CSV file: byte 0x{raw[pos]:02x} is not UTF-8 text "
+                         "(binary file?)", file=p, row=raw[:pos].count(b"\n") + 1)
+
+
+def _field_counts(raw: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """Fields per line (commas + 1) and whether each line is blank, without quoting."""
+    arr = np.frombuffer(raw, dtype=np.uint8)
+    ends = np.flatnonzero(arr == 10)
+    if not raw.endswith(b"\n"):
+        ends = np.append(ends, arr.size)
+    starts = np.concatenate([[0], ends[:-1] + 1])
+    commas = np.searchsorted(ends, np.flatnonzero(arr == 44))
+    fields = np.bincount(commas, minlength=ends.size) + 1
+    length = ends - starts
+    blank = (length == 0) | ((length == 1) & (arr[np.minimum(starts, arr.size - 1)] == 13))
+    return fields, blank
+
+
+def _quoted_field_counts(text: str) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_field_counts` for files with quoted fields (slower, exact)."""
+    import csv as stdcsv
+    import io
+
+    fields, blank = [], []
+    reader = stdcsv.reader(io.StringIO(text))
+    last = 0
+    for row in reader:
+        for _ in range(reader.line_num - last - 1):       # lines inside a quoted field
+            fields.append(0)
+            blank.append(True)
+        fields.append(len(row))
+        blank.append(not row)
+        last = reader.line_num
+    return np.asarray(fields, dtype=np.int64), np.asarray(blank, dtype=bool)
+
+
+def _check_shape(raw: bytes, text: str, p: Path) -> None:
+    """Every non-blank line must have as many fields as the header."""
+    fields, blank = _quoted_field_counts(text) if b'"' in raw else _field_counts(raw)
+    lines = np.flatnonzero(~blank)
+    if lines.size == 0:
+        raise InputError("file is empty (expected a header line starting with 'time')",
+                         file=p)
+    want = int(fields[lines[0]])
+    bad = lines[fields[lines] != want]
+    if bad.size:
+        k = int(bad[0])
+        what = "line cut short?" if fields[k] < want else "a separator too many?"
+        raise InputError(f"{int(fields[k])} fields where the header has {want} ({what})",
+                         file=p, row=k + 1)
+
+
+def read_text_table(path: str | os.PathLike,
+                    unnamed_first: str | None = None) -> tuple[pd.DataFrame, list[str]]:
+    """Read a CSV file as a table of stripped strings, checking its shape.
+
+    The one place magcal's CSV readers turn a file into cells: UTF-8 (a byte-order mark
+    is skipped), compression from the file name (``.gz``, ``.bz2``, ``.xz``), every
+    cell a string with empty cells as ``""``, every line with as many fields as the
+    header. ``table.attrs["unterminated_last_line"]`` says whether the last line lacks
+    its line break (a file cut short ends so).
+
+    Parameters
+    ----------
+    path : path-like
+        The file.
+    unnamed_first : str, optional
+        Name given to a first column whose header cell is empty (a written index, as
+        in GFZ's Kp_def files); without it an empty name is an error.
+
+    Returns
+    -------
+    table : pandas.DataFrame
+        Columns as in the header (names stripped), cells as strings.
+    columns : list of str
+        The header's names, stripped.
+
+    Raises
+    ------
+    InputError
+        Missing, empty, damaged, binary or non-UTF-8 file (naming the line of the
+        first bad byte), a line with more or fewer fields than the header (naming the
+        line), a header with a duplicated or empty name.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> p = pathlib.Path(tempfile.mkdtemp()) / "t.csv"
+    >>> _ = p.write_text("time, Hp\\n2019-03-04T00:00:00,\\n")
+    >>> table, columns = read_text_table(p)
+    >>> columns, table["Hp"].tolist()
+    (['time', 'Hp'], [''])
+    >>> _ = p.write_text("time,Hp\\n2019-03-04T00:00:00\\n")
+    >>> read_text_table(p)
+    Traceback (most recent call last):
+    ...
+    magcal.errors.InputError: ...: row 2: 1 fields where the header has 2 (line cut short?)
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputError("file not found", file=p)
+    raw = _read_bytes(p)
+    if raw.startswith(b"\xef\xbb\xbf"):
+        raw = raw[3:]
+    if not raw.strip():
+        raise InputError("file is empty (expected a header line starting with 'time')",
+                         file=p)
+    _check_text(raw, p)
+    text = raw.decode("utf-8")
+    _check_shape(raw, text, p)
+    import io
+
+    try:
+        cells = pd.read_csv(io.StringIO(text), header=None, dtype=str, keep_default_na=False,
+                            skipinitialspace=True)
+    except pd.errors.ParserError as exc:
+        raise InputError(f"not a valid CSV table: {exc}", file=p) from None
+    columns = [str(c).strip() for c in cells.iloc[0].tolist()]
+    if unnamed_first is not None and not columns[0]:
+        columns[0] = unnamed_first
+    for k, name in enumerate(columns):
+        if not name:
+            raise InputError(f"column {k + 1} of the header has no name", file=p, row=1)
+        if name in columns[:k]:
+            raise InputError(f"duplicate column {name!r} in header", file=p, row=1,
+                             column=name)
+    table = cells.iloc[1:].reset_index(drop=True)
+    table.columns = columns
+    table.attrs["unterminated_last_line"] = len(table) > 0 and not raw.endswith((b"\n", b"\r"))
+    return table, columns
+
+
 def read_csv_frame(path: str | os.PathLike, required: Iterable[str] | None = None,
                    *, numeric: bool = True) -> pd.DataFrame:
     """Read a CONTRACTS §0 time-series CSV into a validated DataFrame.
@@ -107,14 +304,19 @@ def read_csv_frame(path: str | os.PathLike, required: Iterable[str] | None = Non
     pandas.DataFrame
         Index: tz-aware UTC :class:`pandas.DatetimeIndex` named ``time``. Columns as in
         the file. ``df.attrs["repairs"]`` lists each counted repair (fill values turned
-        into NaN), ``df.attrs["source"]`` the file and ``df.attrs["n_missing"]`` the NaN
-        count per column.
+        into NaN, infinities included), ``df.attrs["source"]`` the file and
+        ``df.attrs["n_missing"]`` the NaN count per column (empty cells, ``NaN`` and
+        fills).
 
     Raises
     ------
     InputError
-        Missing file, no ``time`` first column, unparsable time or number (with the line
-        number), times not strictly increasing, missing required column, no data rows.
+        Missing, empty, binary or non-UTF-8 file; a header with a duplicated or empty
+        column name; a row with more or fewer fields than the header; no ``time`` first
+        column; an unparsable time (including leap-second stamps ``:60`` and times with a
+        non-zero UTC offset) or number; times not strictly increasing; missing required
+        column; no data rows. Every message names the file, and the line and column
+        where there is one.
 
     Examples
     --------
@@ -128,23 +330,10 @@ def read_csv_frame(path: str | os.PathLike, required: Iterable[str] | None = Non
     1
     """
     p = Path(path)
-    if not p.is_file():
-        raise InputError("file not found", file=p)
-    try:
-        table = pd.read_csv(p, dtype=str, keep_default_na=False, skipinitialspace=True)
-    except pd.errors.EmptyDataError:
-        raise InputError("file is empty (expected a header line starting with 'time')",
-                         file=p) from None
-    except pd.errors.ParserError as exc:
-        raise InputError(f"not a valid CSV table: {exc}", file=p) from None
-    columns = [str(c).strip() for c in table.columns]
+    table, columns = read_text_table(p)
     if not columns or columns[0] != "time":
         raise InputError(f"first column must be 'time', found {columns[0] if columns else None!r}",
                          file=p, row=1)
-    dup = pd.Index(columns)[pd.Index(columns).duplicated()]
-    if len(dup):
-        raise InputError(f"duplicate column {dup[0]!r} in header", file=p, row=1)
-    table.columns = columns
     missing = [c for c in (required or ()) if c not in columns]
     if missing:
         raise InputError(f"missing required column(s) {', '.join(missing)}; "
@@ -165,6 +354,10 @@ def read_csv_frame(path: str | os.PathLike, required: Iterable[str] | None = Non
             repairs.append({"what": "fill value replaced by NaN", "column": name,
                             "count": n_fill})
         data[name] = values
+    if table.attrs.get("unterminated_last_line"):
+        repairs.append({"what": "last line kept although it has no line break (the file "
+                                "may be cut short there)", "column": None,
+                        "row": _line(len(table) - 1), "count": 1})
     frame = pd.DataFrame(data, index=index)
     frame.attrs["source"] = str(p)
     frame.attrs["repairs"] = repairs

@@ -135,15 +135,10 @@ def read_offsets_csv(path) -> OffsetTable:
         Missing file or column, unparsable time or number (naming the line), or
         centres not strictly increasing.
     """
-    from magcal.io.csv import parse_times
+    from magcal.io.csv import parse_times, read_text_table
 
     p = Path(path)
-    if not p.is_file():
-        raise InputError("file not found", file=p)
-    try:
-        raw = pd.read_csv(p, dtype=str, keep_default_na=False)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-        raise InputError(f"not a CSV offsets table ({exc})", file=p) from None
+    raw, _ = read_text_table(p)
     missing = [c for c in CONTRACT_COLUMNS if c not in raw.columns]
     if missing:
         raise InputError(f"missing column(s) {', '.join(missing)} (expected "
