@@ -59,11 +59,14 @@ def run_offsets(minute: MinuteData, config: ChainConfig):
 
 @dataclass(frozen=True)
 class CorrectedData:
-    """Offset-corrected Hpen at the 1-min cadence (for alignment and discovery)."""
+    """Offset-corrected Hpen at the 1-min cadence (for alignment and discovery) and at
+    the input cadence."""
 
     times: np.ndarray
     hpen: np.ndarray
     flag: np.ndarray
+    full_times: np.ndarray
+    full_hpen: np.ndarray
 
 
 def run_corrected(cleaned: CleanedData, minute: MinuteData, table, config: ChainConfig):
@@ -96,7 +99,7 @@ def run_corrected(cleaned: CleanedData, minute: MinuteData, table, config: Chain
     prov = make_provenance("offsets apply", {"flag_meaning": FLAG_MEANING})
     product = StageProduct(stage="corrected", summary=summary, lines=lines, tables=tables,
                            provenance=prov, warnings=warnings)
-    return CorrectedData(minute.times, corr_min, np.asarray(flag_min)), product
+    return CorrectedData(minute.times, corr_min, np.asarray(flag_min), t_all, corr), product
 
 
 def _reference(minute: MinuteData, config: ChainConfig):
@@ -116,23 +119,47 @@ def _reference(minute: MinuteData, config: ChainConfig):
     return out, [path]
 
 
+def _at_input_cadence(corrected: CorrectedData, minute: MinuteData, ref: np.ndarray):
+    """Corrected data at the input cadence with the reference, Kp and longitude
+    interpolated from the 1-min grid (the model field is smooth on that scale)."""
+    t = corrected.full_times.astype(np.int64)
+    tm = minute.times.astype("datetime64[ns]").astype(np.int64)
+    ok = np.isfinite(ref).all(axis=1)
+    ref_full = np.column_stack([np.interp(t, tm[ok], ref[ok, k], left=np.nan, right=np.nan)
+                                for k in range(3)]) if ok.sum() > 1 else np.full((len(t), 3),
+                                                                                 np.nan)
+    k = np.clip(np.searchsorted(tm, t), 0, len(tm) - 1)
+    return (corrected.full_times, corrected.full_hpen, ref_full, minute.kp[k],
+            minute.lon_deg[k])
+
+
 def run_alignment(corrected: CorrectedData, minute: MinuteData, config: ChainConfig):
-    """Rotation angles about Hp, He, Hn against the model or a reference spacecraft."""
+    """Rotation angles about Hp, He, Hn against the model or a reference spacecraft.
+
+    Fitted on the 1-min averages, or at the input cadence with ``[alignment]
+    cadence_s = 0`` (records of minutes).
+    """
     from magcal.alignment.product import AlignSettings, align_product
     from magcal.offsets import quiet_mask
 
     cfg = config["alignment"]
     ref, ref_files = _reference(minute, config)
+    times, data, kp, lon = corrected.times, corrected.hpen, minute.kp, minute.lon_deg
+    if cfg["cadence_s"] == 0:
+        times, data, ref, kp, lon = _at_input_cadence(corrected, minute, ref)
+    elif cfg["cadence_s"] != config["offsets"]["cadence_s"]:
+        raise InputError("[alignment] cadence_s must be 0 (input cadence) or the offsets "
+                         f"cadence ({config['offsets']['cadence_s']:g} s)", file=config.path)
     quiet, selection = None, {"kp_max": None}
-    if np.isfinite(minute.kp).any():
-        quiet = quiet_mask(minute.kp, cfg["kp_max"])
+    if np.isfinite(kp).any():
+        quiet = quiet_mask(kp, cfg["kp_max"])
         selection = {"kp_max": cfg["kp_max"], "used_rows": int(quiet.sum()),
                      "quiet_fraction": float(quiet.mean())}
     window = cfg["window_days"]
     settings = AlignSettings(mcmc=cfg["mcmc"], seed=cfg["seed"],
                              lt_harmonics=cfg["lt_harmonics"],
                              window_days=None if window == 0 else window)
-    product = align_product(corrected.times, corrected.hpen, ref, lon_deg=minute.lon_deg,
+    product = align_product(times, data, ref, lon_deg=lon,
                             lon_source="[position]", quiet=quiet, selection=selection,
                             settings=settings, rng=np.random.default_rng(cfg["seed"]),
                             inputs=ref_files)
