@@ -200,8 +200,10 @@ def variance_dof(stats, nstats, noise: OUNoise, step: float = 0.05) -> np.ndarra
     log_s2 = np.log(noise.std_nT ** 2)
     a_c, _ = _component_normals(stats, noise.tau_s)
     w = np.exp(-log_s2)
-    a_inv = np.linalg.inv(np.einsum("c,cij->ij", w, a_c))
+    a_inv = information_inverse(np.einsum("c,cij->ij", w, a_c))
     v = np.diag(a_inv)
+    if not np.all(np.isfinite(v) & (v > 0)):
+        return np.full(p, 1.0)  # parameters not identified: no variance to propagate
     var_log_v = np.zeros(p)
     h = step
     for c in range(3):
@@ -226,7 +228,9 @@ def variance_dof(stats, nstats, noise: OUNoise, step: float = 0.05) -> np.ndarra
             tau = noise.tau_s.copy()
             tau[c] *= np.exp(sign * h)
             a_t, _ = _component_normals(stats, tau)
-            v_pm.append(np.diag(np.linalg.inv(np.einsum("c,cij->ij", w, a_t))))
+            v_pm.append(np.diag(information_inverse(np.einsum("c,cij->ij", w, a_t))))
+        if not all(np.all(np.isfinite(x) & (x > 0)) for x in v_pm):
+            return np.full(p, 1.0)
         g_t = (np.log(v_pm[0]) - np.log(v_pm[1])) / (2 * h)
         g = np.stack([g_s, g_t], axis=1)
         var_log_v += np.einsum("ki,ij,kj->k", g, c_h, g)
@@ -305,30 +309,111 @@ def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bo
     t, d, r, keep = prepare(times, data, ref)
     names = param_names(fit_rotation, fit_offset, fit_scale, lt_harmonics)
     basis = lt_basis(times, keep, lt_harmonics, lon_deg)
-    theta = initial_guess(d, r, names)
+    theta = starting_point(d, r, names, basis)
     fixed_noise = noise is not None
     for _ in range(1 if fixed_noise else noise_iter):
         if not fixed_noise:
             mu, jac = predict_and_jacobian(theta, names, r, basis)
             noise = _fit_noise_stats(noise_stats(t, d, mu, jac), t)
-        for _ in range(max_iter):
-            mu, jac = predict_and_jacobian(theta, names, r, basis)
-            a, b = _normal_equations(component_stats(t, d, mu, jac), noise)
-            step = np.linalg.solve(a, b)
-            theta = theta + step
-            if np.all(np.abs(step) <= 1e-9 * (1.0 + np.abs(theta))):
-                break
+        theta = gauss_newton(theta, t, d, r, names, basis, noise, max_iter)
     mu, jac = predict_and_jacobian(theta, names, r, basis)
     stats = component_stats(t, d, mu, jac)
     nstats = noise_stats(t, d, mu, jac)
     if not fixed_noise:
         noise = _fit_noise_stats(nstats, t)
     a, _ = _normal_equations(stats, noise)
-    cov = np.linalg.inv(a)
+    cov = information_inverse(a)
     dof = (variance_dof(stats, nstats, noise) if not fixed_noise
            else np.full(len(names), np.inf))
     return summarize(theta, cov, names, noise, d - mu, method="wahba+ou-gls", dof=dof,
                      lon_deg=lon_deg)
+
+
+def information_inverse(a) -> np.ndarray:
+    """Inverse of a Fisher information matrix, or all NaN when it is not positive definite.
+
+    The matrix is scaled to unit diagonal before a Cholesky factorisation, so parameters
+    of very different units (radians, nT, harmonics) do not spoil the test. A matrix that
+    is singular or indefinite in floating point (parameters the data cannot tell apart)
+    has no covariance: NaN says so instead of negative variances.
+
+    Examples
+    --------
+    >>> information_inverse(np.diag([4.0, 0.25]))
+    array([[0.25, 0.  ],
+           [0.  , 4.  ]])
+    >>> bool(np.isnan(information_inverse([[1.0, 1.0], [1.0, 1.0]])).all())
+    True
+    """
+    a = np.asarray(a, dtype=float)
+    diag = np.diag(a)
+    if not (np.all(np.isfinite(a)) and np.all(diag > 0)):
+        return np.full(a.shape, np.nan)
+    scale = np.sqrt(diag)
+    try:
+        chol = np.linalg.cholesky(a / np.outer(scale, scale))
+    except np.linalg.LinAlgError:
+        return np.full(a.shape, np.nan)
+    if np.min(np.abs(np.diag(chol))) < 1e-7:  # condition number above ~1e14
+        return np.full(a.shape, np.nan)
+    inv_chol = np.linalg.inv(chol)
+    return (inv_chol.T @ inv_chol) / np.outer(scale, scale)
+
+
+def whitened_rss(t, d, mu, noise: OUNoise) -> float:
+    """Generalised least-squares objective: whitened residual sum of squares over the
+    components, each in units of its noise variance."""
+    stats = lag_stats(d - mu, t)
+    return float(sum(stats.gram(noise.tau_s[c])[0][c, c] / noise.std_nT[c] ** 2
+                     for c in range(3)))
+
+
+def starting_point(d, r, names, basis=None) -> np.ndarray:
+    """Start of the Gauss-Newton refinement: Wahba's closed form or the identity,
+    whichever leaves the smaller residual.
+
+    With a reference that hardly changes direction the centred Wahba problem is
+    degenerate and its rotation arbitrary (tens of degrees on minutes of data); the
+    identity (with the mean offset) is then the better start.
+    """
+    wahba = initial_guess(d, r, names)
+    if "w_Hp" not in names:
+        return wahba
+    identity = wahba.copy()
+    identity[:3] = 0.0
+    if "o_Hp" in names:
+        identity[3:6] = np.mean(d - r, axis=0)
+    rss = [float(np.sum((d - predict_and_jacobian(th, names, r, basis)[0]) ** 2))
+           for th in (wahba, identity)]
+    return wahba if rss[0] <= rss[1] else identity
+
+
+def gauss_newton(theta, t, d, r, names, basis, noise: OUNoise, max_iter: int = 20,
+                 max_halvings: int = 30) -> np.ndarray:
+    """Gauss-Newton on the generalised least-squares objective with step halving.
+
+    A step is accepted only if it lowers :func:`whitened_rss`; a full step that does not
+    is halved until one does. The refinement can therefore never leave a worse fit than
+    its start, however poorly the rotation is determined.
+    """
+    mu, jac = predict_and_jacobian(theta, names, r, basis)
+    current = whitened_rss(t, d, mu, noise)
+    for _ in range(max_iter):
+        a, b = _normal_equations(component_stats(t, d, mu, jac), noise)
+        step = np.linalg.lstsq(a, b, rcond=None)[0]
+        for _ in range(max_halvings):
+            trial = theta + step
+            mu_t, jac_t = predict_and_jacobian(trial, names, r, basis)
+            value = whitened_rss(t, d, mu_t, noise)
+            if value <= current * (1.0 + 1e-12):
+                break
+            step = 0.5 * step
+        else:
+            return theta  # no step lowers the objective: at the minimum (to precision)
+        theta, mu, jac, current = trial, mu_t, jac_t, value
+        if np.all(np.abs(step) <= 1e-9 * (1.0 + np.abs(theta))):
+            break
+    return theta
 
 
 def lt_basis(times, keep, lt_harmonics: int, lon_deg=None):
