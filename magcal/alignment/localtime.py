@@ -74,7 +74,9 @@ def describe_harmonics(coef, cov, lon_deg=None) -> dict:
         Coefficients (nT) per component, ``[cos1, sin1, ...]``.
     cov : array_like, shape (6K, 6K)
         Their covariance (component-major, as :func:`harmonic_names`).
-    lon_deg : float, optional
+    lon_deg : float or array_like, optional
+        East longitude, one value or one per sample (as a ``lon_deg`` column gives it):
+        the median is reported, and the range when it varies.
 
     Returns
     -------
@@ -103,12 +105,20 @@ def describe_harmonics(coef, cov, lon_deg=None) -> dict:
         pval[name] = float(chi2_dist.sf(chi2[name], k2))
         std[name] = [float(v) for v in np.sqrt(np.diag(block))]
     pp = peak_to_peak(c)
+    lon = lon_range = None
+    if lon_deg is not None:
+        values = np.atleast_1d(np.asarray(lon_deg, dtype=float))
+        lon = float(np.median(values))
+        if np.ptp(values) > 0:
+            lon_range = [float(values.min()), float(values.max())]
     return {
         "n_harmonics": k2 // 2,
-        "time_base": ("local time (UT + {:g} deg / 15)".format(lon_deg) if lon_deg is not None
+        "time_base": ("local time (UT + lon / 15 h, lon {:g} deg{})".format(
+            lon, "" if lon_range is None else " median, per sample") if lon is not None
                       else "UT (no longitude given; for a fixed longitude only the phase "
                            "differs from local time)"),
-        "lon_deg": None if lon_deg is None else float(lon_deg),
+        "lon_deg": lon,
+        "lon_deg_range": lon_range,
         "coefficients_nT": {n: [float(v) for v in c[i]] for i, n in enumerate(comps)},
         "coefficients_std_nT": std,
         "order": "cos1, sin1, cos2, sin2, ... of 2 pi LT / 24",

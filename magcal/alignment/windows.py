@@ -102,6 +102,8 @@ def angles_by_window(times, data, ref, window_s: float, step_s: float | None = N
         raise InputError("angles_by_window needs datetime64 times")
     d = np.asarray(data, dtype=float)
     r = np.asarray(ref, dtype=float)
+    lon = fit_kwargs.pop("lon_deg", None)
+    per_sample_lon = lon is not None and np.ndim(lon) > 0
     win = np.timedelta64(int(window_s * 1e9), "ns")
     step = win if step_s is None else np.timedelta64(int(step_s * 1e9), "ns")
     starts, ends, angles, stds, ns = [], [], [], [], []
@@ -111,7 +113,9 @@ def angles_by_window(times, data, ref, window_s: float, step_s: float | None = N
         sel = (t >= s) & (t < e)
         finite = sel & np.isfinite(d).all(axis=1) & np.isfinite(r).all(axis=1)
         if finite.sum() >= min_samples:
-            res = fit_alignment(t[sel], d[sel], r[sel], **fit_kwargs)
+            res = fit_alignment(t[sel], d[sel], r[sel],
+                                lon_deg=np.asarray(lon)[sel] if per_sample_lon else lon,
+                                **fit_kwargs)
             starts.append(s)
             ends.append(e)
             angles.append(res.angles_deg)
