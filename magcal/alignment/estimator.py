@@ -9,6 +9,8 @@ from scipy.spatial.transform import Rotation
 
 from magcal.alignment.checks import (add_systematic, inflate, local_time_check,
                                      whole_vs_windows, window_consistency)
+from magcal.alignment.determinability import (MAX_ANGLE_DEG, check_after, check_before,
+                                              identity_fit, not_determinable)
 from magcal.alignment.gls import fit_alignment, prepare
 from magcal.alignment.noise import COMPONENTS
 from magcal.alignment.posterior import sample_posterior
@@ -79,12 +81,19 @@ class Aligner:
         Window length for the consistency check (see :func:`resolve_window_days`).
     inflate_inconsistent : bool
         Widen the intervals by the Birge ratio when the windows disagree.
+    max_angle_deg : float
+        Physically sensible range of each angle: a rotation the data cannot confine to
+        it is reported as not determinable (default 45, the posterior's prior range).
 
     Attributes
     ----------
     result_ : AlignmentResult
         The reported result (inflated when the windows disagree).
     closed_form_ : AlignmentResult
+        The closed-form fit (the identity fit when the rotation was not fitted).
+    identity_ : AlignmentResult
+        Fit of the nuisance terms alone (no rotation), the baseline the rotation must beat.
+    determinability_ : Determinability
     windows_ : WindowAngles or None
     lt_harmonics_ : int
     angles_deg_, std_deg_ : ndarray, shape (3,)
@@ -102,7 +111,8 @@ class Aligner:
     def __init__(self, fit_offset: bool = True, fit_scale: bool = False, mcmc: bool = False,
                  rng: np.random.Generator | None = None, n_walkers: int = 32,
                  min_autocorr_times: float = 50.0, max_steps: int = 40000,
-                 lt_harmonics="auto", window_days="auto", inflate_inconsistent: bool = True):
+                 lt_harmonics="auto", window_days="auto", inflate_inconsistent: bool = True,
+                 max_angle_deg: float = MAX_ANGLE_DEG):
         self.fit_offset = fit_offset
         self.fit_scale = fit_scale
         self.mcmc = mcmc
@@ -113,17 +123,56 @@ class Aligner:
         self.lt_harmonics = lt_harmonics
         self.window_days = window_days
         self.inflate_inconsistent = inflate_inconsistent
+        self.max_angle_deg = max_angle_deg
 
     def fit(self, times, data, ref, lon_deg=None) -> "Aligner":
         """Fit on matched ``data`` and ``ref`` (n, 3) at ``times``; return self.
 
         ``lon_deg`` (east longitude, scalar or per sample) puts the local-time field in
         local time; without it the harmonics are in UT (same fit at a fixed longitude).
+
+        Before the rotation is fitted, :func:`~magcal.alignment.determinability.check_before`
+        decides whether the data can determine it at all (record length against the
+        nuisance periods, Cramér-Rao bound with the nuisance terms fitted); afterwards
+        :func:`~magcal.alignment.determinability.check_after` requires a sensible
+        interval and a fit no worse than the identity. A rotation that fails is reported
+        with NaN angles, the reason in ``result_.determinability`` and a warning; the
+        offset, noise and residual are then those of the identity fit (``identity_``).
         """
         t_s, _, _, _ = prepare(times, data, ref)
         span_days = float(t_s[-1] - t_s[0]) / 86400.0
         k = resolve_lt_harmonics(self.lt_harmonics, span_days)
         kw = dict(fit_offset=self.fit_offset, fit_scale=self.fit_scale, lon_deg=lon_deg)
+        identity = identity_fit(times, data, ref, lt_harmonics=k if span_days >= 1.0 else 0,
+                                **kw)
+        verdict = check_before(times, data, ref, identity, lt_harmonics=k,
+                               max_angle_deg=self.max_angle_deg, **kw)
+        self.windows_ = None
+        if verdict.determinable:
+            closed, result, warnings, checks = self._fit_rotation(times, data, ref, k,
+                                                                  span_days, kw)
+            verdict = check_after(result, verdict)
+        else:
+            closed, warnings, checks = None, [], {}
+        if verdict.determinable:
+            result = dataclasses.replace(result, determinability=verdict)
+        else:
+            result = not_determinable(identity, verdict)
+            closed = closed if closed is not None else result
+            warnings = [f"rotation not determinable: {verdict.reason}"] + warnings
+        result = dataclasses.replace(result, warnings=tuple(warnings), checks=checks or None)
+        self.lt_harmonics_ = k
+        self.identity_ = identity
+        self.closed_form_ = closed
+        self.result_ = result
+        self.determinability_ = verdict
+        self.angles_deg_ = result.angles_deg
+        self.std_deg_ = result.std_deg
+        return self
+
+    def _fit_rotation(self, times, data, ref, k, span_days, kw):
+        """Closed form, local-time check, posterior and window checks of a determinable
+        rotation: ``(closed_form, result, warnings, checks)``."""
         closed = fit_alignment(times, data, ref, lt_harmonics=k, **kw)
         warnings, checks = [], {}
         if k == 0 and span_days < AUTO_LT_MIN_DAYS and self.lt_harmonics == "auto":
@@ -146,43 +195,41 @@ class Aligner:
                                       fit_scale=self.fit_scale, n_walkers=self.n_walkers,
                                       min_autocorr_times=self.min_autocorr_times,
                                       max_steps=self.max_steps, start=closed,
-                                      lt_harmonics=k, lon_deg=lon_deg)
+                                      lt_harmonics=k, lon_deg=kw["lon_deg"])
             if not result.converged:
                 warnings.append(result.mcmc["message"])
-        self.windows_ = None
         wd = resolve_window_days(self.window_days, span_days)
         if wd:
-            self.windows_ = angles_by_window(
-                times, data, ref, window_s=wd * 86400.0, min_samples=100,
-                lt_harmonics=min(k, AUTO_LT_HARMONICS) if wd >= AUTO_LT_MIN_DAYS else 0,
-                **kw)
-            cons, warn = window_consistency(self.windows_)
-            checks["window_consistency"] = cons
-            warnings += warn
-            whole, warn, syst = whole_vs_windows(result, self.windows_)
-            checks["whole_vs_windows"] = whole
-            warnings += warn
-            uninflated = {
-                "std_deg": dict(zip(COMPONENTS, map(float, result.std_deg))),
-                "ci95_deg": {c: [float(lo), float(hi)] for c, (lo, hi)
-                             in zip(COMPONENTS, result.ci95_deg)}}
-            if self.inflate_inconsistent and "inflation" in cons:
-                factors = [cons["inflation"][c] for c in COMPONENTS]
-                result = inflate(result, factors, cons["dof"])
-                checks["window_consistency"]["inflation_applied"] = any(
-                    f != 1.0 for f in factors)
-            if self.inflate_inconsistent:
-                result = add_systematic(result, syst)
-                whole["systematic_applied"] = bool(np.any(syst > 0))
-            if not np.allclose(result.std_deg, list(uninflated["std_deg"].values())):
-                checks["uninflated"] = uninflated
-        result = dataclasses.replace(result, warnings=tuple(warnings), checks=checks or None)
-        self.lt_harmonics_ = k
-        self.closed_form_ = closed
-        self.result_ = result
-        self.angles_deg_ = result.angles_deg
-        self.std_deg_ = result.std_deg
-        return self
+            result = self._window_checks(times, data, ref, result, wd, k, kw, checks, warnings)
+        return closed, result, warnings, checks
+
+    def _window_checks(self, times, data, ref, result, wd, k, kw, checks, warnings):
+        """Angles by window, their consistency and the whole-vs-windows comparison; the
+        result with intervals inflated as the checks say (``checks``/``warnings`` are
+        extended in place)."""
+        self.windows_ = angles_by_window(
+            times, data, ref, window_s=wd * 86400.0, min_samples=100,
+            lt_harmonics=min(k, AUTO_LT_HARMONICS) if wd >= AUTO_LT_MIN_DAYS else 0, **kw)
+        cons, warn = window_consistency(self.windows_)
+        checks["window_consistency"] = cons
+        warnings += warn
+        whole, warn, syst = whole_vs_windows(result, self.windows_)
+        checks["whole_vs_windows"] = whole
+        warnings += warn
+        uninflated = {
+            "std_deg": dict(zip(COMPONENTS, map(float, result.std_deg))),
+            "ci95_deg": {c: [float(lo), float(hi)] for c, (lo, hi)
+                         in zip(COMPONENTS, result.ci95_deg)}}
+        if self.inflate_inconsistent and "inflation" in cons:
+            factors = [cons["inflation"][c] for c in COMPONENTS]
+            result = inflate(result, factors, cons["dof"])
+            checks["window_consistency"]["inflation_applied"] = any(f != 1.0 for f in factors)
+        if self.inflate_inconsistent:
+            result = add_systematic(result, syst)
+            whole["systematic_applied"] = bool(np.any(syst > 0))
+        if not np.allclose(result.std_deg, list(uninflated["std_deg"].values())):
+            checks["uninflated"] = uninflated
+        return result
 
     def transform(self, data) -> np.ndarray:
         """Undo the fitted rotation, offset and scale: ``R(w)^-1 (data - offset) / scale``.
@@ -191,6 +238,8 @@ class Aligner:
         and is not removed.
         """
         res = self.result_
+        if not res.determinable:
+            raise MagcalError(f"no rotation to undo: {res.determinability.reason}")
         d = np.asarray(data, dtype=float)
         offset = np.zeros(3) if res.offset_nT is None else res.offset_nT
         scale = 1.0 if res.scale is None else res.scale

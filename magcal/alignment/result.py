@@ -65,6 +65,10 @@ class AlignmentResult:
         JSON-ready diagnostics behind the warnings (local-time check, window
         consistency, inflation applied).
     provenance : dict or None
+    determinability : Determinability or None
+        Whether the data determine the rotation
+        (:mod:`magcal.alignment.determinability`); when not, the angles, their
+        covariance and interval are NaN.
     """
 
     angles_deg: np.ndarray
@@ -89,6 +93,12 @@ class AlignmentResult:
     warnings: tuple = ()
     checks: dict | None = None
     provenance: dict | None = None
+    determinability: object | None = None
+
+    @property
+    def determinable(self) -> bool:
+        """False when the determinability checks found the rotation not determinable."""
+        return self.determinability is None or bool(self.determinability.determinable)
 
     @property
     def std_deg(self) -> np.ndarray:
@@ -121,6 +131,8 @@ class AlignmentResult:
         if self.method == "emcee":
             out["converged"] = bool(self.converged)
             out["autocorr_steps"] = self.autocorr_steps
+        out["determinable"] = self.determinable
+        out["reason"] = None if self.determinability is None else self.determinability.reason
         out.update({
             "convention": "data ~= scale * R(w) @ reference + offset; w = rotation vector "
                           "about (Hp, He, Hn), scipy Rotation.from_rotvec",
@@ -138,6 +150,8 @@ class AlignmentResult:
         out["warnings"] = list(self.warnings)
         if self.local_time is not None:
             out["local_time_field"] = self.local_time
+        if self.determinability is not None:
+            out["determinability"] = self.determinability.to_json()
         if self.checks is not None:
             out.update(self.checks)
         if self.mcmc is not None:
