@@ -1,8 +1,12 @@
-"""``magcal align``: rotation angles about Hp, He, Hn against a reference (CONTRACTS §3)."""
+"""``magcal align``: rotation angles about Hp, He, Hn against a reference (CONTRACTS §3).
+
+Parses the arguments, reads the files and calls :mod:`magcal.alignment.product`, which
+builds ALIGN.json; prints one line on stderr when the rotation is not determinable.
+"""
 
 from __future__ import annotations
 
-import numpy as np
+import sys
 
 from magcal.cli._common import add_output, existing_file
 from magcal.errors import InputError
@@ -17,7 +21,11 @@ def register(subparsers) -> None:
             "Estimate the small rotation w (degrees about Hp, He, Hn) with "
             "DATA ~= R(w) @ REF, plus a constant offset, with uncertainties that account "
             "for time-correlated model-minus-data errors. Both files are time,Hp,He,Hn; "
-            "rows are matched on identical times."))
+            "rows are matched on identical times. When the data cannot determine the "
+            "rotation (too little change of the reference's direction over the record, "
+            "nuisance terms degenerate with it, or a fit no better than the identity), "
+            "ALIGN.json says \"determinable\": false with the reason, the angles are null, "
+            "and one line on stderr says why (exit status 0)."))
     p.add_argument("data", help="calibrated data, CSV time,Hp,He,Hn (nT)")
     p.add_argument("--reference", required=True,
                    help="reference field (model or reference spacecraft), CSV time,Hp,He,Hn")
@@ -48,6 +56,9 @@ def register(subparsers) -> None:
                         "a model, which lacks the storm-time field")
     p.add_argument("--kp-max", type=float, default=1.0,
                    help="largest Kp of a used sample with --kp (default 1.0)")
+    p.add_argument("--max-angle", type=float, default=45.0, metavar="DEG",
+                   help="physically sensible range of each angle: a rotation the data cannot "
+                        "confine to +-DEG is reported as not determinable (default 45)")
     add_output(p, help_text="output ALIGN.json")
     p.set_defaults(func=run)
 
@@ -64,115 +75,39 @@ def _auto_or_number(text, name, kind=float):
     return value
 
 
-def _matched(data_path, ref_path):
-    from magcal.io.csv import read_csv_frame
-
-    data = read_csv_frame(data_path, required=COLUMNS)
-    ref = read_csv_frame(ref_path, required=COLUMNS)
-    common = data.index.intersection(ref.index)
-    if common.size == 0:
-        raise InputError("no time in common with the data file", file=ref_path, column="time")
-    d = data.loc[common, list(COLUMNS)].to_numpy(dtype=float)
-    r = ref.loc[common, list(COLUMNS)].to_numpy(dtype=float)
-    ok = np.isfinite(d).all(axis=1) & np.isfinite(r).all(axis=1)
-    if ok.sum() < 10:
-        raise InputError(f"only {int(ok.sum())} matched rows with finite Hp, He, Hn in both "
-                         "files (need at least 10)", file=data_path)
-    naive = common.tz_convert("UTC").tz_localize(None) if common.tz is not None else common
-    times = naive.to_numpy().astype("datetime64[ns]")
-    lon = data.loc[common, "lon_deg"].to_numpy(dtype=float) if "lon_deg" in data else None
-    return times, d, r, int(common.size), int(data.shape[0]), int(ref.shape[0]), lon
-
-
 def run(args) -> int:
-    from magcal.alignment.estimator import Aligner
-    from magcal.io.jsonio import write_json
-    from magcal.provenance import make_provenance
+    from magcal.alignment.product import (AlignSettings, align_product, match_frames,
+                                          quiet_from_kp, resolve_longitude)
+    from magcal.io.csv import read_csv_frame
 
     data_path = existing_file(args.data)
     ref_path = existing_file(args.reference)
-    lt_harmonics = _auto_or_number(args.lt_harmonics, "--lt-harmonics", int)
-    window_days = _auto_or_number(args.window_days, "--window-days")
-    times, d, r, n_matched, n_data, n_ref, lon = _matched(data_path, ref_path)
-    lon_source = "lon_deg column" if lon is not None else None
-    if args.longitude is not None:
-        lon, lon_source = args.longitude, "--longitude"
-    elif lon is not None and not np.isfinite(lon).all():
-        raise InputError("lon_deg has missing values in matched rows", file=data_path,
-                         column="lon_deg")
-    inputs = [data_path, ref_path]
-    selection = {"kp_file": None, "kp_max": None, "used_rows": n_matched}
+    if not args.max_angle > 0:
+        raise InputError(f"--max-angle must be positive, got {args.max_angle}")
+    settings = AlignSettings(
+        fit_offset=not args.no_offset, fit_scale=args.fit_scale, mcmc=args.mcmc,
+        seed=args.seed, max_steps=args.max_steps,
+        window_days=_auto_or_number(args.window_days, "--window-days"),
+        lt_harmonics=_auto_or_number(args.lt_harmonics, "--lt-harmonics", int),
+        max_angle_deg=args.max_angle)
+    pair = match_frames(read_csv_frame(data_path, required=COLUMNS),
+                        read_csv_frame(ref_path, required=COLUMNS),
+                        data_name=data_path, ref_name=ref_path)
+    lon, lon_source = resolve_longitude(pair, args.longitude, data_name=data_path)
+    inputs, quiet, selection = [data_path, ref_path], None, None
     if args.kp is not None:
-        from magcal.indices import kp_at, read_kp
-        from magcal.offsets.estimator import quiet_mask
+        from magcal.indices import read_kp
 
         kp_path = existing_file(args.kp)
         inputs.append(kp_path)
-        quiet = quiet_mask(kp_at(read_kp(kp_path), times), args.kp_max)
-        if quiet.sum() < 10:
-            raise InputError(f"only {int(quiet.sum())} matched rows with Kp <= {args.kp_max:g}",
-                             file=kp_path)
-        d = np.where(quiet[:, None], d, np.nan)
-        selection = {"kp_file": str(kp_path), "kp_max": args.kp_max,
-                     "used_rows": int(quiet.sum()), "quiet_fraction": float(quiet.mean())}
-    aligner = Aligner(fit_offset=not args.no_offset, fit_scale=args.fit_scale, mcmc=args.mcmc,
-                      rng=np.random.default_rng(args.seed), max_steps=args.max_steps,
-                      lt_harmonics=lt_harmonics,
-                      window_days=None if window_days == 0 else window_days)
-    aligner.fit(times, d, r, lon_deg=lon)
-    payload = aligner.result_.to_json()
-    if args.kp is None:
-        payload["warnings"].append(
-            "no --kp given: all samples used; a model reference lacks the storm-time field, "
-            "which can bias the angles in every window alike (see window_consistency)")
-    payload["matched_rows"] = {"data_rows": n_data, "reference_rows": n_ref,
-                               "matched": n_matched}
-    payload["selection"] = selection
-    payload["lt_harmonics"] = aligner.lt_harmonics_
-    payload["longitude"] = {"source": lon_source,
-                            "lon_deg": None if lon is None else float(np.median(lon))}
-    if args.mcmc:
-        payload["closed_form"] = {k: v for k, v in aligner.closed_form_.to_json().items()
-                                  if k in ("angles_deg", "std_deg", "ci95_deg", "method")}
-    if aligner.windows_ is not None:
-        win = aligner.windows_
-        payload["windows"] = {k: v for k, v in win.to_json().items()
-                              if k not in ("schema_version", "magcal_version")}
-        payload["windows"]["paper_style"] = {
-            c: f"{a:.2f} ({s:.2f})" for c, a, s in zip(COLUMNS, aligner.result_.angles_deg,
-                                                       win.spread_deg)}
-        payload["windows"]["paper_style_meaning"] = (
-            "angle of the whole record (standard deviation of the window angles), as "
-            "the SOSMAG paper quotes 1.7 (4.0), -0.5 (1.4), -0.5 (1.9) deg")
-    payload["provenance"] = make_provenance(
-        "align", {"mcmc": args.mcmc, "seed": args.seed, "fit_offset": not args.no_offset,
-                  "fit_scale": args.fit_scale, "max_steps": args.max_steps,
-                  "window_days": args.window_days, "lt_harmonics": args.lt_harmonics,
-                  "longitude": args.longitude, "kp_max": args.kp_max if args.kp else None},
-        inputs=inputs)
-    if args.mcmc and aligner.result_.samples is not None:
-        samples_path = samples_path_for(args.output)
-        payload["mcmc"]["samples_file"] = samples_path.name
-        _write_samples(samples_path, aligner.result_)
-    write_json(args.output, payload)
+        quiet = quiet_from_kp(pair.times, read_kp(kp_path), args.kp_max, kp_name=kp_path)
+        selection = {"kp_file": str(kp_path), "kp_max": args.kp_max}
+    product = align_product(pair.times, pair.data, pair.ref, lon_deg=lon,
+                            lon_source=lon_source, quiet=quiet, selection=selection,
+                            settings=settings, inputs=inputs,
+                            matched_rows=pair.matched_rows)
+    product.write(args.output)
+    if not product.determinable:
+        print(f"magcal align: rotation not determinable, angles written as null: "
+              f"{product.reason}", file=sys.stderr)
     return 0
-
-
-def samples_path_for(output):
-    """Side file of the posterior samples: ``ALIGN.json`` -> ``ALIGN.samples.csv.gz``."""
-    from pathlib import Path
-
-    out = Path(output)
-    return out.with_name(out.stem + ".samples.csv.gz")
-
-
-def _write_samples(path, result) -> None:
-    """Posterior samples (angles in degrees, as named in ``mcmc.sample_names``), atomically."""
-    import pandas as pd
-
-    from magcal.io.atomic import atomic_path
-
-    names = [n.replace("w_", "angle_deg_") for n in result.mcmc["sample_names"]]
-    frame = pd.DataFrame(result.samples, columns=names)
-    with atomic_path(path) as tmp:
-        frame.to_csv(tmp, index=False, float_format="%.6g", compression="gzip")
