@@ -26,6 +26,8 @@ from magcal.errors import InputError
 
 #: An offset model is chosen when it lowers the residual RMS by at least this factor.
 OFFSET_GAIN = 2.0
+#: Below this residual (nT) a rotation alone is exact: no offset is fitted.
+EXACT_NT = 1e-6
 
 
 @dataclass(frozen=True)
@@ -97,7 +99,8 @@ def estimate_rotation(b_sensor, b_reference, fit_offset="auto") -> RotationFit:
         nT; rows with a NaN in either are left out.
     fit_offset : bool or "auto"
         Fit a sensor offset too; ``"auto"`` keeps it when it lowers the residual RMS by
-        at least :data:`OFFSET_GAIN` (the data then show a constant difference).
+        at least :data:`OFFSET_GAIN` (the data then show a constant difference) and the
+        rotation alone is not exact (:data:`EXACT_NT`).
 
     Returns
     -------
@@ -132,7 +135,8 @@ def estimate_rotation(b_sensor, b_reference, fit_offset="auto") -> RotationFit:
     rms0 = _rms(r - b @ m0.T)
     m1, o1 = _gauss_newton(b, r, m0)
     rms1 = _rms((b - o1) @ m1.T - r)
-    use_offset = bool(fit_offset) if fit_offset != "auto" else rms1 * OFFSET_GAIN < rms0
+    use_offset = (bool(fit_offset) if fit_offset != "auto"
+                  else rms1 * OFFSET_GAIN < rms0 and rms0 > EXACT_NT)
     matrix, offset = (m1, o1) if use_offset else (m0, np.zeros(3))
     resid = (b - offset) @ matrix.T - r
     jtj = _normal_matrix(b - offset, matrix, use_offset)
