@@ -327,7 +327,7 @@ def simulate_month(config: MonthConfig | None = None, *, rng: np.random.Generato
     import pandas as pd
 
     from magcal.models.field import model_field_hpen
-    from magcal.offsets.diagnostics import local_time_hours
+    from magcal.frames.localtime import local_time_hours
 
     cfg = config or MonthConfig()
     if cfg.n_days <= 0 or cfg.cadence_s <= 0:

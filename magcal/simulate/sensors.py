@@ -88,7 +88,7 @@ class Sensor:
 
 
 def rotation_from_vector(w_rad) -> np.ndarray:
-    """Rotation matrix of a rotation vector (Rodrigues' formula).
+    """Rotation matrix of a rotation vector (radians; scipy's ``Rotation.from_rotvec``).
 
     Examples
     --------
@@ -97,13 +97,9 @@ def rotation_from_vector(w_rad) -> np.ndarray:
            [ 1.,  0.,  0.],
            [ 0.,  0.,  1.]])
     """
-    w = np.asarray(w_rad, dtype=float)
-    angle = np.linalg.norm(w)
-    if angle == 0.0:
-        return np.eye(3)
-    k = w / angle
-    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + np.sin(angle) * kx + (1.0 - np.cos(angle)) * (kx @ kx)
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(np.asarray(w_rad, dtype=float)).as_matrix()
 
 
 @dataclass(frozen=True)
