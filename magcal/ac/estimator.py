@@ -23,6 +23,32 @@ from magcal.timeconv import epoch_seconds
 COMPONENTS = ("x", "y", "z")
 
 
+def require_common_frame(frame: pd.DataFrame, sensors) -> None:
+    """Refuse sensors that the reader says are in different frames.
+
+    PiCoG combines sensors component by component, so they must share one frame.
+    Readers of instrument files that deliver each sensor in its own frame (GOES-R L2)
+    record it in ``frame.attrs["sensor_frames"]``; ``magcal run`` rotates them into a
+    common frame first (``[frames]``).
+
+    Examples
+    --------
+    >>> f = pd.DataFrame(columns=["ib_x"])
+    >>> f.attrs["sensor_frames"] = {"ib": "inboard sensor", "ob": "outboard sensor"}
+    >>> require_common_frame(f, ["ib", "ob"])
+    Traceback (most recent call last):
+    ...
+    magcal.errors.InputError: sensors ib (inboard sensor), ob (outboard sensor) are in different frames: PiCoG needs one common frame (rotate them first, e.g. with magcal run and a [frames] section)
+    """
+    frames = frame.attrs.get("sensor_frames") or {}
+    seen = {s: frames[s] for s in sensors if s in frames}
+    if len(set(seen.values())) > 1:
+        listed = ", ".join(f"{s} ({f})" for s, f in seen.items())
+        raise InputError(f"sensors {listed} are in different frames: PiCoG needs one common "
+                         "frame (rotate them first, e.g. with magcal run and a [frames] "
+                         "section)")
+
+
 def sensors_in_frame(frame: pd.DataFrame) -> list[str]:
     """Sensor names with all three ``_x/_y/_z`` columns, in column order.
 
@@ -290,6 +316,7 @@ class PiCoG:
             if target not in names:
                 sensor_array(frame, target)  # raises naming the column
             data = {s: gridded(s) for s in names}
+            require_common_frame(frame, names)
             _check_valid(data)
             plan, report = auto_plan(data, grid_t, target, alpha_method=self.alpha_method)
         else:
@@ -297,6 +324,7 @@ class PiCoG:
                 raise InputError("give a plan or use auto")
             plan, report = self.plan, None
             data = {s: gridded(s) for s in plan.sensors}
+        require_common_frame(frame, list(data))
         _check_valid(data)
         self.plan_ = plan
         self.auto_report_ = report

@@ -19,7 +19,7 @@ def register(subparsers) -> None:
     f = sub.add_parser("fit", help="fit the correction and write PARAMS.json",
                        description="Fit with a PLAN.toml, or let --auto choose stages, pairs, "
                                    "windows and orders for --target.")
-    f.add_argument("input", help="multi-sensor CSV")
+    f.add_argument("input", help="multi-sensor file (CSV, GOES-R netCDF or CDF; detected by content)")
     f.add_argument("--plan", help="PLAN.toml (stages and orders)")
     f.add_argument("--target", help="sensor whose cleaned data is the product (with --auto)")
     f.add_argument("--auto", action="store_true", help="choose the plan automatically")
@@ -32,7 +32,7 @@ def register(subparsers) -> None:
                        description="Cleaned target = sum_k M[k] @ B_k + G (G: the DC offset "
                                    "of the correction, Eq. 31); rows where a needed sensor "
                                    "is missing are NaN with flag=1.")
-    a.add_argument("input", help="multi-sensor CSV")
+    a.add_argument("input", help="multi-sensor file (CSV, GOES-R netCDF or CDF; detected by content)")
     a.add_argument("--params", required=True, help="PARAMS.json from 'picog fit'")
     offset = a.add_mutually_exclusive_group()
     offset.add_argument("--keep-correction-offset", action="store_true",
@@ -50,7 +50,7 @@ def register(subparsers) -> None:
 def run_fit(args) -> int:
     from magcal.ac.estimator import PiCoG
     from magcal.ac.plan import read_plan
-    from magcal.io.csv import read_csv_frame
+    from magcal.io.formats import read_any
     from magcal.io.jsonio import write_json
     from magcal.provenance import make_provenance
 
@@ -67,7 +67,7 @@ def run_fit(args) -> int:
         inputs.append(plan_path)
     elif not args.target:
         raise InputError("--auto needs --target SENSOR")
-    frame = read_csv_frame(src)
+    frame = read_any(src)
     alpha_method = args.alpha_method or opts.get("alpha_method", "decorrelate")
     model = PiCoG(plan, target=args.target, auto=args.auto, alpha_method=alpha_method)
     try:
@@ -91,13 +91,14 @@ def run_fit(args) -> int:
 
 def run_apply(args) -> int:
     from magcal.ac.estimator import apply_params
-    from magcal.io.csv import read_csv_frame, write_csv_frame
+    from magcal.io.csv import write_csv_frame
+    from magcal.io.formats import read_any
     from magcal.io.jsonio import read_json
 
     src = existing_file(args.input)
     params_path = existing_file(args.params)
     doc = read_json(params_path, required=("M", "target"))
-    frame = read_csv_frame(src)
+    frame = read_any(src)
     try:
         out, warnings = apply_params(frame, doc, pure_ac=args.pure_ac,
                                      keep_correction_offset=args.keep_correction_offset,

@@ -63,6 +63,9 @@ _VECTORS = (
     ("b_ob_epn", ("ob_Hp", "ob_He", "ob_Hn"), (1, 0, 2), False),
 )
 _SCALARS = (("b_total", "b_total", False),)
+#: The frame of each vector the reader returns (``""``: the bare Hp,He,Hn columns).
+SENSOR_FRAMES = {"ib": "inboard sensor frame", "ob": "outboard sensor frame", "": "EPN (Hpen)",
+                 "gse": "GSE", "gsm": "GSM", "eci": "ECI", "brf": "BRF (body)"}
 _OPTIONAL_IF_ALL_FILL = {"b_ib_epn", "b_ob_epn"}
 
 
@@ -244,7 +247,8 @@ def read_goes_mag(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> pd.
         ``{"what", "column", "count"}``: fills turned into NaN, out-of-range values,
         rows reordered, rows without time, duplicate times dropped), ``n_missing`` (NaN
         count per column), ``all_fill`` (variables that were all fill and were left
-        out), ``platform``, ``credit``.
+        out), ``platform``, ``credit``, ``sensor_frames`` (the frame of each vector:
+        each sensor is in its own).
 
     Raises
     ------
@@ -324,4 +328,5 @@ def read_goes_mag(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> pd.
     frame.attrs["all_fill"] = all_fill
     frame.attrs["platform"] = sorted({m["platform"] for m in metas if m["platform"]})
     frame.attrs["credit"] = GOES_CREDIT
+    frame.attrs["sensor_frames"] = dict(SENSOR_FRAMES)
     return frame
