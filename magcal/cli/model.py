@@ -34,7 +34,8 @@ def register(subparsers) -> None:
         description="Evaluate IGRF + a Tsyganenko model (IRBEM, through spacepy) at the "
                     "times of DATA.csv and write it in Hpen (time,Hp,He,Hn). Samples whose "
                     "inputs are out of the model's range are written as NaN and counted.")
-    p.add_argument("input", help="DATA.csv: time[,Hp,He,Hn][,lon_deg,lat_deg,r_re]")
+    p.add_argument("input", help="DATA: CSV time[,Hp,He,Hn][,lon_deg,lat_deg,r_re], GOES-R "
+                                 "MAG L2 netCDF or ISTP CDF (format detected)")
     add_model_arguments(p)
     p.add_argument("--cadence", type=float, default=60.0, metavar="S",
                    help="evaluation cadence in s; denser times are interpolated (default 60)")
@@ -45,10 +46,11 @@ def register(subparsers) -> None:
 def run(args) -> int:
     import pandas as pd
 
-    from magcal.io.csv import read_csv_frame, write_csv_frame
+    from magcal.io.csv import write_csv_frame
+    from magcal.io.formats import read_any
     from magcal.models.inputs import model_field_for, model_inputs
 
-    frame = read_csv_frame(existing_file(args.input))
+    frame = read_any(existing_file(args.input))
     inp = model_inputs(frame, longitude_deg=args.longitude, kp_path=args.kp,
                        drivers_path=args.drivers, model=args.model)
     res = model_field_for(frame, inp, cadence_s=args.cadence, n_jobs=args.jobs,

@@ -24,7 +24,8 @@ def register(subparsers) -> None:
                                      "(center,start,end,Hp,He,Hn,Hp_std,He_std,Hn_std,"
                                      "n_used,fraction_used, then Hp_mad,He_mad,Hn_mad,"
                                      "n_available,reason).")
-    fit.add_argument("input", help="DATA.csv: time,Hp,He,Hn (AC-cleaned, any cadence)")
+    fit.add_argument("input", help="DATA: CSV time,Hp,He,Hn (AC-cleaned, any cadence), GOES-R "
+                                   "MAG L2 netCDF or ISTP CDF (format detected)")
     add_model_arguments(fit)
     fit.add_argument("--kp-max", type=float, default=1.0,
                      help="largest Kp used (default 1.0; 1+ = 1.33 is excluded)")
@@ -58,13 +59,13 @@ def register(subparsers) -> None:
 
 
 def run_fit(args) -> int:
-    from magcal.io.csv import read_csv_frame
+    from magcal.io.formats import read_any
     from magcal.models.inputs import model_inputs
     from magcal.offsets import fit_offsets_frame, write_offsets_csv
     from magcal.provenance import make_provenance
 
     path = existing_file(args.input)
-    frame = read_csv_frame(path, required=["Hp", "He", "Hn"])
+    frame = read_any(path, required=["Hp", "He", "Hn"])
     inp = model_inputs(frame, longitude_deg=args.longitude, kp_path=args.kp,
                        drivers_path=args.drivers, model=args.model)
     params = {k: getattr(args, k) for k in ("model", "kp_max", "window_days", "step_days",
@@ -90,12 +91,13 @@ def run_fit(args) -> int:
 def run_apply(args) -> int:
     import pandas as pd
 
-    from magcal.io.csv import read_csv_frame, write_csv_frame
+    from magcal.io.csv import write_csv_frame
+    from magcal.io.formats import read_any
     from magcal.offsets import apply_offsets, read_offsets_csv
     from magcal.provenance import make_provenance
 
     path = existing_file(args.input)
-    frame = read_csv_frame(path, required=["Hp", "He", "Hn"])
+    frame = read_any(path, required=["Hp", "He", "Hn"])
     table = read_offsets_csv(existing_file(args.offsets))
     if not table.valid.any():
         raise InputError("no window with a valid offset", file=args.offsets)

@@ -65,6 +65,14 @@ class ModelInputs:
         return self.lon_deg, self.lat_deg, self.r_re
 
 
+def frame_source(frame) -> str | None:
+    """The file a frame was read from, for messages (``attrs["source"]``: str or list)."""
+    src = frame.attrs.get("source")
+    if isinstance(src, (list, tuple)):
+        return ", ".join(map(str, src)) if src else None
+    return None if src is None else str(src)
+
+
 def _check_column(values: np.ndarray, name: str, lo: float, hi: float, src) -> None:
     """Raise at the first finite value of a position column outside ``[lo, hi]``."""
     with np.errstate(invalid="ignore"):
@@ -81,7 +89,7 @@ def position_from(frame: pd.DataFrame, longitude_deg: float | None = None) -> tu
     Parameters
     ----------
     frame : pandas.DataFrame
-        The data, as read by :func:`magcal.io.csv.read_csv_frame` (``attrs["source"]``
+        The data, as read by :func:`magcal.io.formats.read_any` (``attrs["source"]``
         names the file in errors).
     longitude_deg : float, optional
         Geostationary longitude in degrees east; the spacecraft is then at latitude 0
@@ -106,7 +114,7 @@ def position_from(frame: pd.DataFrame, longitude_deg: float | None = None) -> tu
     >>> position_from(pd.DataFrame({"Hp": [1.0]}), longitude_deg=128.2)
     (128.2, 0.0, 6.6)
     """
-    src = frame.attrs.get("source")
+    src = frame_source(frame)
     if longitude_deg is not None:
         lon = float(longitude_deg)
         if not np.isfinite(lon) or not -360.0 <= lon <= 360.0:
@@ -205,7 +213,8 @@ def model_field_for(frame: pd.DataFrame, inputs: ModelInputs, *, cadence_s: floa
     res = model_field_hpen(times, *inputs.position(), model=inputs.model,
                            kp=kp_at(inputs.kp, frame.index), drivers=drv,
                            cadence_s=cadence_s, n_jobs=n_jobs, cache_dir=cache_dir)
-    src = frame.attrs.get("source")
-    res.provenance["inputs"] = ([str(src)] if src else []) + list(inputs.files)
+    src = frame.attrs.get("source") or []
+    src = [src] if isinstance(src, str) else list(src)
+    res.provenance["inputs"] = [str(s) for s in src] + list(inputs.files)
     res.provenance["report"] = res.summary()
     return res

@@ -140,7 +140,7 @@ class OffsetEstimator:
                 "min_lt_fraction": self.min_lt_fraction}
 
     def fit(self, times, data_hpen, model_hpen, kp, lon_deg=None,
-            provenance: dict | None = None):
+            provenance: dict | None = None, span_days: float | None = None):
         """Estimate the offsets.
 
         Parameters
@@ -155,6 +155,9 @@ class OffsetEstimator:
             Geographic longitude (for ``method="lt_balanced"``).
         provenance : dict, optional
             Provenance record to carry in the table.
+        span_days : float, optional
+            Length of the record before averaging (default: from ``times``, last minus
+            first plus one spacing).
 
         Returns
         -------
@@ -191,8 +194,10 @@ class OffsetEstimator:
         stats = window_statistics(t, diff, used, starts, ends, self.min_used,
                                   local_time_h=lt if self.method == "lt_balanced" else None)
         cover = window_coverage(t, used, starts, ends, local_time_h=lt)
-        step = float(np.median(np.diff(t))) if t.size > 1 else 0.0
-        self.span_days_ = float((t[-1] - t[0] + step) / DAY_NS)
+        if span_days is None:
+            step = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+            span_days = (t[-1] - t[0] + step) / DAY_NS
+        self.span_days_ = float(span_days)
         warning = short_record_warning(self.span_days_, self.window_days)
         self.warnings_ = (warning,) if warning else ()
         reasons = self._judge_coverage(stats, cover, warning)
@@ -292,7 +297,10 @@ def fit_offsets(times, data_hpen, lon_deg, lat_deg, r_re, kp, model: str = "T89"
                           min_day_fraction=min_day_fraction, min_lt_fraction=min_lt_fraction)
     prov = dict(provenance or {})
     prov.setdefault("model_field", res.summary())
-    est.fit(t1, d1, res.b_hpen_nT, kp1, lon_deg=lon1, provenance=prov)
+    t_ns = t.astype(np.int64)
+    spacing = float(np.median(np.diff(t_ns))) if t.size > 1 else cadence_s * 1e9
+    est.fit(t1, d1, res.b_hpen_nT, kp1, lon_deg=lon1, provenance=prov,
+            span_days=(t_ns[-1] - t_ns[0] + spacing) / DAY_NS if t.size else 0.0)
     table = est.table_
     params = dict(table.parameters, model=model, cadence_s=cadence_s)
     table = dataclasses.replace(table, parameters=params)
@@ -312,7 +320,7 @@ def fit_offsets_frame(frame, inputs, *, kp_max: float = 1.0, window_days: float 
     Parameters
     ----------
     frame : pandas.DataFrame
-        ``Hp, He, Hn`` with a UTC DatetimeIndex (:func:`magcal.io.csv.read_csv_frame`).
+        ``Hp, He, Hn`` with a UTC DatetimeIndex (:func:`magcal.io.formats.read_any`).
     inputs : magcal.models.inputs.ModelInputs
         Position, Kp and drivers (:func:`magcal.models.inputs.model_inputs`).
     kp_max, window_days, step_days, min_used, method, min_day_fraction, min_lt_fraction,
@@ -331,6 +339,8 @@ def fit_offsets_frame(frame, inputs, *, kp_max: float = 1.0, window_days: float 
         Kp threshold outside [0, 9], coverage fractions outside [0, 1], or missing
         ``Hp, He, Hn`` columns.
     """
+    from magcal.models.inputs import frame_source
+
     if not 0 <= kp_max <= 9:
         raise InputError(f"kp_max {kp_max} outside [0, 9]")
     for name, value in (("min_day_fraction", min_day_fraction),
@@ -340,7 +350,7 @@ def fit_offsets_frame(frame, inputs, *, kp_max: float = 1.0, window_days: float 
     missing = [c for c in ("Hp", "He", "Hn") if c not in frame.columns]
     if missing:
         raise InputError(f"missing column(s) {', '.join(missing)}",
-                         file=frame.attrs.get("source"), column=missing[0])
+                         file=frame_source(frame), column=missing[0])
     times = frame.index.tz_convert("UTC").tz_localize(None).to_numpy()
     return fit_offsets(times, frame[["Hp", "He", "Hn"]].to_numpy(), *inputs.position(),
                        inputs.kp, model=inputs.model, drivers=inputs.drivers, kp_max=kp_max,

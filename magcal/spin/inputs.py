@@ -291,13 +291,13 @@ def load_spin_data(path: str | os.PathLike, spin_period_s: float | None = None,
         Unreadable file or phase, bad scale, and every refusal of
         :func:`check_spin_assumptions`, including a sense opposite to the one given.
     """
-    from magcal.io.csv import read_csv_frame
+    from magcal.io.formats import read_any
 
     if spin_sense not in SPIN_SENSES:
         raise InputError(f"spin sense {spin_sense!r}: expected one of {', '.join(SPIN_SENSES)}")
     if not (np.isfinite(scale) and scale > 0):
         raise InputError(f"scale {scale} must be a positive number of nT per input unit")
-    frame = read_csv_frame(path, required=["b1", "b2", "b3"])
+    frame = read_any(path, required=["b1", "b2", "b3"])
     good = frame[["b1", "b2", "b3"]].notna().all(axis=1).to_numpy()
     frame = frame[good]
     if len(frame) < 3:
@@ -316,7 +316,8 @@ def load_spin_data(path: str | os.PathLike, spin_period_s: float | None = None,
         phase, source, info = _phase(frame, t, b, flip, good, path, spin_period_s, t0)
     except InputError as exc:
         if spin_sense != "auto" or has_phase or "positive sense" not in exc.message:
-            raise
+            raise InputError(exc.message, file=exc.file or path, row=exc.row,
+                             column=exc.column) from None
         sense, b = -1, b @ SENSE_FLIP
         phase, source, info = _phase(frame, t, b, flip, good, path, spin_period_s, t0)
     found = None
