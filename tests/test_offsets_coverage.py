@@ -152,3 +152,18 @@ def test_goes_minutes_offsets_say_what_minutes_cannot_give(goes_minutes, tmp_pat
     assert off.loc[0, "Hp"] != "NaN"
     assert off.loc[0, "reason"] == "caution: record spans 7 min, far shorter than the 28-day window"
     assert "warning: record spans 7 min" in capsys.readouterr().err
+
+
+@pytest.mark.realdata
+def test_goes_netcdf_file_read_directly(tmp_path, capsys):
+    """One GOES-16 one-minute file given as it is: one minute of a 28-day window."""
+    from conftest import real_data_path
+
+    nc = sorted(real_data_path("goes16", "l2_hires_5min").glob("*.nc"))[0]
+    kp = real_data_path("indices", "celestrak_SW_2017-2023_subset.txt")
+    out = tmp_path / "OFFSETS.csv"
+    assert main(["offsets", "fit", str(nc), "--kp", str(kp), "--jobs", "1", "-o", str(out)]) == 0
+    assert "warning: record spans 1 min, far shorter than the 28-day window" in (
+        capsys.readouterr().err)
+    off = pd.read_csv(out, keep_default_na=False)
+    assert off.loc[0, "Hp"] == "NaN" and "record spans 1 min" in off.loc[0, "reason"]
