@@ -115,3 +115,13 @@ def test_minutes_cannot_give_a_28_day_offset_and_the_products_say_so(goes_run):
     offsets = (out / "offsets" / "OFFSETS.csv").read_text()
     assert "far shorter than the 28-day window" in offsets
     assert any("far shorter" in w for w in manifest["warnings"])
+
+
+def test_sensors_in_their_own_frames_without_rotations_are_refused(tmp_path, capsys):
+    files = real_data_path("goes16", "l2_hires_gap")
+    cfg = tmp_path / "CHAIN.toml"
+    cfg.write_text(f'[input]\nfiles = ["{files.as_posix()}/*.nc"]\ntarget = "ob"\n'
+                   'sensors = ["ob", "ib"]\n[position]\ncolumns = true\n')
+    assert main(["run", str(cfg), "-o", str(tmp_path / "out"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "each in their own frame" in err and "to_common" in err

@@ -58,7 +58,8 @@ def load_series(config: ChainConfig, files: list[Path]) -> VectorSeries:
                                      on_duplicate="drop", mixed_cadence="allow")
     step = {"step": "read", "files": [str(p) for p in files], "repairs": repairs,
             "formats": sorted({f.attrs.get("format", "?") for f in frames})}
-    return series.replace(provenance=(step,) + series.provenance)
+    meta = dict(series.meta, sensor_frames=dict(frames[0].attrs.get("sensor_frames") or {}))
+    return series.replace(provenance=(step,) + series.provenance, meta=meta)
 
 
 def _sensors(series: VectorSeries, config: ChainConfig) -> list[str]:
@@ -103,6 +104,14 @@ def run_frames(series: VectorSeries, config: ChainConfig) -> tuple[CommonFrameDa
         raise InputError(f"[input] target {target!r} must be one of the sensors "
                          f"{', '.join(sensors)}", file=config.path, column="input.target")
     ref = series[fr["reference"]] if fr["reference"] else None
+    own = series.meta.get("sensor_frames") or {}
+    unrotated = {s: own[s] for s in sensors
+                 if s in own and fr["to_common"].get(s, "identity") == "identity"}
+    if len(set(unrotated.values())) > 1:
+        raise InputError("the input's sensors are each in their own frame ("
+                         + ", ".join(f"{s}: {f}" for s, f in unrotated.items())
+                         + "): give [frames] to_common for them (a matrix or \"estimate\")",
+                         file=config.path, column="frames.to_common")
     vectors, doc, lines, warnings = {}, {"sensors": {}}, [], []
     for s in sensors:
         spec = fr["to_common"].get(s, "identity")
