@@ -297,6 +297,53 @@ def _grid_plan(times: np.ndarray, cadence_s):
     return grid, k, frac
 
 
+def _evaluation_points(t, lon, lat, r, inputs: dict, plan):
+    """Times, GEO positions (RE) and model inputs at which IRBEM is called: the output
+    times, or the grid of :func:`_grid_plan` (inputs of the nearest output time,
+    positions interpolated)."""
+    n = t.size
+    if plan is None:
+        t_eval, lon_e, lat_e, r_e, inp_e = t, lon, lat, r, inputs
+    else:
+        t_eval = plan[0]
+        nearest = np.clip(np.searchsorted(t, t_eval), 0, n - 1)
+        prev = np.clip(nearest - 1, 0, n - 1)
+        closer = np.abs(t[prev] - t_eval) < np.abs(t[nearest] - t_eval)
+        nearest = np.where(closer, prev, nearest)
+        inp_e = {name: v[nearest] for name, v in inputs.items()}
+        te = t_eval.astype(np.int64).astype(float)
+        ts = t.astype(np.int64).astype(float)
+        lon_e = (np.interp(te, ts, np.rad2deg(np.unwrap(np.deg2rad(lon))))
+                 if lon.ndim else lon)
+        lat_e = np.interp(te, ts, lat) if lat.ndim else lat
+        r_e = np.interp(te, ts, r) if r.ndim else r
+    xyz = irbem.geo_position_re(lon_e, lat_e, r_e)
+    if xyz.shape[0] != t_eval.size:
+        xyz = np.broadcast_to(xyz, (t_eval.size, 3))
+    return t_eval, xyz, inp_e
+
+
+def _worker_hpen_transform(lon, lat, plan):
+    """The GEO -> Hpen rotation a worker applies to its chunk, or None.
+
+    Done by the worker that computed each chunk when it is the same at the evaluation
+    points as at the output times (one position, or no grid): the parent then never
+    makes another pass over the whole array.
+    """
+    if lon.ndim == 0 and lat.ndim == 0:
+        rows = hpen_basis(lon, lat)[0].T
+
+        def to_hpen(idx, b):
+            # plain ufuncs, no BLAS call inside a forked worker
+            return b[:, :1] * rows[0] + b[:, 1:2] * rows[1] + b[:, 2:] * rows[2]
+        return to_hpen
+    if plan is None:
+        def to_hpen(idx, b):
+            return geo_to_hpen(b, lon[idx] if lon.ndim else lon, lat[idx] if lat.ndim else lat)
+        return to_hpen
+    return None
+
+
 def model_field_hpen(times, lon_deg, lat_deg, r_re, model: str = "T89", kp=None,
                      drivers=None, cadence_s: float | None = 60, n_jobs: int | None = None,
                      cache_dir=None, options=None) -> ModelFieldResult:
@@ -372,38 +419,8 @@ def model_field_hpen(times, lon_deg, lat_deg, r_re, model: str = "T89", kp=None,
                 provenance=make_provenance("model field", {**params, "cache": "hit"}))
 
     plan = _grid_plan(t, cadence_s)
-    if plan is None:
-        t_eval, lon_e, lat_e, r_e, inp_e = t, lon, lat, r, inputs
-    else:
-        t_eval, k, w = plan
-        nearest = np.clip(np.searchsorted(t, t_eval), 0, n - 1)
-        prev = np.clip(nearest - 1, 0, n - 1)
-        closer = np.abs(t[prev] - t_eval) < np.abs(t[nearest] - t_eval)
-        nearest = np.where(closer, prev, nearest)
-        inp_e = {name: v[nearest] for name, v in inputs.items()}
-        te = t_eval.astype(np.int64).astype(float)
-        ts = t.astype(np.int64).astype(float)
-        lon_e = (np.interp(te, ts, np.rad2deg(np.unwrap(np.deg2rad(lon))))
-                 if lon.ndim else lon)
-        lat_e = np.interp(te, ts, lat) if lat.ndim else lat
-        r_e = np.interp(te, ts, r) if r.ndim else r
-    xyz = irbem.geo_position_re(lon_e, lat_e, r_e)
-    if xyz.shape[0] != t_eval.size:
-        xyz = np.broadcast_to(xyz, (t_eval.size, 3))
-    # The Hpen rotation is done by the worker that computed each chunk when it is the
-    # same at the evaluation points as at the output times (one position, or no grid):
-    # the parent then never makes another pass over the whole array.
-    if lon.ndim == 0 and lat.ndim == 0:
-        rows = hpen_basis(lon, lat)[0].T
-
-        def to_hpen(idx, b):
-            # plain ufuncs, no BLAS call inside a forked worker
-            return b[:, :1] * rows[0] + b[:, 1:2] * rows[1] + b[:, 2:] * rows[2]
-    elif plan is None:
-        def to_hpen(idx, b):
-            return geo_to_hpen(b, lon[idx] if lon.ndim else lon, lat[idx] if lat.ndim else lat)
-    else:
-        to_hpen = None
+    t_eval, xyz, inp_e = _evaluation_points(t, lon, lat, r, inputs, plan)
+    to_hpen = _worker_hpen_transform(lon, lat, plan)
     # With no grid, the workers' output is the product: write it straight into the cache
     direct = path is not None and plan is None and to_hpen is not None and n > 0
     target = _cache_open_field(path, n) if direct else None
