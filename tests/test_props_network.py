@@ -75,7 +75,7 @@ def test_loopback_marker_allows_local_tcp():
 
 
 @pytest.mark.loopback
-@settings(max_examples=25, deadline=None)
+@settings(max_examples=25, deadline=None, derandomize=True, database=None)
 @given(address=NOT_LOOPBACK, port=st.integers(1, 65535))
 def test_loopback_marker_still_refuses_other_hosts(address, port):
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
@@ -92,7 +92,7 @@ def test_loopback_marker_still_refuses_other_hosts(address, port):
 
 
 @pytest.mark.loopback
-@settings(max_examples=10, deadline=None)
+@settings(max_examples=10, deadline=None, derandomize=True, database=None)
 @given(last=st.integers(1, 254))
 def test_loopback_marker_allows_all_of_127_8(last):
     address = f"127.0.0.{last}"
