@@ -167,3 +167,23 @@ def test_goes_netcdf_file_read_directly(tmp_path, capsys):
         capsys.readouterr().err)
     off = pd.read_csv(out, keep_default_na=False)
     assert off.loc[0, "Hp"] == "NaN" and "record spans 1 min" in off.loc[0, "reason"]
+
+
+@pytest.mark.realdata
+def test_apply_says_when_samples_lie_in_no_valid_window(goes_minutes, tmp_path, capsys):
+    """The 2017-03-05 window [Mar 5, Apr 2) applied to the 2017-04-14 files, and to itself."""
+    from conftest import real_data_path
+
+    path, kp, _ = goes_minutes
+    table = tmp_path / "OFFSETS.csv"
+    assert main(["offsets", "fit", str(path), "--kp", str(kp), "--jobs", "1", "--kp-max", "9",
+                 "--min-used", "1", "--min-day-coverage", "0", "--min-lt-coverage", "0",
+                 "-o", str(table)]) == 0
+    capsys.readouterr()
+    later = sorted(real_data_path("goes16", "l2_hires_gap").glob("*.nc"))[0]
+    out = tmp_path / "CORRECTED.csv"
+    assert main(["offsets", "apply", str(later), "--offsets", str(table), "-o", str(out)]) == 0
+    # 10 Hz for one minute, twelve days after the window's end
+    assert "warning: 600 of 600 samples lie in no valid window" in capsys.readouterr().err
+    assert main(["offsets", "apply", str(path), "--offsets", str(table), "-o", str(out)]) == 0
+    assert "no valid window" not in capsys.readouterr().err

@@ -93,7 +93,7 @@ def run_apply(args) -> int:
 
     from magcal.io.csv import write_csv_frame
     from magcal.io.formats import read_any
-    from magcal.offsets import apply_offsets, read_offsets_csv
+    from magcal.offsets import apply_offsets, outside_valid_windows, read_offsets_csv
     from magcal.provenance import make_provenance
 
     path = existing_file(args.input)
@@ -107,6 +107,11 @@ def run_apply(args) -> int:
     out["offset_flag"] = flag.astype(int)
     prov = make_provenance("offsets apply", {}, inputs=[path, args.offsets])
     write_csv_frame(args.output, out, provenance=prov)
+    outside = int(outside_valid_windows(times, table).sum())
+    if outside:
+        print(f"magcal offsets apply: warning: {outside} of {len(out)} samples lie in no "
+              "valid window (offset held or interpolated from windows that never saw them)",
+              file=sys.stderr)
     counts = np.bincount(flag, minlength=4)
     print(f"magcal offsets apply: {len(out)} samples; interpolated {counts[0]}, held "
           f"{counts[1] + counts[2]}, no offset {counts[3]}", file=sys.stderr)

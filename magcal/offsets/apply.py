@@ -85,3 +85,35 @@ def apply_offsets(times, data_hpen, table):
     if data.shape != off.shape:
         raise InputError(f"data shape {data.shape} does not match {off.shape}")
     return data - off, off, flag
+
+
+def outside_valid_windows(times, table) -> np.ndarray:
+    """True for samples that lie in no valid window ``[start, end)`` of ``table``.
+
+    Their offset was held or interpolated from windows that never saw them (before the
+    first or after the last valid window, or across windows without a trusted offset);
+    ``offsets apply`` says how many there are.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from types import SimpleNamespace
+    >>> day = np.timedelta64(1, "D")
+    >>> s = np.array(["2019-11-01", "2019-11-08"], dtype="datetime64[ns]")
+    >>> tab = SimpleNamespace(start=s, end=s + 28 * day,
+    ...                       offset_nT=np.array([[1.0], [np.nan]]))
+    >>> t = np.array(["2019-10-31", "2019-11-20", "2019-12-01"], dtype="datetime64[ns]")
+    >>> outside_valid_windows(t, tab)
+    array([ True, False,  True])
+    """
+    t = np.asarray(times).astype("datetime64[ns]").astype(np.int64)
+    ok = np.all(np.isfinite(np.asarray(table.offset_nT, dtype=float)), axis=1)
+    starts = np.asarray(table.start).astype("datetime64[ns]").astype(np.int64)[ok]
+    ends = np.asarray(table.end).astype("datetime64[ns]").astype(np.int64)[ok]
+    if starts.size == 0:
+        return np.ones(t.size, dtype=bool)
+    order = np.argsort(starts, kind="stable")
+    starts, reach = starts[order], np.maximum.accumulate(ends[order])
+    k = np.searchsorted(starts, t, side="right") - 1
+    inside = (k >= 0) & (t < reach[np.maximum(k, 0)])
+    return ~inside
