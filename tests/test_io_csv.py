@@ -89,6 +89,7 @@ def test_provenance_sidecar(tmp_path):
     t = pd.date_range("2019-01-01", periods=2, freq="1s", tz="UTC")
     path = write_csv_frame(tmp_path / "p.csv", pd.DataFrame({"x": [1.0, 2.0]}, index=t),
                            provenance={"step": "test"})
+    assert path == tmp_path / "p.csv"
     assert (tmp_path / "p.csv.provenance.json").read_text().count('"step": "test"') == 1
 
 
@@ -99,3 +100,45 @@ def test_compressed_output_is_really_compressed(tmp_path):
     assert path.read_bytes()[:2] == b"\x1f\x8b"  # gzip magic
     np.testing.assert_array_equal(read_csv_frame(path)["x"].to_numpy(), np.zeros(500))
     assert oct(path.stat().st_mode & 0o777) != oct(0o600)  # not left private by mkstemp
+
+
+@pytest.mark.parametrize("raw, values, what", [
+    (b"time,x\r\n2019-01-01T00:00:00,1\r\n2019-01-01T00:00:01,2\r\n", [1.0, 2.0], None),
+    (b"\xef\xbb\xbftime,x\n2019-01-01T00:00:00,1\n", [1.0], None),
+    (b"time,x\n2019-01-01T00:00:00,1\n   \n\n2019-01-01T00:00:01,2\n", [1.0, 2.0], None),
+    (b"time,x,\n2019-01-01T00:00:00,1,\n", [1.0], "unnamed empty last column dropped"),
+    (b"time,x\n2019-01-01T00:00:00,1\n2019-01-01T00:00:01,2", [1.0, 2.0], "no line break"),
+])
+def test_harmless_variants_read_or_are_repaired_and_counted(tmp_path, raw, values, what):
+    path = tmp_path / "v.csv"
+    path.write_bytes(raw)
+    df = read_csv_frame(path)
+    assert df["x"].tolist() == values
+    repairs = [r["what"] for r in df.attrs["repairs"]]
+    if what is None:
+        assert repairs == []
+    else:
+        assert len(repairs) == 1 and what in repairs[0]
+
+
+@pytest.mark.parametrize("raw, line, column, words", [
+    # blank lines do not shift the line named
+    (b"time,x\n\n2019-01-01T00:00:00,1\n\n2019-01-01T00:00:01,y\n", 5, "x", "not a number"),
+    (b"time,x\n2019-01-01T00:00:00,1\n2019-01-01T00:00:01\n", 3, None, "1 fields where"),
+    (b"time,x\n2019-01-01T00:00:00,1,2\n", 2, None, "3 fields where the header has 2"),
+    (b'time,x,n\n2019-01-01T00:00:00,1,"a,b"\n2019-01-01T00:00:01,2\n', 3, None,
+     "2 fields where the header has 3"),
+    (b"time,x,\n2019-01-01T00:00:00,1,5\n", 1, None, "column 3 of the header has no name"),
+    (b"time,x,x\n2019-01-01T00:00:00,1,5\n", 1, "x", "duplicate column 'x'"),
+    (b"time,x\n2019-01-01T00:00:00,\xff\n", 2, None, "byte 0xff is not UTF-8"),
+    (b"time,x\n2016-12-31T23:59:60,1\n", 2, "time", "leap second"),
+    (b"time,x\n2019-01-01T00:00:00+01:00,1\n", 2, "time", "UTC offset +01:00"),
+    (b"time,x\n2529,1\n", 2, "time", "outside 1677-2262"),
+])
+def test_damage_names_the_line(tmp_path, raw, line, column, words):
+    path = tmp_path / "d.csv"
+    path.write_bytes(raw)
+    with pytest.raises(InputError) as err:
+        read_csv_frame(path)
+    assert err.value.row == line and err.value.column == column, str(err.value)
+    assert words in str(err.value) and str(path) in str(err.value)

@@ -33,9 +33,13 @@ FILL_MAGNITUDE = 1e30
 _MISSING_TOKENS = {"", "nan", "NaN", "NAN", "null", "NULL", "NA", "N/A"}
 
 
-def _line(index: int) -> int:
-    """File line number of data row ``index`` (0-based); the header is line 1."""
-    return int(index) + 2
+def _line(index: int, lines=None) -> int:
+    """File line number of data row ``index`` (0-based); the header is line 1.
+
+    ``lines`` (from :func:`read_text_table`, ``table.attrs["lines"]``) maps rows to
+    lines when blank lines were skipped; without it row ``k`` is line ``k + 2``.
+    """
+    return int(lines[index]) if lines is not None else int(index) + 2
 
 
 #: The span of nanosecond time stamps (numpy/pandas ``datetime64[ns]``).
@@ -47,7 +51,8 @@ _OFFSET = re.compile(r"\d{2}:\d{2}(?::\d{2}(?:[.,]\d*)?)?\s*([+-])(\d{2}):?(\d{2
 _LEAP = re.compile(r"(?:^|[T ])\d{2}:\d{2}:60(?:[.,]\d*)?(?:Z|[+-]\d{2}(?::?\d{2})?)?$")
 
 
-def _check_utc_stamps(raw: pd.Series, *, file=None, column: str = "time") -> None:
+def _check_utc_stamps(raw: pd.Series, *, file=None, column: str = "time",
+                      lines=None) -> None:
     """Refuse leap-second stamps and times with a non-zero UTC offset, naming the row."""
     suspect = raw.str.contains(r":60|\d[+-]\d{2}(?::?\d{2})?$", regex=True).to_numpy()
     if not suspect.any():
@@ -57,16 +62,17 @@ def _check_utc_stamps(raw: pd.Series, *, file=None, column: str = "time") -> Non
         if _LEAP.search(stamp):
             raise InputError(f"leap second in {stamp!r}: times are UTC without leap seconds "
                              "(as numpy and pandas count them); drop or merge that sample",
-                             file=file, row=_line(k), column=column)
+                             file=file, row=_line(k, lines), column=column)
         found = _OFFSET.search(stamp)
         if found and (int(found.group(2)) or int(found.group(3) or 0)):
             raise InputError(f"time {stamp!r} carries the UTC offset "
                              f"{found.group(1)}{found.group(2)}:{found.group(3) or '00'}; "
                              "times must be UTC ('Z', '+00:00' or no suffix)", file=file,
-                             row=_line(k), column=column)
+                             row=_line(k, lines), column=column)
 
 
-def parse_times(values: Iterable[str], *, file=None, column: str = "time") -> pd.DatetimeIndex:
+def parse_times(values: Iterable[str], *, file=None, column: str = "time",
+                lines=None) -> pd.DatetimeIndex:
     """Parse ISO-8601 UTC strings into a tz-aware DatetimeIndex, naming the first bad row.
 
     Leap-second stamps (``23:59:60``) and times with a non-zero UTC offset are refused:
@@ -79,24 +85,24 @@ def parse_times(values: Iterable[str], *, file=None, column: str = "time") -> pd
     Timestamp('2019-03-04 15:10:00.500000+0000', tz='UTC')
     """
     raw = pd.Series(list(values), dtype="object").astype(str).str.strip()
-    _check_utc_stamps(raw, file=file, column=column)
+    _check_utc_stamps(raw, file=file, column=column, lines=lines)
     parsed = pd.to_datetime(raw, utc=True, format="ISO8601", errors="coerce")
     with np.errstate(invalid="ignore"):
         outside = ((parsed < _FIRST_NS) | (parsed > _LAST_NS)).to_numpy()
     if outside.any():
         first = int(np.flatnonzero(outside)[0])
         raise InputError(f"time {raw.iloc[first]!r} is outside {_FIRST_NS.year}-"
-                         f"{_LAST_NS.year}", file=file, row=_line(first), column=column)
+                         f"{_LAST_NS.year}", file=file, row=_line(first, lines), column=column)
     bad = parsed.isna().to_numpy()
     if bad.any():
         first = int(np.flatnonzero(bad)[0])
         raise InputError(f"cannot parse time {raw.iloc[first]!r} as ISO-8601 UTC",
-                         file=file, row=_line(first), column=column)
+                         file=file, row=_line(first, lines), column=column)
     index = pd.DatetimeIndex(parsed, name="time")
     return index.as_unit("ns")
 
 
-def check_increasing(index: pd.DatetimeIndex, *, file=None) -> None:
+def check_increasing(index: pd.DatetimeIndex, *, file=None, lines=None) -> None:
     """Raise :class:`InputError` at the first row whose time is not after the previous one."""
     if len(index) < 2:
         return
@@ -107,10 +113,11 @@ def check_increasing(index: pd.DatetimeIndex, *, file=None) -> None:
         what = "duplicate time" if steps[k - 1] == 0 else "time goes backwards"
         raise InputError(
             f"{what}: {index[k].isoformat()} follows {index[k - 1].isoformat()} "
-            "(rows must be strictly increasing in time)", file=file, row=_line(k), column="time")
+            "(rows must be strictly increasing in time)", file=file, row=_line(k, lines),
+            column="time")
 
 
-def _to_float(column: pd.Series, name: str, file) -> np.ndarray:
+def _to_float(column: pd.Series, name: str, file, lines=None) -> np.ndarray:
     text = column.astype("object")
     values = pd.to_numeric(text, errors="coerce").to_numpy(dtype=float)
     unparsed = np.isnan(values) & ~text.isna().to_numpy()
@@ -119,7 +126,8 @@ def _to_float(column: pd.Series, name: str, file) -> np.ndarray:
         unparsed &= ~stripped.isin(_MISSING_TOKENS).to_numpy()
     if unparsed.any():
         first = int(np.flatnonzero(unparsed)[0])
-        raise InputError(f"not a number: {text.iloc[first]!r}", file=file, row=_line(first),
+        raise InputError(f"not a number: {text.iloc[first]!r}", file=file,
+                         row=_line(first, lines),
                          column=name)
     return values
 
@@ -167,8 +175,9 @@ def _field_counts(raw: bytes) -> tuple[np.ndarray, np.ndarray]:
     starts = np.concatenate([[0], ends[:-1] + 1])
     commas = np.searchsorted(ends, np.flatnonzero(arr == 44))
     fields = np.bincount(commas, minlength=ends.size) + 1
-    length = ends - starts
-    blank = (length == 0) | ((length == 1) & (arr[np.minimum(starts, arr.size - 1)] == 13))
+    blank = np.zeros(ends.size, dtype=bool)
+    for k in np.flatnonzero(fields == 1):              # few: whitespace-only lines
+        blank[k] = not raw[starts[k]:ends[k]].strip()
     return fields, blank
 
 
@@ -185,13 +194,14 @@ def _quoted_field_counts(text: str) -> tuple[np.ndarray, np.ndarray]:
             fields.append(0)
             blank.append(True)
         fields.append(len(row))
-        blank.append(not row)
+        blank.append(not row or (len(row) == 1 and not row[0].strip()))
         last = reader.line_num
     return np.asarray(fields, dtype=np.int64), np.asarray(blank, dtype=bool)
 
 
-def _check_shape(raw: bytes, text: str, p: Path) -> None:
-    """Every non-blank line must have as many fields as the header."""
+def _check_shape(raw: bytes, text: str, p: Path) -> np.ndarray:
+    """Every non-blank line must have as many fields as the header; return the line
+    numbers (1-based) of the data rows."""
     fields, blank = _quoted_field_counts(text) if b'"' in raw else _field_counts(raw)
     lines = np.flatnonzero(~blank)
     if lines.size == 0:
@@ -204,6 +214,7 @@ def _check_shape(raw: bytes, text: str, p: Path) -> None:
         what = "line cut short?" if fields[k] < want else "a separator too many?"
         raise InputError(f"{int(fields[k])} fields where the header has {want} ({what})",
                          file=p, row=k + 1)
+    return lines[1:] + 1
 
 
 def read_text_table(path: str | os.PathLike,
@@ -214,7 +225,8 @@ def read_text_table(path: str | os.PathLike,
     is skipped), compression from the file name (``.gz``, ``.bz2``, ``.xz``), every
     cell a string with empty cells as ``""``, every line with as many fields as the
     header. ``table.attrs["unterminated_last_line"]`` says whether the last line lacks
-    its line break (a file cut short ends so).
+    its line break (a file cut short ends so); ``table.attrs["dropped_empty_last_column"]``
+    whether an unnamed, empty last column (every line ending with a comma) was dropped.
 
     Parameters
     ----------
@@ -263,7 +275,7 @@ def read_text_table(path: str | os.PathLike,
                          file=p)
     _check_text(raw, p)
     text = raw.decode("utf-8")
-    _check_shape(raw, text, p)
+    lines = _check_shape(raw, text, p)
     import io
 
     try:
@@ -274,6 +286,9 @@ def read_text_table(path: str | os.PathLike,
     columns = [str(c).strip() for c in cells.iloc[0].tolist()]
     if unnamed_first is not None and not columns[0]:
         columns[0] = unnamed_first
+    trailing = len(columns) > 1 and not columns[-1] and not cells.iloc[1:, -1].str.strip().any()
+    if trailing:                                       # every line ends with a comma
+        cells, columns = cells.iloc[:, :-1], columns[:-1]
     for k, name in enumerate(columns):
         if not name:
             raise InputError(f"column {k + 1} of the header has no name", file=p, row=1)
@@ -283,6 +298,11 @@ def read_text_table(path: str | os.PathLike,
     table = cells.iloc[1:].reset_index(drop=True)
     table.columns = columns
     table.attrs["unterminated_last_line"] = len(table) > 0 and not raw.endswith((b"\n", b"\r"))
+    table.attrs["dropped_empty_last_column"] = trailing
+    # file line of each row, kept only when blank lines shift them (pandas deep-copies
+    # attrs on every operation, so the plain case stores nothing)
+    plain = lines.size != len(table) or np.array_equal(lines, np.arange(len(table)) + 2)
+    table.attrs["lines"] = None if plain else lines.tolist()
     return table, columns
 
 
@@ -340,24 +360,28 @@ def read_csv_frame(path: str | os.PathLike, required: Iterable[str] | None = Non
                          f"header has {', '.join(columns)}", file=p, row=1, column=missing[0])
     if len(table) == 0:
         raise InputError("no data rows", file=p)
-    index = parse_times(table["time"], file=p)
-    check_increasing(index, file=p)
+    lines = table.attrs.get("lines")
+    index = parse_times(table["time"], file=p, lines=lines)
+    check_increasing(index, file=p, lines=lines)
     data = {}
     repairs = []
     for name in columns[1:]:
         if not numeric:
             data[name] = table[name].to_numpy()
             continue
-        values = _to_float(table[name], name, p)
+        values = _to_float(table[name], name, p, lines)
         values, n_fill = replace_fill_values(values)
         if n_fill:
             repairs.append({"what": "fill value replaced by NaN", "column": name,
                             "count": n_fill})
         data[name] = values
+    if table.attrs.get("dropped_empty_last_column"):
+        repairs.append({"what": "unnamed empty last column dropped (lines end with a comma)",
+                        "column": None, "count": 1})
     if table.attrs.get("unterminated_last_line"):
         repairs.append({"what": "last line kept although it has no line break (the file "
                                 "may be cut short there)", "column": None,
-                        "row": _line(len(table) - 1), "count": 1})
+                        "row": _line(len(table) - 1, lines), "count": 1})
     frame = pd.DataFrame(data, index=index)
     frame.attrs["source"] = str(p)
     frame.attrs["repairs"] = repairs
