@@ -153,3 +153,15 @@ def test_elfin_counts_refused_with_the_reason(tmp_path, capsys):
     assert "ELFIN_ZONE1.csv" in err and "not confined to the spin plane" in err
     assert "deg from sensor 3 (b3)" in err and not out.exists()
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+def test_malformed_calibration_json_is_exit_2(files, tmp_path, capsys):
+    bad = tmp_path / "BAD.json"
+    bad.write_text(json.dumps({"schema_version": 1, "coupling": [[1, 2], [3]],
+                               "offsets": [0, 0, 0]}))
+    out = tmp_path / "x.json"
+    assert _run("spincal", files / "pos.csv", "--spin-period", 20, "--prior", bad,
+                "-o", out) == 2
+    err = capsys.readouterr().err
+    assert "BAD.json: column coupling: coupling must be 3 x 3 finite numbers" in err
+    assert not out.exists()

@@ -42,11 +42,17 @@ def run(args) -> int:
         inputs.append(cal_path)
     params = {"spin_period_s": args.spin_period, "t0": args.t0, "cal": args.cal,
               "scale": args.scale, "spin_sense": args.spin_sense}
-    product = flipper(data, coupling=None if cal_doc is None else cal_doc["coupling"],
-                      offsets=None if cal_doc is None else cal_doc["offsets"],
-                      provenance=make_provenance("flipper", params, inputs=inputs))
+    try:
+        product = flipper(data, coupling=None if cal_doc is None else cal_doc["coupling"],
+                          offsets=None if cal_doc is None else cal_doc["offsets"],
+                          provenance=make_provenance("flipper", params, inputs=inputs))
+        done = None if not args.complete else complete_calibration(
+            cal_doc, product.result.O3, product.result.O3_std, args.input)
+    except InputError as exc:
+        if exc.file is None and args.cal:
+            raise InputError(exc.message, file=args.cal, column=exc.column) from None
+        raise
     write_json(args.output, product.to_json())
-    if args.complete:
-        write_json(args.complete, complete_calibration(cal_doc, product.result.O3,
-                                                       product.result.O3_std, args.input))
+    if done is not None:
+        write_json(args.complete, done)
     return 0

@@ -71,7 +71,7 @@ def run(args) -> int:
                           provenance=make_provenance("spincal", params, inputs=inputs))
     except InputError as exc:
         if exc.file is None and args.prior:
-            raise InputError(exc.message, file=args.prior) from None
+            raise InputError(exc.message, file=args.prior, column=exc.column) from None
         raise
     write_json(args.output, product.to_json())
     return 0

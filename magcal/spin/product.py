@@ -39,6 +39,18 @@ class SpinCalProduct:
         return product_dict(out)
 
 
+def _numbers(value, shape: tuple, what: str) -> np.ndarray:
+    """``value`` as a finite float array of ``shape``; InputError naming ``what`` otherwise."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        arr = None
+    if arr is None or arr.shape != shape or not np.all(np.isfinite(arr)):
+        raise InputError(f"{what} must be {' x '.join(map(str, shape))} finite numbers",
+                         column=what)
+    return arr
+
+
 def _unflip(cal: SpinCalibration) -> SpinCalibration:
     """Turn a calibration fitted in the ``SENSE_FLIP`` frame back into the file's frame."""
     sign = dict(zip(PARAM_NAMES, _PARAM_SIGN))
@@ -74,10 +86,8 @@ def spincal(data: SpinData, *, coupling0=None, offsets0=None, n_harmonics: int =
     -------
     SpinCalProduct
     """
-    c0 = np.eye(3) if coupling0 is None else np.asarray(coupling0, dtype=float)
-    o0 = np.zeros(3) if offsets0 is None else np.asarray(offsets0, dtype=float)
-    if c0.shape != (3, 3) or o0.shape != (3,):
-        raise InputError("prior coupling must be 3x3 and offsets 3 numbers")
+    c0 = np.eye(3) if coupling0 is None else _numbers(coupling0, (3, 3), "coupling")
+    o0 = np.zeros(3) if offsets0 is None else _numbers(offsets0, (3,), "offsets")
     if data.sense < 0:
         c0, o0 = SENSE_FLIP @ c0 @ SENSE_FLIP, SENSE_FLIP @ o0
     sel = np.ones(data.t_s.size, dtype=bool)
@@ -130,6 +140,9 @@ def flipper(data: SpinData, *, coupling=None, offsets=None,
     if data.sense < 0:
         raise InputError("the flipper analysis assumes a positive spin about sensor 3; "
                          "this record spins the other way", file=data.source, column="b3")
+    if coupling is not None:
+        coupling = _numbers(coupling, (3, 3), "coupling")
+        offsets = None if offsets is None else _numbers(offsets, (3,), "offsets")
     try:
         res = flipper_offset(data.t_s, data.b, data.phase, data.flip, coupling=coupling,
                              offsets=offsets, provenance=provenance)
@@ -143,8 +156,10 @@ def complete_calibration(cal_doc: dict, o3: float, o3_std: float, source: str) -
 
     ``O1, O2`` move so that ``C (b - O)`` stays the same in the spin plane.
     """
-    c = np.asarray(cal_doc["coupling"], dtype=float)
-    o = np.asarray(cal_doc["offsets"], dtype=float)
+    c = _numbers(cal_doc["coupling"], (3, 3), "coupling")
+    o = _numbers(cal_doc["offsets"], (3,), "offsets")
+    if abs(np.linalg.det(c[:2, :2])) < 1e-12:
+        raise InputError("coupling's spin-plane block is singular", column="coupling")
     d_o3 = o3 - o[2]
     o_new = o.copy()
     o_new[:2] -= np.linalg.solve(c[:2, :2], c[:2, 2] * d_o3)
