@@ -135,6 +135,11 @@ def _write_cdf(path, table, prov) -> None:
                        **labels}),
         "n_used": (table.n_used.astype(np.int64), {"CATDESC": "samples used"}),
         "fraction_used": (table.fraction_used, {"CATDESC": "fraction of samples selected"}),
+        "days_covered": (np.asarray(table.days_covered, dtype=np.int64),
+                         {"CATDESC": "UTC days of the window holding used samples"}),
+        "lt_hours_covered": (np.asarray(table.lt_hours_covered, dtype=np.int64),
+                             {"CATDESC": "local-time hours (of 24) holding used samples, "
+                                         "-1 unknown"}),
     }
     gattrs = {"Project": "magcal", "Source_name": "GK2A>GEO-KOMPSAT-2A",
               "Data_type": "L3>offsets", "Descriptor": "MAG>magnetometer",
