@@ -7,8 +7,8 @@ Usage::
 With PRODUCTS_DIR (e.g. the OUTDIR of ``magcal demo``) the report is built from it.
 Without, a small products folder is made first from the simulated month (30 days of
 1-min Hpen data against T89 with the local-time field T89 lacks): offsets (median and
-local-time balanced), the offset-corrected month, ``magcal align --kp --longitude
---mcmc`` on it; then ``magcal report`` writes REPORT.html and REPORT.pdf.
+local-time balanced), the offset-corrected month, the alignment of ``magcal align --kp
+--longitude --mcmc`` on it; then the report library writes REPORT.html and REPORT.pdf.
 """
 
 from __future__ import annotations
@@ -24,9 +24,10 @@ def make_month_products(out: Path, seed: int = 20191101) -> Path:
     import numpy as np
     import pandas as pd
 
-    from magcal.cli import main
-    from magcal.indices import write_kp_csv
-    from magcal.io.csv import write_csv_frame
+    from magcal.alignment.product import (AlignSettings, align_product, match_frames,
+                                          quiet_from_kp)
+    from magcal.indices import read_kp, write_kp_csv
+    from magcal.io.csv import read_csv_frame, write_csv_frame
     from magcal.offsets import apply_offsets, fit_offsets, write_offsets_csv
     from magcal.simulate.month import MonthConfig, simulate_month
 
@@ -50,12 +51,19 @@ def make_month_products(out: Path, seed: int = 20191101) -> Path:
                     pd.DataFrame(corrected, index=idx, columns=["Hp", "He", "Hn"]))
     write_csv_frame(out / "offsets" / "MODEL_T89.csv.gz",
                     pd.DataFrame(det["model"], index=idx, columns=["Hp", "He", "Hn"]))
-    status = main(["align", str(out / "offsets" / "CORRECTED.csv.gz"), "--reference",
-                   str(out / "offsets" / "MODEL_T89.csv.gz"), "--kp", str(kp_path),
-                   "--longitude", str(cfg.lon_deg), "--mcmc", "--seed", "2019",
-                   "-o", str(out / "alignment" / "ALIGN.json")])
-    if status:
-        raise RuntimeError("magcal align failed")
+    # ALIGN.json as `magcal align CORRECTED --reference MODEL --kp --longitude --mcmc
+    # --seed 2019` writes it, through the same library call
+    data_path, ref_path = out / "offsets" / "CORRECTED.csv.gz", out / "offsets" / "MODEL_T89.csv.gz"
+    pair = match_frames(read_csv_frame(data_path), read_csv_frame(ref_path),
+                        data_name=data_path, ref_name=ref_path)
+    quiet = quiet_from_kp(pair.times, read_kp(kp_path), 1.0, kp_name=kp_path)
+    product = align_product(pair.times, pair.data, pair.ref, lon_deg=float(cfg.lon_deg),
+                            lon_source="--longitude", quiet=quiet,
+                            selection={"kp_file": str(kp_path), "kp_max": 1.0},
+                            settings=AlignSettings(mcmc=True, seed=2019),
+                            inputs=[data_path, ref_path, kp_path],
+                            matched_rows=pair.matched_rows)
+    product.write(out / "alignment" / "ALIGN.json")
     return out
 
 
