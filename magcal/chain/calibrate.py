@@ -7,14 +7,14 @@ drives them.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
 
 from magcal.chain.config import ChainConfig
 from magcal.chain.prepare import HPEN, CleanedData, MinuteData, naive_times
-from magcal.chain.product import StageProduct
+from magcal.chain.product import StageProduct, without_wall_clock
 from magcal.errors import InputError
 from magcal.provenance import make_provenance
 
@@ -32,7 +32,8 @@ def run_offsets(minute: MinuteData, config: ChainConfig):
     est = OffsetEstimator(kp_max=cfg["kp_max"], window_days=cfg["window_days"],
                           step_days=cfg["step_days"], min_used=cfg["min_used"],
                           method=cfg["method"])
-    prov = make_provenance("offsets", {"offsets": cfg, "model": config["model"]["name"]})
+    prov = without_wall_clock(make_provenance("offsets", {"offsets": cfg,
+                                                          "model": config["model"]["name"]}))
     est.fit(minute.times, minute.hpen, minute.model, minute.kp, lon_deg=minute.lon_deg,
             provenance=prov)
     table = est.table_
@@ -163,6 +164,7 @@ def run_alignment(corrected: CorrectedData, minute: MinuteData, config: ChainCon
                             lon_source="[position]", quiet=quiet, selection=selection,
                             settings=settings, rng=np.random.default_rng(cfg["seed"]),
                             inputs=ref_files)
+    product = replace(product, provenance=without_wall_clock(product.provenance))
     doc = product.to_json()
     warnings = []
     if doc.get("determinable") is False:
@@ -203,7 +205,7 @@ def run_discovery(minute: MinuteData, config: ChainConfig):
     result = discover_gap(measured[ok], model[ok], covariates=covariates[ok],
                           longitude_deg=float(np.nanmedian(minute.lon_deg)),
                           max_effects=cfg["max_effects"])
-    prov = make_provenance("discover", {"discover": cfg}, inputs=inputs)
+    prov = without_wall_clock(make_provenance("discover", {"discover": cfg}, inputs=inputs))
     doc = result.with_provenance(prov).to_json()
     lines = [f"gap rms {doc['gap_initial']['rms_nT']:.2f} -> {doc['gap_final']['rms_nT']:.2f} "
              f"nT; stopped because {doc['stopped_because']}"]

@@ -31,7 +31,8 @@ SCHEMA: dict[str, dict[str, tuple]] = {
     "kp": {"file": (str, None)},
     "model": {"name": (str, "T89"), "drivers": (str, None), "cache_dir": (str, None),
               "cadence_s": ((int, float), 60.0), "jobs": (int, None)},
-    "picog": {"plan": (str, "auto"), "on_worse": (str, "raw")},
+    "picog": {"plan": (str, "auto"), "on_worse": (str, "raw"),
+              "fit_days": ((int, float), 3.0)},
     "offsets": {"kp_max": ((int, float), 1.0), "window_days": ((int, float), 28.0),
                 "step_days": ((int, float), 7.0), "method": (str, "median"),
                 "min_used": (int, 720), "cadence_s": ((int, float), 60.0)},
@@ -194,6 +195,9 @@ def _check_values(s: dict, path: Path, kind: str) -> None:
         raise InputError(f"[picog] on_worse {s['picog']['on_worse']!r}: use raw (deliver the "
                          "uncleaned target when cleaning makes a band worse) or keep",
                          file=path)
+    if s["picog"]["fit_days"] <= 0:
+        raise InputError("[picog] fit_days must be positive (days of data the frames and "
+                         "PiCoG are fitted on)", file=path, column="picog.fit_days")
     if s["offsets"]["method"] not in ("median", "lt_balanced"):
         raise InputError(f"[offsets] method {s['offsets']['method']!r}: use median or "
                          "lt_balanced", file=path)

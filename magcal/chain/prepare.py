@@ -9,7 +9,7 @@ library estimator, and returns the data for the next stage together with a
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -85,6 +85,18 @@ class CommonFrameData:
     target: str
     to_hpen: np.ndarray
     input_hpen: np.ndarray | None = None
+    transforms: dict = field(default_factory=dict)
+
+
+def apply_frame(b_sensor, transform) -> np.ndarray:
+    """Sensor readings (n, 3) in the common frame: ``(b - offset) @ matrix.T``.
+
+    ``transform`` is ``(matrix, offset_nT)`` as :class:`CommonFrameData` keeps it, so a
+    partition of an archive is rotated exactly as the data the matrices were fitted on.
+    """
+    matrix, offset = transform
+    return (np.asarray(b_sensor, dtype=float) - np.asarray(offset, dtype=float)) \
+        @ np.asarray(matrix, dtype=float).T
 
 
 def run_frames(series: VectorSeries, config: ChainConfig) -> tuple[CommonFrameData,
@@ -112,13 +124,15 @@ def run_frames(series: VectorSeries, config: ChainConfig) -> tuple[CommonFrameDa
                          + ", ".join(f"{s}: {f}" for s, f in unrotated.items())
                          + "): give [frames] to_common for them (a matrix or \"estimate\")",
                          file=config.path, column="frames.to_common")
-    vectors, doc, lines, warnings = {}, {"sensors": {}}, [], []
+    vectors, doc, lines, warnings, transforms = {}, {"sensors": {}}, [], [], {}
     for s in sensors:
         spec = fr["to_common"].get(s, "identity")
         b = series[s]
         if spec == "estimate":
             fit = estimate_rotation(b, ref, fit_offset=fr["fit_offset"])
-            vectors[s] = fit.apply(b)
+            transforms[s] = (np.asarray(fit.matrix, dtype=float),
+                             np.asarray(fit.offset_nT, dtype=float))
+            vectors[s] = apply_frame(b, transforms[s])
             doc["sensors"][s] = {"source": f"estimated against {fr['reference']}",
                                  **fit.to_json()}
             lines.append(f"{s} -> common frame: estimated against {fr['reference']}, "
@@ -131,7 +145,8 @@ def run_frames(series: VectorSeries, config: ChainConfig) -> tuple[CommonFrameDa
                                 f"is poorly determined (condition {fit.condition:.1e})")
         else:
             matrix = np.eye(3) if spec == "identity" else np.asarray(spec, dtype=float)
-            vectors[s] = b @ matrix.T
+            transforms[s] = (matrix, np.zeros(3))
+            vectors[s] = apply_frame(b, transforms[s])
             doc["sensors"][s] = {"source": "configuration", "matrix": matrix.tolist()}
     to_hpen, hpen_doc = _to_hpen(series, config, vectors, target, ref)
     doc["to_hpen"] = hpen_doc
@@ -147,7 +162,7 @@ def run_frames(series: VectorSeries, config: ChainConfig) -> tuple[CommonFrameDa
                            provenance=prov, warnings=tuple(warnings))
     own = series[""] if "" in series.sensors and all(
         c in series.data[""].columns for c in HPEN) else None
-    return CommonFrameData(common, tuple(sensors), target, to_hpen, own), product
+    return CommonFrameData(common, tuple(sensors), target, to_hpen, own, transforms), product
 
 
 def _to_hpen(series: VectorSeries, config: ChainConfig, vectors: dict, target: str, ref):

@@ -17,6 +17,27 @@ import pandas as pd
 from magcal.io.jsonio import to_jsonable, write_json
 
 
+#: Keys of provenance records that hold wall-clock times (products carry none of them,
+#: so a rerun gives byte-identical files; the run time is in MANIFEST.json only).
+WALL_CLOCK_KEYS = ("created_utc", "time_utc")
+
+
+def without_wall_clock(obj):
+    """``obj`` (nested dicts and lists) without the :data:`WALL_CLOCK_KEYS`.
+
+    Examples
+    --------
+    >>> without_wall_clock({"step": "x", "created_utc": "2026-01-01T00:00:00Z",
+    ...                     "history": [{"step": "validate", "time_utc": "..."}]})
+    {'step': 'x', 'history': [{'step': 'validate'}]}
+    """
+    if isinstance(obj, dict):
+        return {k: without_wall_clock(v) for k, v in obj.items() if k not in WALL_CLOCK_KEYS}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(without_wall_clock(v) for v in obj)
+    return obj
+
+
 @dataclass(frozen=True)
 class StageProduct:
     """The outcome of one chain stage.
@@ -65,12 +86,13 @@ class StageProduct:
         out.mkdir(parents=True, exist_ok=True)
         paths: list[Path] = []
         for name, doc in self.documents.items():
-            paths.append(write_json(out / name, doc))
+            paths.append(write_json(out / name, without_wall_clock(to_jsonable(doc))))
         summary_name = f"{self.stage.upper()}.json"
         if summary_name not in self.documents:
-            paths.append(write_json(out / summary_name, self.to_json()))
+            paths.append(write_json(out / summary_name, without_wall_clock(self.to_json())))
         for name, table in self.tables.items():
-            paths.append(_write_table(write_csv_frame, out / name, table, self.provenance))
+            paths.append(_write_table(write_csv_frame, out / name, table,
+                                      without_wall_clock(self.provenance)))
         for name, writer in self.writers.items():
             written = writer(out / name)
             paths.append(Path(written) if written is not None else out / name)

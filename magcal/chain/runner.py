@@ -15,6 +15,7 @@ the rest complete.
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
@@ -22,15 +23,18 @@ from typing import Callable
 
 from magcal._version import __version__
 from magcal.chain.config import ChainConfig, read_chain_config
-from magcal.chain.product import StageProduct
+from magcal.chain.partition import STATE_DIR, digest
+from magcal.chain.product import StageProduct, without_wall_clock
 from magcal.errors import InputError
+from magcal.io.atomic import atomic_path
 from magcal.io.jsonio import write_json
 from magcal.provenance import file_sha256, make_provenance
 
 
 @dataclass(frozen=True)
 class StageRecord:
-    """What one stage did: its product (or failure) and timing."""
+    """What one stage did: its product (or failure), timing, and whether it was
+    skipped because its inputs had not changed since the last run."""
 
     stage: str
     status: str  # "ok" or "failed"
@@ -38,6 +42,7 @@ class StageRecord:
     product: StageProduct | None = None
     paths: tuple = ()
     error: str = ""
+    skipped: bool = False
 
 
 @dataclass(frozen=True)
@@ -51,83 +56,146 @@ class ChainResult:
     manifest : dict
         The content of ``MANIFEST.json``.
     extras : dict
-        Stage outputs a caller may score (e.g. the demo against its truth).
+        Stage outputs a caller may score (e.g. the demo against its truth); a stage
+        skipped as unchanged leaves None.
+    partitions : PartitionSummary or None
+        Files done, skipped and failed (archive runs).
     """
 
     outdir: Path
     records: tuple = ()
     manifest: dict = field(default_factory=dict)
     extras: dict = field(default_factory=dict)
+    partitions: object = None
 
     @property
-    def failed(self) -> list[StageRecord]:
-        return [r for r in self.records if r.status != "ok"]
+    def failed(self) -> list:
+        """Failed stages and partitions (``StageRecord``-like: ``stage``, ``error``)."""
+        stages = [r for r in self.records if r.status != "ok"]
+        parts = [StageRecord(f"partition {Path(f['partition']).name}", "failed", 0.0,
+                             error=f["reason"])
+                 for f in (self.partitions.failed if self.partitions else ())]
+        return stages + parts
 
     @property
     def warnings(self) -> list[str]:
         return [f"{r.stage}: {w}" for r in self.records if r.product for w in r.product.warnings]
 
     def text(self) -> str:
-        """Console summary: one block per stage."""
+        """Console summary: one block per stage, then the partitions."""
         out = [f"magcal {__version__} run -> {self.outdir}"]
         for r in self.records:
-            out.append(f"[{r.status}] {r.stage} ({r.seconds:.1f} s)")
+            state = "skipped, unchanged" if r.skipped else f"{r.seconds:.1f} s"
+            out.append(f"[{r.status}] {r.stage} ({state})")
             if r.product is not None:
                 out += [f"    {line}" for line in r.product.lines]
             if r.error:
                 out.append(f"    reason: {r.error}")
+        if self.partitions is not None:
+            out.append(self.partitions.text())
         return "\n".join(out)
 
 
 class _Run:
-    """Book-keeping of one run: stage records, manifest entries, progress."""
+    """Book-keeping of one run: stage records, manifest entries, progress, and the
+    markers that let a rerun skip a stage whose inputs are unchanged."""
 
-    def __init__(self, outdir: Path, inputs: list[Path], progress: Callable[[str], None] | None):
+    def __init__(self, outdir: Path, inputs: list[dict], progress: Callable[[str], None] | None):
         self.outdir = outdir
         self.records: list[StageRecord] = []
         self.entries: list[dict] = []
-        self.inputs = [{"path": str(p), "sha256": file_sha256(p)} for p in inputs]
+        self.inputs = inputs
         self.progress = progress or (lambda text: None)
+        self.partitions = None
 
-    def stage(self, name: str, func: Callable, *args, required: bool = True):
+    def add_entry(self, path: Path, stage: str, inputs: list[str], sha: str | None = None):
+        self.entries.append({"path": Path(path).relative_to(self.outdir).as_posix(),
+                             "stage": stage, "sha256": sha or file_sha256(path),
+                             "inputs": list(inputs)})
+
+    def fail(self, name: str, error: Exception, seconds: float = 0.0) -> None:
+        self.records.append(StageRecord(name, "failed", seconds, error=str(error)))
+        self.progress(f"   failed: {error}")
+
+    def _marker(self, name: str) -> Path:
+        from magcal.chain.partition import STATE_DIR
+
+        return self.outdir / STATE_DIR / f"stage-{name}.json"
+
+    def _reuse(self, name: str, key: str) -> bool:
+        """Record a stage as skipped when its marker has ``key`` and its files are intact."""
+        marker = self._marker(name)
+        if not marker.is_file():
+            return False
+        done = json.loads(marker.read_text())
+        if done.get("key") != key or not all(
+                (self.outdir / e["path"]).is_file()
+                and file_sha256(self.outdir / e["path"]) == e["sha256"] for e in done["entries"]):
+            return False
+        self.entries += done["entries"]
+        product = StageProduct(stage=name, lines=tuple(done["lines"]),
+                               warnings=tuple(done["warnings"]))
+        self.records.append(StageRecord(name, "ok", 0.0, product,
+                                        tuple(self.outdir / e["path"] for e in done["entries"]),
+                                        skipped=True))
+        self.progress(f"-> {name}: unchanged, skipped")
+        return True
+
+    def stage(self, name: str, func: Callable, *args, required: bool = True,
+              key: str | None = None):
         """Run one stage; write its product; on failure record it (and re-raise if the
-        later stages need its output)."""
+        later stages need its output). With ``key``, a stage whose last run had the same
+        key and left its files intact is not run again (its value is then None)."""
+        if key is not None and self._reuse(name, key):
+            return None
         self.progress(f"-> {name}")
         start = time.perf_counter()
+        first = len(self.entries)
         try:
             value, product = func(*args)
         except InputError as exc:
-            self.records.append(StageRecord(name, "failed", time.perf_counter() - start,
-                                            error=str(exc)))
-            self.progress(f"   failed: {exc}")
+            self.fail(name, exc, time.perf_counter() - start)
             if required:
                 raise
             return None
         paths = product.write(self.outdir / product.stage)
         for p in paths:
-            self.entries.append({"path": str(p.relative_to(self.outdir)), "stage": product.stage,
-                                 "sha256": file_sha256(p), "inputs": [i["sha256"] for i in
-                                                                      self.inputs]})
+            self.add_entry(p, product.stage, [i["sha256"] for i in self.inputs])
         self.records.append(StageRecord(name, "ok", time.perf_counter() - start, product,
                                         tuple(paths)))
+        if key is not None:
+            with atomic_path(self._marker(name)) as tmp:
+                tmp.write_text(json.dumps({"key": key, "entries": self.entries[first:],
+                                           "lines": list(product.lines),
+                                           "warnings": list(product.warnings)}))
         self.progress(f"   ok in {self.records[-1].seconds:.1f} s")
         return value
 
-    def manifest(self, config: ChainConfig) -> dict:
+    def manifest(self, config: ChainConfig, engine: str = "") -> dict:
         failed = [{"partition": r.stage, "stage": r.stage, "reason": r.error}
                   for r in self.records if r.status != "ok"]
+        parts = self.partitions
+        if parts is not None:
+            failed += [dict(f) for f in parts.failed]
         return {"products": self.entries, "failed": failed, "inputs": self.inputs,
                 "warnings": [f"{r.stage}: {w}" for r in self.records if r.product
                              for w in r.product.warnings],
-                "stages": [{"stage": r.stage, "status": r.status, "seconds": r.seconds}
-                           for r in self.records],
+                "stages": [{"stage": r.stage, "status": r.status, "seconds": r.seconds,
+                            "skipped": r.skipped} for r in self.records],
+                "partitions": None if parts is None else {
+                    "done": list(parts.done), "skipped": list(parts.skipped)},
+                "engine": engine,
                 "provenance": make_provenance("run", config.as_dict(), inputs=[config.path])}
 
 
 def run_chain(config: ChainConfig | str | Path, outdir: str | Path,
               progress: Callable[[str], None] | None = None,
-              workers: int | None = None) -> ChainResult:
+              workers: int | None = None, scheduler=None) -> ChainResult:
     """Run the whole chain of a configuration and write every product into ``outdir``.
+
+    A geostationary chain runs partitioned by input file on Dask
+    (:mod:`magcal.chain.archive`): a rerun skips the partitions and stages whose inputs
+    and configuration are unchanged, and one unreadable file fails only its partition.
 
     Parameters
     ----------
@@ -136,10 +204,13 @@ def run_chain(config: ChainConfig | str | Path, outdir: str | Path,
     outdir : path-like
         Output folder (created).
     progress : callable, optional
-        Called with one line of text per stage start and end.
+        Called with one line of text per stage start and end; when given, a progress
+        bar per partitioned stage also goes to stderr.
     workers : int, optional
-        Worker processes of the parallel stages (model field); default the
-        configuration's ``[model] jobs`` or the usable cores.
+        Local Dask worker processes (default: the usable cores).
+    scheduler : str or distributed.Client, optional
+        A ``dask.distributed`` scheduler address (or client) to run the tasks on
+        instead; its workers must see the same file system.
 
     Returns
     -------
@@ -151,57 +222,118 @@ def run_chain(config: ChainConfig | str | Path, outdir: str | Path,
         Bad configuration, unreadable input, or a stage the later stages depend on
         (reading, frames, AC, model) that cannot run on the data.
     """
+    from magcal.chain.engine import Engine
+
     cfg = config if isinstance(config, ChainConfig) else read_chain_config(config)
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
     extras: dict = {}
     cfg = replace(cfg, outdir=out)
-    if workers is not None:
-        if workers < 1:
-            raise InputError(f"--workers must be at least 1, got {workers}")
-        cfg.sections["model"]["jobs"] = workers
+    if workers is not None and workers < 1:
+        raise InputError(f"--workers must be at least 1, got {workers}")
+    remove_partial_files(out)
     if cfg["input"]["simulate"]:
         extras["simulated"] = _simulate_input(cfg, out, progress)
     files = cfg.input_files()
-    run = _Run(out, files, progress)
-    try:
+    with Engine(workers, scheduler, bars=progress is not None) as engine:
         if cfg.kind == "spin":
-            from magcal.chain.spin import spin_stages
-
-            spin_stages(run, cfg, files, extras)
+            run = _Run(out, [{"path": str(p), "sha256": file_sha256(p)} for p in files],
+                       progress)
         else:
-            _geostationary_stages(run, cfg, files, extras)
-        if cfg["report"]["enabled"]:
-            run.stage("report", _report, out, cfg, required=False)
-    finally:  # a run stopped by bad input still says what it did and why it stopped
-        manifest = run.manifest(cfg)
-        write_json(out / "MANIFEST.json", manifest)
-    return ChainResult(out, tuple(run.records), manifest, extras)
+            from magcal.chain.archive import hash_inputs
+
+            shas = hash_inputs(files, engine)
+            run = _Run(out, [{"path": str(p), "sha256": s} for p, s in zip(files, shas)],
+                       progress)
+        try:
+            if cfg.kind == "spin":
+                from magcal.chain.spin import spin_stages
+
+                spin_stages(run, cfg, files, extras)
+            else:
+                _geostationary_stages(run, cfg, files, shas, extras, engine)
+            if cfg["report"]["enabled"]:
+                keys = sorted((e["path"], e["sha256"]) for e in run.entries)
+                run.stage("report", _report, out, cfg, required=False,
+                          key=digest({"products": keys, "report": cfg["report"]}))
+        finally:  # a run stopped by bad input still says what it did and why it stopped
+            manifest = run.manifest(cfg, engine.description)
+            write_json(out / "MANIFEST.json", manifest)
+    return ChainResult(out, tuple(run.records), manifest, extras, run.partitions)
 
 
-def _geostationary_stages(run: _Run, cfg: ChainConfig, files, extras: dict) -> None:
-    from magcal.chain import calibrate, prepare
+def remove_partial_files(outdir: Path) -> int:
+    """Delete what a killed run left half-written: the temporary files of
+    :func:`magcal.io.atomic.atomic_path` (``.<name>.<random>.part<suffix>``) and the
+    scratch folders of :func:`magcal.chain.archive.replace_keeping_previous`."""
+    import shutil
 
-    series = run.stage("read", _read, cfg, files)
-    common = run.stage("frames", prepare.run_frames, series, cfg)
-    cleaned = run.stage("ac", prepare.run_ac, common, cfg)
-    minute = run.stage("model", prepare.run_model, series, cleaned, cfg)
-    table = run.stage("offsets", calibrate.run_offsets, minute, cfg)
-    corrected = run.stage("corrected", calibrate.run_corrected, cleaned, minute, table, cfg)
-    extras.update(series=series, cleaned=cleaned, minute=minute, table=table,
-                  corrected=corrected)
+    removed = 0
+    for path in sorted(outdir.rglob(".*"), reverse=True):
+        if path.is_file() and ".part" in path.name:
+            path.unlink(missing_ok=True)
+            removed += 1
+        elif path.is_dir() and path.name.endswith(".scratch"):
+            shutil.rmtree(path, ignore_errors=True)
+            removed += 1
+    return removed
+
+
+def _geostationary_stages(run: _Run, cfg: ChainConfig, files, shas, extras: dict,
+                          engine) -> None:
+    """Fit phase, partitions on Dask, then the stages on the 1-min record."""
+    from magcal.chain import archive, calibrate
+
+    state = run.outdir / STATE_DIR
+    state.mkdir(exist_ok=True)
+    run.progress("-> fit: frames and PiCoG on the first "
+                 f"{cfg['picog']['fit_days']:g} days")
+    try:
+        fit, frames, ac = archive.fit_phase(cfg, files, shas, state)
+    except InputError as exc:
+        run.fail("frames", exc)
+        raise
+    run.stage("frames", lambda: (None, frames), key=fit.key)
+    run.stage("ac", lambda: (None, ac), key=fit.key)
+    run.progress(f"-> partitions ({engine.description})")
+    records, failed, run.partitions = archive.run_partitions(cfg, files, shas, fit, state,
+                                                             engine)
+    pkeys = [r["key"] for r in records]
+    run.stage("read", archive.read_product, cfg, files, shas, records, run.partitions,
+              key=digest({"shas": shas, "partitions": pkeys, "failed": failed}))
+    minute = archive.gather_minutes(records)
+    run.stage("model", archive.model_product, minute, cfg, records, key=digest(pkeys))
+    table = run.stage("offsets", archive.offsets_stage, minute, cfg, failed, records)
+    run.stage("corrected", archive.corrected_stage, run, table, records, cfg, engine)
+    offsets_sha = file_sha256(run.outdir / "offsets" / "OFFSETS.csv")
+    extras.update(minute=minute, table=table)
     if cfg["truth"]["file"]:
         from magcal.chain.truth import run_truth
 
-        extras["truth"] = run.stage("truth", run_truth, cleaned, table, cleaned.raw_hpen, cfg,
-                                    required=False)
-    if cfg["alignment"]["enabled"]:
-        extras["align"] = run.stage("alignment", calibrate.run_alignment, corrected, minute,
-                                    cfg, required=False)
-    if cfg["discover"]["enabled"]:
-        extras["discover"] = run.stage("discover", calibrate.run_discovery, minute, cfg,
-                                       required=False)
+        truth_path = cfg.resolve(cfg["truth"]["file"])
+        key = digest({"partitions": pkeys, "offsets": offsets_sha,
+                      "truth": file_sha256(truth_path) if truth_path.is_file() else None})
+        def truth():
+            full = archive.gather_full(records)
+            return run_truth(full, table, full.raw_hpen, cfg)
 
+        extras["truth"] = run.stage("truth", truth, required=False, key=key)
+    if cfg["alignment"]["enabled"]:
+        ref = cfg["alignment"]["reference"]
+        ref_path = cfg.resolve(ref) if ref != "model" else None
+        key = digest({"partitions": pkeys, "offsets": offsets_sha, "cfg": cfg["alignment"],
+                      "cadence_s": cfg["offsets"]["cadence_s"],
+                      "ref": file_sha256(ref_path) if ref_path and ref_path.is_file() else
+                      None})
+        extras["align"] = run.stage("alignment", lambda: calibrate.run_alignment(
+            archive.corrected_for_alignment(minute, table, records, cfg), minute, cfg),
+            required=False, key=key)
+    if cfg["discover"]["enabled"]:
+        cov = cfg.resolve(cfg["discover"]["covariates"])
+        key = digest({"partitions": pkeys, "cfg": cfg["discover"],
+                      "cov": file_sha256(cov) if cov and cov.is_file() else None})
+        extras["discover"] = run.stage("discover", calibrate.run_discovery, minute, cfg,
+                                       required=False, key=key)
 
 def _simulate_input(cfg: ChainConfig, out: Path, progress) -> dict:
     """Write the simulated raw archive of ``[input] simulate`` into ``OUTDIR/raw``.
@@ -249,6 +381,7 @@ def _report(out: Path, cfg: ChainConfig):
     from magcal.report.uncertainty import build_uncertainty_report
 
     doc = build_uncertainty_report(out)
+    doc.provenance = without_wall_clock(doc.provenance)
 
     def html(path):
         return write_html(doc, path)

@@ -1,0 +1,477 @@
+"""The geostationary chain over an archive: partitioned by input file, run on Dask.
+
+Phases of :func:`archive_stages` (driven by :func:`magcal.chain.runner.run_chain`):
+
+1. **fit**: frames and PiCoG on the first ``[picog] fit_days`` days of data (the upload
+   matrices are constant, they are the product); the result is cached as
+   ``.partitions/fit-<key>.pkl``, the key being the SHA-256 of the files used and of
+   the configuration;
+2. **partitions**: one task per input file (:mod:`magcal.chain.partition`): common
+   frame, PiCoG, Hpen, 1-min averages and model field, written atomically to
+   ``.partitions/<stem>-<key>.npz``; a file whose key is unchanged is skipped;
+3. **offsets** on the concatenated 1-min results (one task: medians of a year of 1-min
+   samples take well under a second, less than shipping the data to workers); windows
+   touching a failed partition name it in their ``reason``; ``OFFSETS.csv`` is replaced
+   atomically, the previous version kept in ``offsets/previous/``;
+4. **corrected**: one task per UTC day, the interpolated offsets applied to the stored
+   full-cadence Hpen; a day is rewritten only when its partitions or the offset windows
+   its interpolation uses changed;
+5. **truth, alignment, discovery, report** on the 1-min data, each skipped when its
+   inputs are unchanged.
+
+Only a few partitions' full-cadence data are in memory at once (one per worker, plus
+the partitions of one day in the corrected stage); the driver holds the 1-min record.
+"""
+
+from __future__ import annotations
+
+import json
+import pickle
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from magcal.chain.config import ChainConfig
+from magcal.chain.partition import (FULL_ARRAYS, MINUTE_ARRAYS, STATE_DIR, FrameApply,
+                                    PartitionTask, digest, read_partition_arrays,
+                                    read_partition_meta, run_partition, sha256_of)
+from magcal.chain.prepare import HPEN, CleanedData, MinuteData
+from magcal.chain.product import StageProduct, without_wall_clock
+from magcal.errors import InputError
+from magcal.io.atomic import atomic_path
+from magcal.provenance import make_provenance
+
+_DAY_NS = 86_400 * 10**9
+
+
+@dataclass(frozen=True)
+class PartitionSummary:
+    """What the partition phase did: files done, skipped (unchanged) and failed."""
+
+    done: tuple = ()
+    skipped: tuple = ()
+    failed: tuple = ()  # ({"partition", "stage", "reason"}, ...)
+
+    def text(self) -> str:
+        out = [f"partitions: {len(self.done)} done, {len(self.skipped)} skipped (unchanged), "
+               f"{len(self.failed)} failed"]
+        out += [f"    failed {f['partition']}: {f['reason']}" for f in self.failed]
+        return "\n".join(out)
+
+
+def hash_inputs(files: list[Path], engine) -> list[str]:
+    """SHA-256 of every input file, hashed by the workers."""
+    found = dict(engine.map(sha256_of, [str(f) for f in files], "checksums"))
+    return [found[str(f)] for f in files]
+
+
+# ------------------------------------------------------------------------------ fit
+def _config_part(cfg: ChainConfig) -> dict:
+    """The configuration a partition's result depends on (and the checksums of the
+    files it names)."""
+    from magcal._version import __version__
+    from magcal.provenance import file_sha256
+
+    files = {}
+    for key, rel in (("kp", cfg["kp"]["file"]), ("drivers", cfg["model"]["drivers"])):
+        path = cfg.resolve(rel)
+        files[key] = file_sha256(path) if path is not None and path.is_file() else None
+    model = {k: v for k, v in cfg["model"].items() if k not in ("jobs", "cache_dir")}
+    inp = {k: v for k, v in cfg["input"].items() if k not in ("files", "simulate")}
+    return {"version": __version__, "input": inp, "position": cfg["position"],
+            "model": model, "cadence_s": cfg["offsets"]["cadence_s"], "files": files}
+
+
+def _span(path: Path, sha: str, cfg: ChainConfig, spans: dict):
+    """First and last time of a file (cached by checksum)."""
+    if sha not in spans:
+        from magcal.io.formats import read_any
+
+        frame = read_any(path, cfg["input"]["format"])
+        if len(frame.index) == 0:
+            raise InputError("no samples", file=path)
+        spans[sha] = [str(frame.index[0]), str(frame.index[-1])]
+    return pd.Timestamp(spans[sha][0])
+
+
+def _fit_files(cfg: ChainConfig, files, shas, state: Path) -> list[Path]:
+    """The readable files starting within ``fit_days`` of the first readable one."""
+    spans_path = state / "spans.json"
+    spans = json.loads(spans_path.read_text()) if spans_path.is_file() else {}
+    chosen, first, errors = [], None, []
+    limit = pd.Timedelta(days=float(cfg["picog"]["fit_days"]))
+    for path, sha in zip(files, shas):
+        try:
+            start = _span(path, sha, cfg, spans)
+        except InputError as exc:
+            errors.append(exc)
+            continue
+        first = start if first is None else first
+        if start - first >= limit:
+            break
+        chosen.append(path)
+    with atomic_path(spans_path) as tmp:
+        tmp.write_text(json.dumps(spans, sort_keys=True))
+    if not chosen:
+        raise errors[0] if errors else InputError("no input file", file=cfg.path)
+    return chosen
+
+
+def fit_phase(cfg: ChainConfig, files, shas, state: Path):
+    """Frames and PiCoG on the first days: ``(FrameApply, frames product, ac product)``.
+
+    Cached in ``state`` under the SHA-256 of the files used and the configuration.
+    """
+    from magcal.chain import prepare
+    from magcal.provenance import file_sha256
+
+    fit_files = _fit_files(cfg, files, shas, state)
+    by_path = dict(zip(files, shas))
+    plan = cfg["picog"]["plan"]
+    plan_path = cfg.resolve(plan) if plan not in ("auto", "none") else None
+    key = digest({"files": [by_path[f] for f in fit_files], "frames": cfg["frames"],
+                  "picog": cfg["picog"], "config": _config_part(cfg),
+                  "plan": file_sha256(plan_path) if plan_path and plan_path.is_file()
+                  else None})
+    path = state / f"fit-{key[:24]}.pkl"
+    if path.is_file():
+        with open(path, "rb") as handle:
+            return pickle.load(handle)
+    series = prepare.load_series(cfg, fit_files)
+    common, frames = prepare.run_frames(series, cfg)
+    _, ac = prepare.run_ac(common, cfg)
+    params = ac.documents.get("PARAMS.json")
+    upload = ({"M": params["M"], "G": params["G"]}
+              if ac.summary.get("delivered") == "cleaned" else None)
+    fit = FrameApply(key=key, sensors=common.sensors, target=common.target,
+                     transforms=common.transforms, to_hpen=np.asarray(common.to_hpen),
+                     upload=upload)
+    note = f"fitted on {len(fit_files)} file(s): the first {cfg['picog']['fit_days']:g} days"
+    frames = replace(frames, summary={**frames.summary, "fit_files": [str(f) for f in
+                                                                      fit_files]})
+    ac = replace(ac, summary={**ac.summary, "fit_files": [str(f) for f in fit_files]},
+                 lines=ac.lines + (note,))
+    value = (fit, frames, ac)
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(pickle.dumps(value))
+    return value
+
+
+# ----------------------------------------------------------------------- partitions
+def run_partitions(cfg: ChainConfig, files, shas, fit: FrameApply, state: Path, engine):
+    """Process every file whose result is missing; ``(records in time order, summary)``."""
+    part = digest(_config_part(cfg))
+    tasks, skipped, records = [], [], []
+    for path, sha in zip(files, shas):
+        key = digest({"file": sha, "config": part, "fit": fit.key})[:24]
+        result = state / f"{Path(path).stem}-{key}.npz"
+        if result.is_file():
+            try:
+                records.append({"file": str(path), "sha256": sha, "key": key,
+                                "result": str(result), "status": "ok",
+                                **read_partition_meta(result)})
+                skipped.append(str(path))
+                continue
+            except (OSError, ValueError, KeyError):
+                result.unlink()  # unreadable leftover: recompute
+        tasks.append(PartitionTask(config=cfg, file=str(path), sha256=sha, key=key,
+                                   result=str(result), fit=fit))
+    records += engine.map(run_partition, tasks, "partitions")
+    ok = sorted((r for r in records if r["status"] == "ok"), key=lambda r: r["start"])
+    failed = tuple({"partition": r["file"], "stage": "partition", "reason": r["reason"]}
+                   for r in records if r["status"] != "ok")
+    done = tuple(r["file"] for r in records if r["status"] == "ok" and r["file"] not in
+                 skipped)
+    if not ok:
+        raise InputError(f"every partition failed; {failed[0]['partition']}: "
+                         f"{failed[0]['reason']}")
+    return ok, failed, PartitionSummary(done, tuple(skipped), failed)
+
+
+def gather_minutes(records) -> MinuteData:
+    """The 1-min results of every partition, in time order (duplicate times dropped)."""
+    parts = [read_partition_arrays(Path(r["result"]), MINUTE_ARRAYS) for r in records]
+    cat = {n: np.concatenate([p[n] for p in parts]) for n in MINUTE_ARRAYS}
+    order = np.argsort(cat["t_min"], kind="stable")
+    t = cat["t_min"][order]
+    keep = np.r_[True, t[1:] != t[:-1]]
+    pick = order[keep]
+    return MinuteData(times=cat["t_min"][pick], hpen=cat["hpen_min"][pick],
+                      model=cat["model_min"][pick], kp=cat["kp"][pick],
+                      lon_deg=cat["lon_deg"][pick], lat_deg=cat["lat_deg"][pick],
+                      r_re=cat["r_re"][pick])
+
+
+def gather_full(records) -> CleanedData:
+    """The full-cadence cleaned and raw Hpen of every partition (records of a few days
+    only: the truth stage and input-cadence alignment)."""
+    parts = [read_partition_arrays(Path(r["result"]), FULL_ARRAYS) for r in records]
+    t = np.concatenate([p["t_full"] for p in parts])
+    order = np.argsort(t, kind="stable")
+    keep = np.r_[True, t[order][1:] != t[order][:-1]]
+    pick = order[keep]
+    index = pd.DatetimeIndex(t[pick], name="time").tz_localize("UTC")
+    return CleanedData(index, np.concatenate([p["hpen_full"] for p in parts])[pick],
+                       np.concatenate([p["raw_full"] for p in parts])[pick])
+
+
+# ------------------------------------------------------------------ stage products
+def read_product(cfg: ChainConfig, files, shas, records, summary: PartitionSummary):
+    """The ``read`` stage product from the partition records (no data re-read)."""
+    samples = sum(r["n_samples"] for r in records)
+    cadence = float(np.median([r["cadence_s"] for r in records]))
+    start, end = records[0]["start"], max(r["end"] for r in records)
+    span_h = (pd.Timestamp(end) - pd.Timestamp(start)).total_seconds() / 3600.0
+    sensors = sorted({s for r in records for s in r["sensors"]})
+    doc = {"files": [str(f) for f in files], "n_samples": samples, "cadence_s": cadence,
+           "sensors": sensors, "span_hours": span_h, "start": start, "end": end,
+           "n_partitions": len(files), "failed": list(summary.failed),
+           "model_warnings": sorted({w for r in records for w in r.get("warnings", [])})}
+    prov = make_provenance("read", {"format": cfg["input"]["format"]})
+    prov["inputs"] = [{"path": str(f), "sha256": s, "bytes": Path(f).stat().st_size}
+                      for f, s in zip(files, shas)]
+    line = (f"{len(files)} file(s), {samples} samples at {cadence:g} s over {span_h:.2f} h; "
+            f"sensors {', '.join(sensors)}")
+    return None, StageProduct(stage="read", summary=doc, lines=(line,),
+                              provenance=without_wall_clock(prov))
+
+
+def model_product(minute: MinuteData, cfg: ChainConfig, records):
+    """MODEL.csv and DATA_HPEN.csv (1-min) from the concatenated partitions."""
+    index = pd.DatetimeIndex(minute.times, name="time").tz_localize("UTC")
+    data = pd.DataFrame(minute.hpen, index=index, columns=list(HPEN))
+    for c in ("lon_deg", "lat_deg", "r_re"):
+        data[c] = getattr(minute, c)
+    n_invalid = int((~np.isfinite(minute.model).all(axis=1)).sum())
+    kp_ok = np.isfinite(minute.kp)
+    med = np.nanmedian(minute.hpen - minute.model, axis=0).tolist()
+    summary = {"model": cfg["model"]["name"].upper(), "n_samples": int(len(minute.times)),
+               "n_invalid": n_invalid,
+               "kp_range": [float(minute.kp[kp_ok].min()), float(minute.kp[kp_ok].max())]
+               if kp_ok.any() else None, "data_minus_model_median_nT": med}
+    kp_path = cfg.resolve(cfg["kp"]["file"])
+    model = {k: v for k, v in cfg["model"].items() if k != "jobs"}  # same whatever the workers
+    prov = make_provenance("model", {"model": model, "position": cfg["position"],
+                                     "cadence_s": cfg["offsets"]["cadence_s"]},
+                           inputs=[kp_path] if kp_path is not None else [])
+    line = (f"{len(minute.times)} samples at {cfg['offsets']['cadence_s']:g} s from "
+            f"{len(records)} partition(s); {summary['model']} at the spacecraft "
+            f"({n_invalid} NaN); median data - model "
+            + ", ".join(f"{c} {v:+.2f}" for c, v in zip(HPEN, med)) + " nT")
+    product = StageProduct(stage="model", summary=summary, lines=(line,),
+                           provenance=without_wall_clock(prov),
+                           tables={"MODEL.csv": pd.DataFrame(minute.model, index=index,
+                                                             columns=list(HPEN)),
+                                   "DATA_HPEN.csv": data})
+    return minute, product
+
+
+def mark_failed_windows(table, failed, records):
+    """Name the failed partitions in the ``reason`` of the windows that touch them.
+
+    A failed file's times are unknown (it could not be read): it is placed in the gap
+    between the neighbouring readable files in file order (from the sample after the
+    previous file's last one to the next file's first sample).
+    """
+    if not failed:
+        return table
+    by_file = {r["file"]: r for r in records}
+    order = sorted(set(by_file) | {f["partition"] for f in failed})
+    start = table.start.astype("datetime64[ns]").astype(np.int64)
+    end = table.end.astype("datetime64[ns]").astype(np.int64)
+    reasons = list(table.reason) if len(table.reason) else [""] * len(start)
+    for f in failed:
+        k = order.index(f["partition"])
+        before = [by_file[o] for o in order[:k] if o in by_file]
+        after = [by_file[o]["start"] for o in order[k + 1:] if o in by_file]
+        # the gap starts where the previous file's next sample would have been
+        lo = (pd.Timestamp(before[-1]["end"]).value + int(before[-1]["cadence_s"] * 1e9)
+              if before else np.iinfo(np.int64).min)
+        hi = pd.Timestamp(after[0]).value if after else np.iinfo(np.int64).max
+        note = f"partition {Path(f['partition']).name} failed ({f['reason']})"
+        for w in np.flatnonzero((start < hi) & (end > lo)):
+            reasons[w] = f"{reasons[w]}; {note}" if reasons[w] else note
+    return replace(table, reason=tuple(reasons))
+
+
+# -------------------------------------------------------------------------- offsets
+def replace_keeping_previous(write, path: Path) -> Path:
+    """Write a product with ``write(path)`` beside ``path`` and swap it in atomically;
+    an existing different version moves to ``<folder>/previous/<stem>.<n><suffix>``
+    (and its ``.provenance.json`` with it). An identical one is left untouched."""
+    import filecmp
+    import os
+    import tempfile
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    scratch = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".scratch",
+                                    dir=path.parent))
+    try:
+        write(scratch / path.name)
+        names = [p.name for p in sorted(scratch.iterdir())]
+        same = path.is_file() and all((path.parent / n).is_file() and filecmp.cmp(
+            scratch / n, path.parent / n, shallow=False) for n in names)
+        if not same:
+            if path.is_file():
+                previous = path.parent / "previous"
+                previous.mkdir(exist_ok=True)
+                n = 1 + sum(1 for _ in previous.glob(f"{path.stem}.*{path.suffix}"))
+                for name in names:
+                    old = path.parent / name
+                    if old.is_file():
+                        os.replace(old, previous / name.replace(path.name,
+                                                                f"{path.stem}.{n}{path.suffix}"))
+            for name in sorted(names, key=lambda x: x == path.name):  # main file last
+                os.replace(scratch / name, path.parent / name)
+        return path
+    finally:
+        for leftover in scratch.iterdir():
+            leftover.unlink()
+        scratch.rmdir()
+
+
+def offsets_stage(minute: MinuteData, cfg: ChainConfig, failed, records):
+    """The offset product with failed partitions named; previous versions kept."""
+    from magcal.chain.calibrate import run_offsets
+    from magcal.offsets import write_offsets_csv
+
+    table, product = run_offsets(minute, cfg)
+    table = mark_failed_windows(table, failed, records)
+    table = replace(table, provenance=without_wall_clock(table.provenance))
+    summary = {**product.summary, "reasons": [r for r in table.reason if r]}
+
+    def writer(path):
+        return replace_keeping_previous(lambda p: write_offsets_csv(p, table), path)
+
+    return table, replace(product, summary=summary, writers={"OFFSETS.csv": writer})
+
+
+# ------------------------------------------------------------------------ corrected
+@dataclass(frozen=True)
+class DayTask:
+    """One corrected daily file: the day, its partition results, the offset table."""
+
+    day: str
+    results: tuple
+    table: object
+    path: str
+    provenance: dict
+
+
+def _bracket_key(table, day: str, partition_keys) -> str:
+    """Key of a corrected day: its partitions and the valid windows its interpolation
+    uses (the last centre at or before the day, the first at or after its end, and
+    those between)."""
+    valid = np.flatnonzero(np.isfinite(table.offset_nT).all(axis=1))
+    c = table.center.astype("datetime64[ns]").astype(np.int64)[valid]
+    t0 = pd.Timestamp(day).value
+    t1 = t0 + _DAY_NS
+    lo = np.searchsorted(c, t0, side="right") - 1
+    hi = np.searchsorted(c, t1, side="left")
+    rows = valid[max(lo, 0):min(hi, len(valid) - 1) + 1] if len(valid) else valid
+    return digest({"partitions": sorted(partition_keys), "centers": c[np.isin(valid, rows)],
+                   "offsets": table.offset_nT[rows], "flag_meaning": "v1"})[:24]
+
+
+def write_corrected_day(task: DayTask) -> dict:
+    """Apply the interpolated offsets to one day's full-cadence Hpen; write its CSV."""
+    from magcal.io.csv import write_csv_frame
+    from magcal.offsets import apply_offsets
+    from magcal.provenance import file_sha256
+
+    try:
+        data = gather_full([{"result": r} for r in task.results])
+        t0 = pd.Timestamp(task.day, tz="UTC")
+        day = (data.times >= t0) & (data.times < t0 + pd.Timedelta(days=1))
+        times, hpen = data.times[day], data.hpen[day]
+        t = times.tz_localize(None).as_unit("ns").to_numpy()
+        if np.isfinite(task.table.offset_nT).all(axis=1).any():
+            corr, _, flag = apply_offsets(t, hpen, task.table)
+        else:
+            corr, flag = hpen.copy(), np.full(len(t), 3, dtype=np.int8)
+        frame = pd.DataFrame(corr, index=times, columns=list(HPEN))
+        frame["offset_flag"] = np.asarray(flag, dtype=int)
+        write_csv_frame(Path(task.path), frame, provenance=task.provenance or None,
+                        float_format="%.6f")
+        counts = np.bincount(np.asarray(flag, dtype=int), minlength=4)[:4]
+        return {"day": task.day, "status": "ok", "sha256": file_sha256(task.path),
+                "n": int(len(frame)), "flags": counts.tolist()}
+    except Exception as exc:  # noqa: BLE001 - one day must not stop the others
+        return {"day": task.day, "status": "failed", "reason": f"{type(exc).__name__}: {exc}"}
+
+
+def corrected_stage(run, table, records, cfg: ChainConfig, engine):
+    """Daily corrected files, rewritten only for days whose inputs changed."""
+    from magcal.offsets import FLAG_MEANING
+    from magcal.provenance import file_sha256
+
+    out = run.outdir / "corrected"
+    marker = run.outdir / STATE_DIR / "corrected.json"
+    done = json.loads(marker.read_text()) if marker.is_file() else {}
+    by_day: dict[str, list] = {}
+    for r in records:
+        for d in r["days"]:
+            by_day.setdefault(d, []).append(r)
+    prov = without_wall_clock(make_provenance("offsets apply", {"flag_meaning": FLAG_MEANING}))
+    tasks, keys = [], {}
+    for d, parts in sorted(by_day.items()):
+        keys[d] = _bracket_key(table, d, [p["key"] for p in parts])
+        path = out / f"CORRECTED_{d.replace('-', '')}.csv"
+        old = done.get(d)
+        if (old and old["key"] == keys[d] and path.is_file()
+                and file_sha256(path) == old["sha256"]):
+            continue
+        tasks.append(DayTask(d, tuple(p["result"] for p in parts), table, str(path), prov))
+    results = engine.map(write_corrected_day, tasks, "corrected days")
+    for res in results:
+        if res["status"] == "ok":
+            done[res["day"]] = {**res, "key": keys[res["day"]]}
+    for d in sorted(set(done) - set(by_day)):  # its file is gone or now fails
+        (out / f"CORRECTED_{d.replace('-', '')}.csv").unlink(missing_ok=True)
+    done = {d: v for d, v in done.items() if d in by_day}
+    with atomic_path(marker) as tmp:
+        tmp.write_text(json.dumps(done, sort_keys=True))
+    inputs = {d: [p["sha256"] for p in parts] for d, parts in by_day.items()}
+    for d in sorted(done):
+        run.add_entry(out / f"CORRECTED_{d.replace('-', '')}.csv", "corrected", inputs[d],
+                      done[d]["sha256"])
+    counts = np.sum([done[d]["flags"] for d in done], axis=0) if done else np.zeros(4, int)
+    n = int(sum(done[d]["n"] for d in done))
+    failed = [f"{r['day']}: {r['reason']}" for r in results if r["status"] != "ok"]
+    valid = bool(np.isfinite(table.offset_nT).all(axis=1).any())
+    summary = {"n_samples": n, "n_files": len(done),
+               "flags": {FLAG_MEANING[k]: int(counts[k]) for k in range(4)},
+               "failed_days": failed}
+    lines = (f"{n} samples in {len(done)} daily files ({len(tasks) - len(failed)} rewritten); "
+             f"interpolated {counts[0]}, held {counts[1] + counts[2]}, no offset {counts[3]}",)
+    warnings = (() if valid else
+                ("no valid offset: corrected files hold the uncorrected data (offset_flag 3)",))
+    warnings += tuple(f"corrected day failed: {f}" for f in failed)
+    return None, StageProduct(stage="corrected", summary=summary, lines=lines,
+                              provenance=prov, warnings=warnings)
+
+
+def corrected_for_alignment(minute: MinuteData, table, records, cfg: ChainConfig):
+    """Offset-corrected data for the alignment: the 1-min record, and the full-cadence
+    record only when ``[alignment] cadence_s = 0`` (records of minutes or hours)."""
+    from magcal.chain.calibrate import CorrectedData
+    from magcal.offsets import apply_offsets
+
+    valid = np.isfinite(table.offset_nT).all(axis=1).any()
+
+    def correct(t, hpen):
+        if valid:
+            corr, _, flag = apply_offsets(t, hpen, table)
+            return corr, np.asarray(flag)
+        return hpen.copy(), np.full(len(t), 3, dtype=np.int8)
+
+    corr_min, flag_min = correct(minute.times, minute.hpen)
+    full_t, full = np.empty(0, dtype="datetime64[ns]"), np.empty((0, 3))
+    if cfg["alignment"]["cadence_s"] == 0:
+        data = gather_full(records)
+        full_t = data.times.tz_localize(None).as_unit("ns").to_numpy()
+        full = correct(full_t, data.hpen)[0]
+    return CorrectedData(minute.times, corr_min, flag_min, full_t, full)

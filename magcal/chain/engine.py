@@ -1,0 +1,136 @@
+"""Where the partition tasks of a chain run execute: Dask's local or distributed scheduler.
+
+:class:`Engine` maps a picklable function over a list of picklable items and returns the
+results in the items' order, with a progress bar per stage (tqdm, stderr). The local
+engine runs Dask's multiprocessing scheduler on one pool of ``workers`` spawned
+processes kept for the whole run (one worker: Dask's synchronous scheduler, no
+processes at all); the distributed engine submits to a ``dask.distributed`` scheduler
+(an address, or a ``Client``). The task functions never raise (they return failure
+records), so a failed partition cannot cancel the others.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from typing import Callable, Sequence
+
+from magcal.errors import InputError
+
+
+def usable_cores() -> int:
+    """Cores this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+class Engine:
+    """Run tasks on Dask.
+
+    Parameters
+    ----------
+    workers : int, optional
+        Local worker processes (default: the usable cores). Ignored with ``scheduler``.
+    scheduler : str or distributed.Client, optional
+        Address of a running ``dask.distributed`` scheduler (``tcp://host:port``) or a
+        connected client.
+    bars : bool
+        Show a tqdm bar per stage on stderr.
+    """
+
+    def __init__(self, workers: int | None = None, scheduler=None, bars: bool = False):
+        if workers is not None and workers < 1:
+            raise InputError(f"--workers must be at least 1, got {workers}")
+        self.workers = workers or usable_cores()
+        self.bars = bars
+        self._client = None
+        self._own_client = False
+        self._pool = None
+        if scheduler is not None:
+            self._client, self._own_client = _connect(scheduler)
+
+    @property
+    def description(self) -> str:
+        if self._client is not None:
+            return f"dask.distributed scheduler {self._client.scheduler.address}"
+        return f"dask local scheduler, {self.workers} worker(s)"
+
+    def map(self, func: Callable, items: Sequence, label: str) -> list:
+        """``[func(item) for item in items]`` on the workers, in order."""
+        if not items:
+            return []
+        from tqdm import tqdm
+
+        with tqdm(total=len(items), desc=label, unit="task", file=sys.stderr,
+                  disable=not self.bars, leave=True) as bar:
+            if self._client is not None:
+                return self._map_distributed(func, items, bar)
+            return self._map_local(func, items, bar)
+
+    def _map_local(self, func, items, bar) -> list:
+        import dask
+        from dask.callbacks import Callback
+
+        class _Bar(Callback):
+            def _posttask(self, key, result, dsk, state, worker_id):
+                bar.update(1)
+
+        tasks = [dask.delayed(func, pure=False)(item) for item in items]
+        with _Bar():
+            if self.workers == 1 or len(items) == 1:
+                return list(dask.compute(*tasks, scheduler="synchronous"))
+            return list(dask.compute(*tasks, scheduler="processes", pool=self._get_pool(),
+                                     num_workers=self.workers))
+
+    def _get_pool(self):
+        # One pool for the whole run, handed to Dask's multiprocessing scheduler (which
+        # would otherwise spawn fresh processes for every stage).
+        if self._pool is None:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor
+
+            self._pool = ProcessPoolExecutor(self.workers,
+                                             mp_context=multiprocessing.get_context("spawn"))
+        return self._pool
+
+    def _map_distributed(self, func, items, bar) -> list:
+        from distributed import as_completed
+
+        futures = self._client.map(func, list(items), pure=False)
+        for _ in as_completed(futures):
+            bar.update(1)
+        return self._client.gather(futures)
+
+    def close(self) -> None:
+        """Stop the local pool; disconnect a client this engine opened."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+        if self._client is not None and self._own_client:
+            self._client.close()
+        self._client = None
+
+    def __enter__(self) -> "Engine":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _connect(scheduler):
+    """A client for ``scheduler`` (address or Client); InputError when unreachable."""
+    try:
+        from distributed import Client
+    except ImportError:  # pragma: no cover - a dependency
+        raise InputError("--scheduler needs the dask.distributed package") from None
+    if isinstance(scheduler, Client):
+        return scheduler, False
+    if not isinstance(scheduler, str) or not scheduler:
+        raise InputError(f"--scheduler must be an address such as tcp://host:8786, got "
+                         f"{scheduler!r}")
+    try:
+        return Client(scheduler, timeout="10s", set_as_default=False), True
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise InputError(f"cannot reach the dask scheduler {scheduler}: {exc}") from None
