@@ -1,6 +1,7 @@
 """Test months for the discovery loop: model + hidden effects + benign variability.
 
-Built on :func:`magcal.simulate.month.simulate_month` (T89 model field, Kp, Dst, boom
+Built on :func:`magcal.simulate.gaps.make_background` (a
+:func:`magcal.simulate.month.simulate_month` month: T89 model field, Kp, Dst, boom
 temperature, local time, ULF waves and white noise). The benign variability that no
 vocabulary term should explain is: the simulator's ULF waves (stronger at high Kp) and
 white noise, bipolar substorm signatures on the night side at high Kp (growth-phase dip
@@ -13,54 +14,11 @@ truth, so the noise floor (RMS of the residual left when the truth is removed) i
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 import pandas as pd
 
-COMPONENTS = ("Hp", "He", "Hn")
-LON_DEG = 128.2
-
-
-@lru_cache(maxsize=32)
-def base_month(seed: int = 7, n_days: float = 30.0):
-    from magcal.simulate.month import MonthConfig, simulate_month
-
-    cfg = MonthConfig(n_days=n_days, n_disturbed_days=3, storm_coupling=(0.0, 0.0, 0.0),
-                      local_time_pp_nT=(0.0, 0.0, 0.0), n_jobs=1)
-    return simulate_month(cfg, rng=np.random.default_rng(seed))
-
-
-def _ou(rng, n, dt_s, tau_s, std):
-    a = np.exp(-dt_s / tau_s)
-    e = rng.standard_normal((n, 3)) * std * np.sqrt(1 - a * a)
-    out = np.empty((n, 3))
-    out[0] = rng.standard_normal(3) * std
-    # vectorised AR(1) via lfilter
-    from scipy.signal import lfilter
-
-    out = lfilter([1.0], [1.0, -a], e, axis=0)
-    return out
-
-
-def _bipolar_substorms(rng, t_s, kp, lt_h):
-    n = t_s.size
-    out = np.zeros((n, 3))
-    hour = (t_s // 3600).astype(np.int64)
-    first = np.r_[True, hour[1:] != hour[:-1]]
-    night = (lt_h >= 20) | (lt_h < 4)
-    cand = np.flatnonzero(first & night & (kp >= 3.0))
-    onsets = cand[rng.random(cand.size) < 0.35]
-    tau = np.arange(0, 240.0)  # minutes, 1-min cadence
-    shape = -np.exp(-0.5 * ((tau - 30) / 12) ** 2) + 0.5 * np.exp(-0.5 * ((tau - 75) / 24) ** 2)
-    shape -= shape.mean()
-    for i0 in onsets:
-        depth = 6.0 * (kp[i0] - 2.0) * rng.uniform(0.6, 1.4)
-        seg = slice(i0, min(n, i0 + tau.size))
-        k = seg.stop - seg.start
-        out[seg, 0] += depth * shape[:k]
-        out[seg, 1:] += rng.standard_normal((k, 2)) * 0.2 * depth * np.abs(shape[:k, None])
-    return out
+from magcal.simulate.gaps import COMPONENTS, LON_DEG, base_month, make_background, spin_phase
 
 
 @dataclass(frozen=True)
@@ -87,13 +45,10 @@ def make_case(hidden: dict | None = None, *, seed: int = 7, offset_nT=(4.0, -3.0
     (``MonthResult.disturbed_nT``; storm coupling is off, so that is substorms only)
     instead of the zero-mean bipolar signatures.
     """
-    m = base_month(seed, n_days)
+    bg = make_background(seed, n_days=n_days, red_std_nT=red_std_nT,
+                         simulator_substorms=simulator_substorms)
+    m, benign, t_s = bg.month, bg.benign, bg.t_s
     n = m.times.size
-    rng = np.random.default_rng(seed + 1000)
-    t_s = (m.times - m.times[0]).astype("timedelta64[ns]").astype(np.int64) / 1e9
-    substorms = (m.disturbed_nT if simulator_substorms
-                 else _bipolar_substorms(rng, t_s, m.kp, m.local_time_h))
-    benign = m.ulf_nT + m.noise_nT + substorms + _ou(rng, n, 60.0, 7200.0, red_std_nT)
     truth = np.zeros((n, 3))
     for value in (hidden or {}).values():
         truth += value
@@ -107,11 +62,6 @@ def make_case(hidden: dict | None = None, *, seed: int = 7, offset_nT=(4.0, -3.0
                 model=pd.DataFrame(m.model_nT, index=index, columns=list(COMPONENTS)),
                 covariates=pd.DataFrame(cov, index=index), truth=truth,
                 offset_nT=np.asarray(offset_nT, dtype=float), benign=benign, month=m)
-
-
-def spin_phase(t_s, period_s: float = 6.283):
-    """Spin phase (rad) of a slowly spinning body sampled at 1 min (not commensurate)."""
-    return np.mod(2 * np.pi * t_s / period_s, 2 * np.pi)
 
 
 def lt_of(case: Case) -> np.ndarray:

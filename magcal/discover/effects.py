@@ -171,6 +171,11 @@ class Effect:
     def n_params(self) -> int:
         return len(self.labels())
 
+    def tested(self) -> tuple[bool, ...]:
+        """Which columns the significance test is about (all, unless a term carries
+        columns that only condition the test, like the rate beside a drift change)."""
+        return (True,) * len(self.labels())
+
 
 @dataclass(frozen=True)
 class Offset(Effect):
@@ -187,19 +192,44 @@ class Offset(Effect):
 
 @dataclass(frozen=True)
 class Drift(Effect):
-    """Linear drift per component about ``t_ref_s`` (nT/day)."""
+    """Linear drift per component about ``t_ref_s`` (nT/day).
+
+    With ``t_break_s`` set, the term holds a change of drift rate at that time (a hinge,
+    zero before the break and rising at ``rate_change_nT_per_day`` after it), beside
+    the linear drift itself when ``with_rate`` (a component without a drift yet); only
+    the hinge is then tested (:meth:`tested`).
+    """
 
     name: ClassVar[str] = "drift"
     t_ref_s: float = 0.0
+    t_break_s: float | None = None
+    with_rate: bool = False
 
     def basis(self, inputs):
-        return ((inputs.times_s - self.t_ref_s) / DAY_S)[:, None]
+        linear = (inputs.times_s - self.t_ref_s) / DAY_S
+        if self.t_break_s is None:
+            return linear[:, None]
+        hinge = np.maximum(inputs.times_s - self.t_break_s, 0.0) / DAY_S
+        return np.column_stack([linear, hinge]) if self.with_rate else hinge[:, None]
 
     def basis_labels(self):
-        return ("rate_nT_per_day",)
+        if self.t_break_s is None:
+            return ("rate_nT_per_day",)
+        return ("rate_nT_per_day", "rate_change_nT_per_day") if self.with_rate else \
+            ("rate_change_nT_per_day",)
+
+    def tested(self) -> tuple[bool, ...]:
+        if self.t_break_s is not None and self.with_rate:
+            return tuple(lab == "rate_change_nT_per_day" for _, lab in self.labels())
+        return super().tested()
 
     def hyper(self):
-        return {"t_ref_s": self.t_ref_s}
+        if self.t_break_s is None:
+            return {"t_ref_s": self.t_ref_s}
+        import pandas as pd
+
+        return {"t_ref_s": self.t_ref_s, "t_break_s": self.t_break_s,
+                "break_time": pd.Timestamp(self.t_break_s, unit="s", tz="UTC").isoformat()}
 
 
 @dataclass(frozen=True)
@@ -279,25 +309,39 @@ class Scale(Effect):
 
 @dataclass(frozen=True)
 class Rotation(Effect):
-    """Small rotation w of the measured frame: residual = w x B_model (3 components)."""
+    """Small rotation w of the measured frame: residual = w x B_model (3 components).
+
+    ``axes`` lists the rotation axes fitted (default: all three); the signature of a
+    rotation about one axis is proportional to the model field's components across it,
+    so each axis is tested against the field's own variation.
+    """
 
     name: ClassVar[str] = "rotation"
     coupled: ClassVar[bool] = True
+    axes: tuple[str, ...] = ()
+
+    def fitted_axes(self) -> tuple[str, ...]:
+        return self.axes or self.components
 
     def labels(self):
-        return tuple(("all", f"w_{c}_rad") for c in self.components)
+        return tuple(("all", f"w_{c}_rad") for c in self.fitted_axes())
 
     def columns(self, inputs):
         if inputs.m != 3:
             raise ValueError("rotation needs three components")
         b = inputs.model
-        return np.stack([np.cross(np.eye(3)[j], b) for j in range(3)])
+        idx = [inputs.components.index(a) for a in self.fitted_axes()]
+        return np.stack([np.cross(np.eye(3)[j], b) for j in idx])
+
+    def hyper(self):
+        return {"axes": list(self.fitted_axes())}
 
     def describe(self, beta, std):
-        comps = self.components
-        return {"angles_deg": {c: float(np.rad2deg(b)) for c, b in zip(comps, beta)},
-                "std_deg": {c: float(np.rad2deg(s)) for c, s in zip(comps, std)},
-                "values": {c: float(b) for c, b in zip(comps, beta)},
+        axes = self.fitted_axes()
+        return {"axes": list(axes),
+                "angles_deg": {c: float(np.rad2deg(b)) for c, b in zip(axes, beta)},
+                "std_deg": {c: float(np.rad2deg(s)) for c, s in zip(axes, std)},
+                "values": {c: float(b) for c, b in zip(axes, beta)},
                 "convention": "measured ~= R(w) @ model, w about the component axes"}
 
 

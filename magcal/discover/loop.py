@@ -1,17 +1,23 @@
 """The discovery loop: measure the gap, name the missing effect, add it, refit, repeat.
 
 Each round fits every candidate of the vocabulary (:mod:`magcal.discover.effects`)
-jointly with the effects already added, scores it by leave-one-block-out
-cross-validation (:mod:`magcal.discover.selection`) and adds the candidate with the
-largest cross-validated gain among those that earn their parameters: positive held-out
-gain, block-jackknife Wald ``z >= z_min`` (raised for scanned steps and periods) and a
-negative ESS-corrected BIC difference. The offset, when it earns its parameters, is
-added first so that every other term is judged with the level free. Per-component terms are restricted to the components where they earn
-their parameters. Candidates whose fitted signals are strongly correlated with the
-winner (``|corr| >= confound_corr``) are reported as ``ambiguous_with`` when the data
-cannot tell them apart (paired ``z < z_ambiguous``), and as ``preferred_over``
-otherwise. The loop stops when no candidate earns its parameters or after
-``max_effects`` effects.
+jointly with the effects already added and judges it by one criterion, the same for
+every effect: its held-out gain over contiguous blocks in time (leave-one-day-out
+cross-validation, :mod:`magcal.discover.selection`), which counts only if it is beyond
+chance under the correlated-noise model, i.e. the Wald test of the candidate's
+coefficients (block-jackknife covariance floored by the model-based one from the
+residual's autocorrelation) reaches ``z_min`` (Bonferroni-corrected over the step times,
+drift breaks or periods scanned). The candidate with the largest gain among those is
+added. The offset, when beyond chance, comes first and is free in every component, so
+that every other term is judged with the level free. Per-component terms are restricted
+to the components (rotations to the axes) where they pass ``z_component``. Steps and
+changes of drift rate are searched in every component with ``ruptures``
+(:func:`magcal.discover.scan.change_points`); rotations and scale errors are tested
+against the field's own variation (their columns are ``e_j x B_model`` and
+``B_model,i``). Candidates whose fitted signals are strongly correlated with the winner
+(``|corr| >= confound_corr``) are reported as ``ambiguous_with`` when the data cannot
+tell them apart (paired ``z < z_ambiguous``), and as ``preferred_over`` otherwise. The
+loop stops when no candidate's gain is beyond chance or after ``max_effects`` effects.
 """
 
 from __future__ import annotations
@@ -24,10 +30,10 @@ from magcal.discover.effects import (
     DAY_S, EFFECT_NAMES, Activity, Diurnal, Drift, Effect, EffectInputs, Offset, Periodic,
     Rotation, Scale, SpinTone, Step, Temperature, available, make_activity)
 from magcal.discover.gap import profile_gap, rms
-from magcal.discover.scan import n_period_trials, n_step_trials, scan_periods, scan_step
+from magcal.discover.scan import change_points, n_period_trials, n_step_trials, scan_periods
 from magcal.discover.selection import (
-    BlockedGram, Comparison, CVScore, compare, delta_bic_eff,
-    model_covariance, paired_z, regression_n_eff, time_blocks, wald_z)
+    BlockedGram, Comparison, CVScore, compare, delta_bic_eff, wald_test,
+    model_covariance, paired_z, regression_n_eff, time_blocks)
 from magcal.io.jsonio import product_dict
 
 
@@ -40,9 +46,9 @@ class DiscoverySettings:
     max_effects : int
         Most effects to add.
     z_min : float
-        Significance (block-jackknife Wald test, as a normal z) an effect needs to be added;
-        it must also lower the held-out error and the ESS-corrected BIC. Scanned terms
-        (step, periodic) need more (Bonferroni over the times/periods tried).
+        Significance (Wald test under the correlated-noise model, as a normal z) an
+        effect's held-out gain needs to count as beyond chance. Scanned terms (step,
+        drift break, periodic) need more (Bonferroni over the times/periods tried).
     z_component : float
         Same, for including one component of a per-component effect.
     z_variant : float
@@ -237,6 +243,7 @@ class _Candidate:
     z_needed: float = 0.0
     delta_bic: float = float("nan")
     n_eff: float = float("nan")
+    trials: float = 1.0
 
     @property
     def name(self) -> str:
@@ -244,12 +251,18 @@ class _Candidate:
 
     @property
     def significant(self) -> bool:
-        """Positive held-out gain and a significant Wald test (before the BIC check)."""
+        """Positive held-out gain, beyond chance: the Wald test of its coefficients under
+        the correlated-noise model reaches ``z_needed``."""
         return self.comparison.gain > 0 and self.comparison.z >= self.z_needed
 
     @property
     def passes(self) -> bool:
-        return self.significant and self.delta_bic < 0
+        return self.significant
+
+    @property
+    def log_p_corrected(self) -> float:
+        """Log p-value after the look-elsewhere (Bonferroni) correction of scanned terms."""
+        return float(self.comparison.log_p + np.log(max(self.trials, 1.0)))
 
 
 def _look_elsewhere(z: float, trials: float) -> float:
@@ -282,7 +295,8 @@ def _static_families(inputs: EffectInputs, settings: DiscoverySettings):
     if "scale" in vocab:
         fam.append(("scale", [[Scale(components=(c,)) for c in comps]]))
     if "rotation" in vocab and available(Rotation, inputs):
-        fam.append(("rotation", [[Rotation(components=comps)]]))
+        # each axis alone against the field's own variation; the passing axes are merged
+        fam.append(("rotation", [[Rotation(components=comps, axes=(a,)) for a in comps]]))
     if "activity" in vocab and available(Activity, inputs):
         fam.append(("activity", [[make_activity(inputs, (c,)) for c in comps]]))
     if "spin_tone" in vocab and available(SpinTone, inputs):
@@ -291,7 +305,31 @@ def _static_families(inputs: EffectInputs, settings: DiscoverySettings):
     return fam
 
 
+def _distinct_times(points, most: int = 3, min_sep_s: float = 3 * 3600.0) -> list[float]:
+    """The ``most`` strongest change times of :func:`change_points`, a time found in
+    several components counted once (merged when closer than ``min_sep_s``)."""
+    out: list[float] = []
+    for t, _, _ in sorted(points, key=lambda p: -p[2]):
+        if all(abs(t - u) > min_sep_s for u in out):
+            out.append(t)
+        if len(out) >= most:
+            break
+    return out
+
+
+def _key(effect: Effect) -> str:
+    """What a per-component (or per-axis) variant is selected by."""
+    if isinstance(effect, Rotation):
+        return effect.fitted_axes()[0] if len(effect.fitted_axes()) == 1 else "all"
+    return effect.components[0]
+
+
 def _merge(effects: list[Effect]) -> Effect:
+    if isinstance(effects[0], Rotation):
+        import dataclasses
+
+        return dataclasses.replace(effects[0], axes=tuple(a for e in effects
+                                                          for a in e.fitted_axes()))
     comps = tuple(c for e in effects for c in e.components)
     return effects[0].with_components(comps)
 
@@ -313,8 +351,13 @@ class _Loop:
         self.added: list[tuple[Effect, tuple[int, ...]]] = []
         self.covered: dict[str, set] = {}
 
-    def _compare(self, base: CVScore, score: CVScore) -> Comparison:
+    def _compare(self, base: CVScore, score: CVScore, effect: Effect | None = None
+                 ) -> Comparison:
         params = list(range(len(base.columns), len(score.columns)))
+        if effect is not None:
+            mask = effect.tested()
+            if len(mask) == len(params) and not all(mask):
+                params = [p for p, keep in zip(params, mask) if keep]
         return compare(base, score, params, self._se(score, params))
 
     def _se(self, score: CVScore, params):
@@ -333,30 +376,33 @@ class _Loop:
         chosen = []
         tried = []
         for eff in effects:
-            if eff.coupled:
+            comp = _key(eff)
+            if comp == "all":
                 chosen.append(eff)
                 continue
-            comp = eff.components[0]
             if comp in self.covered.get(family, set()):
                 continue
             s = self.gram.score(base_cols + list(self.cols[eff]))
-            cmp = self._compare(base, s)
+            cmp = self._compare(base, s, eff)
             comp_cmp[comp] = cmp.z
             tried.append((eff, cmp))
-            if cmp.gain > 0 and cmp.z >= z_comp:
+            if cmp.z >= z_comp:
                 chosen.append(eff)
+        if chosen and family == "offset":
+            # the level is free in every component: every other term is judged with it
+            chosen = [eff for eff in effects if _key(eff) not in self.covered.get(family, set())]
         if chosen and trials > 1:
             # the scanned hyper-parameter (step time, period) is established by the
             # components that passed the look-elsewhere threshold: the others are tested
             # at that fixed value
-            chosen = [eff for eff, cmp in tried
-                      if cmp.gain > 0 and cmp.z >= self.settings.z_component]
+            chosen = [eff for eff, cmp in tried if cmp.z >= self.settings.z_component]
         if not chosen:
             return None
         cols = tuple(c for e in chosen for c in self.cols[e])
         score = self.gram.score(base_cols + list(cols))
-        return _Candidate(_merge(chosen), cols, score, self._compare(base, score), comp_cmp,
-                          family, z_need)
+        merged = _merge(chosen)
+        return _Candidate(merged, cols, score, self._compare(base, score, merged), comp_cmp,
+                          family, z_need, trials=trials)
 
     def _family(self, family: str, variants, base: CVScore):
         if family in ("rotation",) and family in self.covered:
@@ -373,8 +419,7 @@ class _Loop:
             # the richer variant's extra coefficients (e.g. higher harmonics) must be significant
             have = set(pick.effect.labels())
             extra = [k + i for i, lab in enumerate(richer.effect.labels()) if lab not in have]
-            if richer.comparison.gain > pick.comparison.gain and \
-                    wald_z(richer.score, extra, cov_model=self._se(richer.score, extra)) \
+            if wald_test(richer.score, extra, self._se(richer.score, extra))[0] \
                     >= self.settings.z_variant:
                 pick = richer
         return pick
@@ -387,11 +432,27 @@ class _Loop:
         span = float(inputs.times_s[-1] - inputs.times_s[0])
         vocab = self.settings.vocabulary
         fams = []
+        comps = inputs.components
         if "step" in vocab:
-            t_step, _, _ = scan_step(inputs.times_s, residual)
-            if t_step is not None:
-                fams.append(("step", [Step(components=(c,), t_step_s=t_step)
-                                      for c in inputs.components], n_step_trials(span)))
+            # change points of level searched in every component (ruptures); each time
+            # found is tried in every component
+            for t_step in _distinct_times(change_points(inputs.times_s, residual,
+                                                        kind="step")):
+                fams.append(("step", [Step(components=(c,), t_step_s=t_step) for c in comps],
+                             n_step_trials(span)))
+        if "drift" in vocab:
+            t_ref = float(0.5 * (inputs.times_s[0] + inputs.times_s[-1]))
+            drifting = self.covered.get("drift", set())
+            for t_break in _distinct_times(change_points(inputs.times_s, residual,
+                                                         kind="slope"), most=2):
+                # components with a drift already get the hinge alone, the others the
+                # hinge beside a rate (one family each: a family's columns are uniform)
+                for with_rate in (True, False):
+                    group = [c for c in comps if (c not in drifting) == with_rate]
+                    if group:
+                        fams.append(("drift_break", [
+                            Drift(components=(c,), t_ref_s=t_ref, t_break_s=t_break,
+                                  with_rate=with_rate) for c in group], n_step_trials(span)))
         if "periodic" in vocab:
             peaks = scan_periods(inputs.times_s, residual,
                                  exclude_daily=inputs.local_time_h is not None,
@@ -439,44 +500,46 @@ class _Loop:
                 if c is not None:
                     cands.append(c)
             cands += self._dynamic(residual, base)
-            for c in cands:
-                if c.significant:
-                    c.n_eff = regression_n_eff(residual, self._signal(c))
-                    c.delta_bic = delta_bic_eff(base.sse_in, c.score.sse_in, len(c.columns),
-                                                c.n_eff)
-                else:
-                    c.delta_bic = float("nan")
             rounds.append({"round": len(rounds) + 1, "candidates": [
                 {"name": c.name, "components": list(c.effect.components),
-                 "n_params": len(c.columns), "delta_bic_eff": c.delta_bic,
-                 **c.comparison.as_dict()}
+                 "n_params": len(c.columns), "trials": c.trials, "log_p_corrected": c.log_p_corrected,
+                 **c.effect.hyper(), **c.comparison.as_dict()}
                 for c in sorted(cands, key=lambda c: -c.comparison.gain)]})
             passing = [c for c in cands if c.passes]
             if not passing:
                 if cands:
                     best = max(cands, key=lambda c: c.comparison.z - c.z_needed)
-                    stopped = (f"no candidate earns its parameters (best remaining: {best.name}, "
-                               f"z = {best.comparison.z:.1f} (needs {best.z_needed:.1f}), "
-                               f"delta BIC_eff = {best.delta_bic:+.1f} (needs < 0))")
+                    stopped = (f"no candidate's held-out gain is beyond chance (best "
+                               f"remaining: {best.name}, z = {best.comparison.z:.1f}, needs "
+                               f"{best.z_needed:.1f})")
                 else:
-                    stopped = "no candidate earns its parameters"
+                    stopped = "no candidate's held-out gain is beyond chance"
                 break
+            # one criterion for every effect: the held-out gain over contiguous blocks;
+            # among the candidates whose gain is beyond chance (Wald test under the
+            # correlated-noise model), the largest
             win = max(passing, key=lambda c: c.comparison.gain)
             if not self.added:
                 # the level comes first: every other term is judged with the offset free
                 win = next((c for c in passing if c.name == "offset"), win)
+            # reported beside the criterion: the BIC with the effective sample size
+            win.n_eff = regression_n_eff(residual, self._signal(win))
+            win.delta_bic = delta_bic_eff(base.sse_in, win.score.sse_in, len(win.columns),
+                                          win.n_eff)
             evidence = self._evidence(win, cands, base, residual, n_valid)
-            if win.family in ("step", "periodic"):
+            if win.family in ("step", "periodic", "drift_break"):
                 # scanned candidates were crossed with the base only: add them in full
                 cols = gram.add(win.effect.columns(self.inputs))
                 win = _Candidate(win.effect, cols, gram.score(self.base_cols + list(cols)),
                                  win.comparison, win.component_z, win.family, win.z_needed,
-                                 win.delta_bic, win.n_eff)
+                                 win.delta_bic, win.n_eff, win.trials)
             gap_before = profile_gap(self.inputs, residual, spectrum=False)
             rms_before = float(np.sqrt(base.sse_in / n_valid))
             self.added.append((win.effect, win.columns))
             if not win.effect.coupled:
                 self.covered.setdefault(win.family, set()).update(win.effect.components)
+                if win.family == "drift_break":  # the rate came with it
+                    self.covered.setdefault("drift", set()).update(win.effect.components)
             else:
                 self.covered.setdefault(win.family, set()).add("all")
             base = win.score
@@ -498,7 +561,8 @@ class _Loop:
     def _evidence(self, win: _Candidate, cands, base: CVScore, residual, n_valid) -> dict:
         s = self.settings
         n_eff = win.n_eff
-        ev = {"criterion": "leave-one-block-out cross-validation",
+        ev = {"criterion": "leave-one-block-out cross-validation gain, beyond chance by the "
+                           "Wald test under the correlated-noise model",
               "block_s": s.block_s,
               **win.comparison.as_dict(),
               "cv_rms_before_nT": float(np.sqrt(base.sse_cv / n_valid)),

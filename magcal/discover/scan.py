@@ -178,3 +178,124 @@ def scan_periods(times_s, residual, *, exclude_daily: bool = True, n_peaks: int 
         if len(out) >= n_peaks:
             break
     return out
+
+
+def _hourly_bins(times_s, residual, bin_s: float):
+    """Means of each component over bins of ``bin_s``: (bin start times, (k, m) means)."""
+    t = np.asarray(times_s, dtype=float)
+    r = np.asarray(residual, dtype=float)
+    if r.ndim == 1:
+        r = r[:, None]
+    idx = np.floor((t - t[0]) / bin_s).astype(int)
+    nb = int(idx[-1]) + 1
+    ok = np.isfinite(r)
+    means = np.full((nb, r.shape[1]), np.nan)
+    for c in range(r.shape[1]):
+        cnt = np.bincount(idx[ok[:, c]], minlength=nb)
+        tot = np.bincount(idx[ok[:, c]], weights=r[ok[:, c], c], minlength=nb)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            means[:, c] = np.where(cnt > 0, tot / np.maximum(cnt, 1), np.nan)
+    return t[0] + np.arange(nb) * bin_s, means
+
+
+def _long_run_variance(x: np.ndarray, smooth_bins: int) -> float:
+    """Variance of a binned series about its running median, times its integrated
+    autocorrelation time (the variance that matters for the mean of a segment)."""
+    from scipy.ndimage import median_filter
+
+    from magcal.discover.selection import integrated_autocorr_time
+
+    detail = x - median_filter(x, size=smooth_bins, mode="nearest")
+    mad = np.median(np.abs(detail - np.median(detail))) * 1.4826
+    var = float(max(mad, 1e-12) ** 2)
+    return var * integrated_autocorr_time(detail)
+
+
+def change_points(times_s, residual, *, kind: str = "step", bin_s: float = 3600.0,
+                  penalty: float = 3.0, max_points: int = 3,
+                  margin_s: float = 0.25 * DAY_S) -> list[tuple[float, int, float]]:
+    """Change points of every component of a residual, found with ``ruptures``.
+
+    The residual is averaged over ``bin_s`` bins and each component is segmented by
+    binary segmentation: ``kind="step"`` with the ``l2`` cost (changes of level),
+    ``kind="slope"`` with the continuous piecewise-linear cost (changes of drift rate).
+    The penalty per change point is ``penalty * s2 * log(k)`` with ``k`` bins and ``s2``
+    the long-run variance of the binned noise (MAD about a one-day running median times
+    its integrated autocorrelation time), so red noise does not pass for a change.
+    The candidates found here are then tested by the discovery's own criterion.
+
+    Returns
+    -------
+    list of (t_s, component, strength)
+        Change times (seconds, start of the first bin after the change; for steps refined
+        to the sample), the component index and the variance of the binned series the
+        change explains over the whole record, in units of the long-run noise variance
+        (to rank them): the ``max_points`` strongest per component, in time order.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> t = np.arange(0, 20 * 86400, 60.0)
+    >>> r = np.column_stack([rng.normal(0, 1, t.size), np.where(t >= 7.5 * 86400, 2.0, 0.0)
+    ...                      + rng.normal(0, 1, t.size)])
+    >>> [(round(ts / 86400, 2), c) for ts, c, _ in change_points(t, r)]
+    [(7.5, 1)]
+    """
+    import ruptures as rpt
+
+    t = np.asarray(times_s, dtype=float)
+    r = np.asarray(residual, dtype=float)
+    if r.ndim == 1:
+        r = r[:, None]
+    starts, means = _hourly_bins(t, r, bin_s)
+    nb = means.shape[0]
+    margin = max(int(np.ceil(margin_s / bin_s)), 2)
+    if nb < 2 * margin + 2:
+        return []
+    out = []
+    for c in range(r.shape[1]):
+        x = means[:, c]
+        ok = np.isfinite(x)
+        if ok.sum() < 2 * margin + 2:
+            continue
+        x = np.interp(np.arange(nb), np.flatnonzero(ok), x[ok])
+        s2 = _long_run_variance(x, max(int(DAY_S / bin_s), 3))
+        model = "l2" if kind == "step" else "clinear"
+        algo = rpt.Binseg(model=model, min_size=margin, jump=1 if kind == "step" else 2)
+        found = algo.fit(x[:, None]).predict(pen=penalty * s2 * np.log(nb))[:-1]
+        found_c = []
+        for k in found:
+            if kind == "step":
+                lo = max(k - 2, 1)
+                hi = min(k + 2, nb - 1)
+                sel = (t >= starts[lo - 1]) & (t < starts[hi] + bin_s)
+                ts, _, _ = scan_step(t[sel], r[sel, c:c + 1], margin_s=bin_s)
+                h = (np.arange(nb) >= k).astype(float)
+                t_c = float(ts) if ts is not None else float(starts[k])
+            else:
+                t_c, j = _refine_hinge(starts, x, k, margin)
+                h = np.maximum(np.arange(nb) - j, 0.0)
+            h = h - h.mean()
+            strength = float(h @ (x - x.mean())) ** 2 / float(h @ h) / s2
+            found_c.append((t_c, c, strength))
+        found_c.sort(key=lambda p: -p[2])
+        out += sorted(found_c[:max_points])
+    return out
+
+
+def _refine_hinge(starts, x, k: int, margin: int, half_width: int = 24):
+    """Break (time, bin) near bin ``k`` whose hinge ``max(t - t_b, 0)`` best fits the
+    binned series ``x`` with a free level (the segmentation places it only roughly)."""
+    nb = x.size
+    xc = x - x.mean()
+    best, t_best, j_best = -1.0, float(starts[k]), k
+    for j in range(max(k - half_width, margin), min(k + half_width, nb - margin) + 1):
+        h = np.maximum(np.arange(nb) - j, 0.0)
+        h -= h.mean()
+        hh = float(h @ h)
+        if hh <= 0:
+            continue
+        explained = float(h @ xc) ** 2 / hh
+        if explained > best:
+            best, t_best, j_best = explained, float(starts[j]), j
+    return t_best, j_best

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 DAY_S = 86400.0
+#: Smallest Bartlett variance factor accepted for a coefficient (see model_covariance).
+TAU_FLOOR = 0.05
 
 
 def time_blocks(times_s, block_s: float = DAY_S, min_blocks: int = 8) -> np.ndarray:
@@ -212,9 +214,12 @@ class Comparison:
     n_blocks: int
     blocks_better: int
     n_eff_blocks: float = float("nan")
+    log_p: float = 0.0
+    z_jackknife: float = float("nan")
 
     def as_dict(self) -> dict:
-        return {"cv_gain_nT2": self.gain, "z": self.z, "z_cv": self.z_cv,
+        return {"cv_gain_nT2": self.gain, "z": self.z, "log_p": self.log_p,
+                "z_jackknife": self.z_jackknife, "z_cv": self.z_cv,
                 "n_blocks": self.n_blocks, "n_eff_blocks": self.n_eff_blocks,
                 "blocks_better": self.blocks_better}
 
@@ -288,7 +293,9 @@ def model_covariance(gram: "BlockedGram", score: CVScore, params, blocks,
         tau = {}
         for i in active:
             rho_a = autocorrelation(A[i][:, c], k - 1)
-            tau[i] = max(1.0, 1.0 + 2.0 * float(np.sum(rho_e[1:k] * rho_a[1:k])))
+            # below 1 for a regressor that varies faster than the noise (a spin tone in
+            # red noise sees only the noise's fast part); floored against a noisy sum
+            tau[i] = max(TAU_FLOOR, 1.0 + 2.0 * float(np.sum(rho_e[1:k] * rho_a[1:k])))
         for ii, i in enumerate(active):
             for j in active[ii:]:
                 e = np.bincount(blocks, weights=A[i][:, c] * A[j][:, c], minlength=B)
@@ -299,21 +306,33 @@ def model_covariance(gram: "BlockedGram", score: CVScore, params, blocks,
     return cov
 
 
-def wald_z(score: CVScore, params, effective: bool = False, cov_model=None) -> float:
-    """Block-jackknife Wald test that the coefficients ``params`` (positions) are zero.
+def wald_test(score: CVScore, params, cov_model=None,
+              effective: bool = False) -> tuple[float, float]:
+    """Wald test that the coefficients ``params`` (positions) are zero, under the
+    correlated-noise model.
 
-    Hotelling's ``T^2 = beta' C^-1 beta`` with ``C`` the jackknife covariance over the
-    leave-one-block-out fits, turned into ``F = (B - p) / (p (B - 1)) T^2`` with
-    ``(p, B - p)`` degrees of freedom and reported as the one-sided normal quantile of
-    its p-value (capped at 40).
+    Hotelling's ``T^2 = beta' C^-1 beta`` with ``C`` the block-jackknife covariance over
+    the leave-one-block-out fits (contiguous days: the correlation of the noise within a
+    day is carried by the blocks), its standard errors floored by the model-based ones of
+    :func:`model_covariance` (``cov_model``: residual level per block, Bartlett's
+    autocorrelation factor), turned into ``F = (B - p) / (p (B - 1)) T^2`` with
+    ``(p, B - p)`` degrees of freedom.
+
+    Returns
+    -------
+    z : float
+        One-sided normal quantile of the p-value (not capped).
+    log_p : float
+        Natural log of the p-value (the loop ranks candidates by it).
 
     Examples
     --------
     >>> rng = np.random.default_rng(0)
     >>> folds = rng.normal(1.0, 0.01, size=(30, 1))
     >>> s = CVScore((0,), np.array([1.0]), np.array([0.05]), np.zeros(30), 0.0, folds)
-    >>> wald_z(s, [0]) > 5
-    True
+    >>> z, log_p = wald_test(s, [0])
+    >>> z > 5, log_p < -20
+    (True, True)
     """
     from scipy import stats
 
@@ -323,7 +342,7 @@ def wald_z(score: CVScore, params, effective: bool = False, cov_model=None) -> f
     B = folds.shape[0]
     nu = min(float(B), score.n_eff_blocks(pos)) if effective else float(B)
     if p == 0 or nu - p < 1:
-        return 0.0
+        return 0.0, 0.0
     beta = score.beta[pos]
     dev = folds[:, pos] - folds[:, pos].mean(axis=0)
     cov = (B - 1) / B * dev.T @ dev
@@ -338,14 +357,42 @@ def wald_z(score: CVScore, params, effective: bool = False, cov_model=None) -> f
             scale = np.maximum(scale, sm)
             cov = cm / np.outer(sm, sm) * np.outer(scale, scale)
     if not np.all(scale > 0):
-        return 0.0
+        return 0.0, 0.0
     corr = cov / np.outer(scale, scale) + 1e-9 * np.eye(p)
     t2 = float((beta / scale) @ np.linalg.solve(corr, beta / scale))
     f = (nu - p) / (p * (nu - 1)) * t2
-    logp = stats.f.logsf(f, p, nu - p)
-    if not np.isfinite(logp):
-        return 40.0
-    return float(min(stats.norm.isf(np.exp(logp)) if logp > -700 else 40.0, 40.0))
+    log_p = float(stats.f.logsf(f, p, nu - p))
+    if not np.isfinite(log_p):  # far tail: F(p, d) -> d/2 log(1 + p f / d) leading term
+        d = nu - p
+        log_p = float(-(p + d) / 2 * np.log1p(p * f / d) + (d / 2) * np.log(max(d, 1.0)))
+    return _z_from_log_p(log_p), log_p
+
+
+def wald_z(score: CVScore, params, effective: bool = False, cov_model=None) -> float:
+    """:func:`wald_test`'s z, capped at 40.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> folds = rng.normal(1.0, 0.01, size=(30, 1))
+    >>> s = CVScore((0,), np.array([1.0]), np.array([0.05]), np.zeros(30), 0.0, folds)
+    >>> wald_z(s, [0]) > 5
+    True
+    """
+    return float(min(wald_test(score, params, cov_model, effective)[0], 40.0))
+
+
+def _z_from_log_p(log_p: float) -> float:
+    """Normal quantile of a (log) upper-tail probability, asymptotic for tiny ones."""
+    from scipy import stats
+
+    if log_p > -700:
+        return float(stats.norm.isf(np.exp(log_p)))
+    # Mills ratio: log sf(z) ~ -z^2/2 - log(z sqrt(2 pi))
+    z = float(np.sqrt(-2 * log_p))
+    for _ in range(5):
+        z = float(np.sqrt(max(-2 * (log_p + np.log(z * np.sqrt(2 * np.pi))), 1.0)))
+    return float(z)
 
 
 def compare(base: CVScore, cand: CVScore, params=None, cov_model=None) -> Comparison:
@@ -359,10 +406,12 @@ def compare(base: CVScore, cand: CVScore, params=None, cov_model=None) -> Compar
     if params is None:
         params = range(len(base.beta), len(cand.beta))
     params = list(params)
-    return Comparison(gain=float(d.sum()), z=wald_z(cand, params, cov_model=cov_model),
-                      z_cv=float(_paired_t(d)),
+    z_jack = wald_z(cand, params)
+    z, log_p = wald_test(cand, params, cov_model)
+    return Comparison(gain=float(d.sum()), z=z, z_cv=float(_paired_t(d)),
                       n_blocks=int(d.size), blocks_better=int(np.sum(d > 0)),
-                      n_eff_blocks=cand.n_eff_blocks(params))
+                      n_eff_blocks=cand.n_eff_blocks(params), log_p=log_p,
+                      z_jackknife=z_jack)
 
 
 def paired_z(worse: CVScore, better: CVScore) -> float:
