@@ -23,8 +23,10 @@ from pathlib import Path
 import pytest
 
 # spacepy reads SPACEPY at import time: set it before anything imports spacepy.
-_SPACEPY_DIR = Path(tempfile.mkdtemp(prefix="magcal-test-spacepy-"))
-os.environ["SPACEPY"] = str(_SPACEPY_DIR)
+# (once per session, even if this file is imported a second time as tests.conftest)
+_SPACEPY_DIR = Path(os.environ.get("MAGCAL_TEST_SPACEPY")
+                    or tempfile.mkdtemp(prefix="magcal-test-spacepy-"))
+os.environ["MAGCAL_TEST_SPACEPY"] = os.environ["SPACEPY"] = str(_SPACEPY_DIR)
 os.environ.setdefault("MPLBACKEND", "Agg")
 
 from magcal.offline import configure_offline  # noqa: E402
@@ -64,12 +66,18 @@ class NetworkBlockedError(RuntimeError):
     which quietly falls back on connection errors cannot hide the attempt)."""
 
 
-_REAL_SOCKET = socket.socket
-_REAL_GETADDRINFO = socket.getaddrinfo
-_REAL_GETHOSTBYNAME = socket.gethostbyname
+# This file may be imported twice (as ``conftest`` by pytest and as ``tests.conftest``
+# by a test): the guard is installed once and its state shared through the socket module.
+_INSTALLED = getattr(socket, "_magcal_test_guard", None)
+if _INSTALLED is not None:
+    NetworkBlockedError = _INSTALLED["error"]  # noqa: F811 - the first import's class
+_REAL_SOCKET = socket.socket if _INSTALLED is None else _INSTALLED["socket"]
+_REAL_GETADDRINFO = socket.getaddrinfo if _INSTALLED is None else _INSTALLED["getaddrinfo"]
+_REAL_GETHOSTBYNAME = (socket.gethostbyname if _INSTALLED is None
+                       else _INSTALLED["gethostbyname"])
 _INTERNET = {socket.AF_INET, socket.AF_INET6}
 _LOOPBACK_NAMES = {"localhost", "localhost.localdomain", "ip6-localhost", "ip6-loopback"}
-_guard = {"loopback": False, "attempts": []}
+_guard = {"loopback": False, "attempts": []} if _INSTALLED is None else _INSTALLED["state"]
 
 
 def _blocked(what: str):
@@ -141,9 +149,13 @@ def _guarded_gethostbyname(host):
     return _REAL_GETHOSTBYNAME(host)
 
 
-socket.socket = _GuardedSocket
-socket.getaddrinfo = _guarded_getaddrinfo
-socket.gethostbyname = _guarded_gethostbyname
+if _INSTALLED is None:
+    socket._magcal_test_guard = {"error": NetworkBlockedError, "state": _guard,
+                                 "socket": _REAL_SOCKET, "getaddrinfo": _REAL_GETADDRINFO,
+                                 "gethostbyname": _REAL_GETHOSTBYNAME}
+    socket.socket = _GuardedSocket
+    socket.getaddrinfo = _guarded_getaddrinfo
+    socket.gethostbyname = _guarded_gethostbyname
 
 
 @pytest.hookimpl(hookwrapper=True)

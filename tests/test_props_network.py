@@ -112,3 +112,23 @@ def test_dask_local_cluster_runs_under_the_loopback_marker():
                                   **local) as cluster, \
             distributed.Client(cluster) as client:
         assert client.submit(sum, [1, 2, 3]).result(timeout=30) == 6
+
+
+@pytest.mark.loopback
+def test_a_second_import_of_conftest_shares_the_guard():
+    """``from tests.conftest import ...`` imports the file again under another name."""
+    import importlib
+    import os
+
+    import conftest
+
+    again = importlib.import_module("tests.conftest")
+    assert again is not conftest
+    assert again.NetworkBlockedError is NetworkBlockedError
+    assert again._guard is conftest._guard
+    assert os.environ["SPACEPY"] == str(conftest._SPACEPY_DIR) == str(again._SPACEPY_DIR)
+    srv, thread = _echo_server()                  # loopback still allowed in this test
+    with srv, socket.create_connection(srv.getsockname(), timeout=5) as c:
+        c.sendall(b"once")
+        assert c.recv(16) == b"once"
+    thread.join(5)

@@ -48,7 +48,7 @@ def test_timing_helpers():
 
 @pytest.fixture(scope="module")
 def elfin_cal():
-    from tests.conftest import real_data_path
+    from conftest import real_data_path
     from magcal.io.cdf import read_elfin_fgs, read_elfin_state
 
     base = real_data_path("elfin")
