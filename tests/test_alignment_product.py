@@ -72,7 +72,8 @@ def test_align_product_from_arrays(ten_days, tmp_path):
     product = align_product(ten_days.times, ten_days.data, ten_days.ref, lon_deg=128.2,
                             lon_source="chain", quiet=quiet,
                             selection={"kp_file": "kp.txt", "kp_max": 1.0},
-                            settings=AlignSettings(window_days=0), inputs=[src])
+                            settings=AlignSettings(window_days=0, lt_harmonics=3),
+                            inputs=[src])
     doc = product.to_json()
     for key in CONTRACT_KEYS + ("determinable", "reason", "determinability", "provenance"):
         assert key in doc
@@ -101,7 +102,7 @@ def test_cli_lon_deg_column_per_sample_with_harmonics_and_windows(ten_days, tmp_
     write_csv_frame(tmp_path / "ref.csv", ref)
     out = tmp_path / "align.json"
     assert main(["align", str(tmp_path / "data.csv"), "--reference", str(tmp_path / "ref.csv"),
-                 "-o", str(out)]) == 0
+                 "--lt-harmonics", "3", "-o", str(out)]) == 0
     doc = json.loads(out.read_text())
     assert doc["determinable"] is True and doc["lt_harmonics"] == 3
     assert doc["longitude"]["source"] == "lon_deg column"

@@ -103,6 +103,74 @@ def local_time_check(with_lt: AlignmentResult, without_lt: AlignmentResult,
     return check, warnings
 
 
+#: Family-wise level of the test that keeps local-time harmonics (``lt_harmonics="auto"``):
+#: deliberately generous, since a missed field biases the angles while a needless one
+#: only widens their intervals (``benchmarks/bench_alignment.py --coverage`` measures
+#: both worlds).
+LT_SELECT_ALPHA = 0.1
+
+
+def select_lt_harmonics(with_lt: AlignmentResult, without_lt: AlignmentResult,
+                        alpha: float = LT_SELECT_ALPHA) -> tuple[bool, dict]:
+    """Keep the local-time nuisance field only when the data show one.
+
+    Two tests under the fitted correlated-noise model, Bonferroni-corrected over the
+    three components so that, without a local-time field, harmonics are kept in about
+    ``alpha`` of records: the Wald test of each component's harmonic coefficients
+    (``local_time["p_value"]``), and the shift of the angles between the fits with and
+    without harmonics in units of the standard deviation of that difference (for nested
+    fits ``sqrt(var_with - var_without)``; a Hausman test: it catches a field that moves
+    the angles even when its own coefficients are not individually significant).
+    Fitting harmonics that are not there costs precision (the angles' variance grows by
+    the information the harmonics share with the rotation); omitting a field that is
+    there biases the angles, which the shift test guards against.
+
+    Returns
+    -------
+    keep : bool
+    record : dict
+        The statistics, thresholds, decision and its reason (JSON-ready).
+
+    Examples
+    --------
+    >>> from magcal.alignment.gls import fit_alignment
+    >>> from magcal.alignment.synthetic import synthetic_pair
+    >>> case = synthetic_pair(np.random.default_rng(0), n=1500, cadence_s=300.0)
+    >>> with_lt = fit_alignment(case.times, case.data, case.ref, lt_harmonics=3)
+    >>> keep, rec = select_lt_harmonics(with_lt, fit_alignment(case.times, case.data, case.ref))
+    >>> keep, rec["kept"]
+    (False, False)
+    """
+    from scipy.stats import norm
+
+    lt = with_lt.local_time
+    pv = np.array([lt["p_value"][c] for c in COMPONENTS])
+    sd_diff = np.sqrt(np.maximum(with_lt.std_deg ** 2 - without_lt.std_deg ** 2, 1e-12))
+    shift = (without_lt.angles_deg - with_lt.angles_deg) / sd_diff
+    p_level = alpha / 3.0
+    z_level = float(norm.isf(alpha / 6.0))
+    field = bool(np.any(pv < p_level))
+    moved = bool(np.any(np.abs(shift) > z_level))
+    keep = field or moved
+    if field:
+        why = (f"the residual has a local-time field (Wald p {pv.min():.2g} < {p_level:.2g})")
+    elif moved:
+        why = (f"omitting the harmonics moves the angles by {np.abs(shift).max():.1f} sigma "
+               f"(> {z_level:.2f})")
+    else:
+        why = (f"no local-time field in the data (Wald p >= {pv.min():.2g}, angle shift "
+               f"<= {np.abs(shift).max():.1f} sigma): harmonics dropped, which narrows the "
+               "intervals from " + ", ".join(f"{c} {a:.2f}" for c, a in zip(
+                   COMPONENTS, with_lt.std_deg)) + " to " + ", ".join(
+                   f"{c} {a:.2f}" for c, a in zip(COMPONENTS, without_lt.std_deg)) + " deg")
+    record = {"candidate_harmonics": int(lt["n_harmonics"]), "kept": keep,
+              "alpha": alpha, "wald_p_value": _comp(pv), "wald_threshold": p_level,
+              "shift_sigma": _comp(shift), "shift_threshold_sigma": z_level,
+              "std_with_deg": _comp(with_lt.std_deg),
+              "std_without_deg": _comp(without_lt.std_deg), "reason": why}
+    return keep, record
+
+
 def window_consistency(windows, alpha: float = WINDOW_ALPHA) -> tuple[dict, list[str]]:
     """Chi-square test of the window angles about their weighted mean.
 

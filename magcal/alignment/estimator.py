@@ -8,7 +8,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from magcal.alignment.checks import (add_systematic, inflate, local_time_check,
-                                     whole_vs_windows, window_consistency)
+                                     select_lt_harmonics, whole_vs_windows,
+                                     window_consistency)
 from magcal.alignment.determinability import (MAX_ANGLE_DEG, check_after, check_before,
                                               identity_fit, not_determinable)
 from magcal.alignment.gls import fit_alignment, prepare
@@ -24,7 +25,10 @@ AUTO_LT_MIN_DAYS = 3.0
 
 
 def resolve_lt_harmonics(lt_harmonics, span_days: float) -> int:
-    """``"auto"`` -> 3 harmonics for records of at least 3 days, else 0; ints pass.
+    """``"auto"`` -> 3 candidate harmonics for records of at least 3 days, else 0; ints pass.
+
+    With ``"auto"`` the :class:`Aligner` keeps the candidates only when the data show a
+    local-time field (:func:`magcal.alignment.checks.select_lt_harmonics`).
 
     Three harmonics: the paper's local-time residuals (Fig. 19) have a daily wave in Hp
     and He and two or more maxima a day in Hn; measured on the simulated month, two
@@ -37,6 +41,28 @@ def resolve_lt_harmonics(lt_harmonics, span_days: float) -> int:
     if k < 0:
         raise InputError(f"lt_harmonics must be 'auto' or >= 0, got {lt_harmonics}")
     return k
+
+
+def precision_record(result, closed, without_lt=None) -> dict:
+    """The precision the data allow next to the stated one (JSON-ready).
+
+    ``crb_std_deg`` is the Cramér-Rao bound of the chosen model: the inverse Fisher
+    information at the fitted parameters with the noise model taken as known (the
+    closed form's covariance). ``std_deg`` (reported) adds what the bound leaves out:
+    the uncertainty of the noise model (Student t), window inflation and systematics,
+    or is the posterior's spread. ``crb_std_without_lt_deg`` is the bound with no
+    local-time nuisance (rotation and offset only), the precision the record would allow
+    if the reference lacked no local-time field.
+    """
+    def comp(values):
+        return {c: float(v) for c, v in zip(COMPONENTS, values)}
+
+    out = {"crb_std_deg": comp(closed.std_deg), "std_deg": comp(result.std_deg),
+           "std_over_crb": comp(result.std_deg / closed.std_deg)}
+    if without_lt is not None:
+        out["crb_std_without_lt_deg"] = comp(without_lt.std_deg)
+        out["std_over_crb_without_lt"] = comp(result.std_deg / without_lt.std_deg)
+    return out
 
 
 def resolve_window_days(window_days, span_days: float):
@@ -75,8 +101,10 @@ class Aligner:
     n_walkers, min_autocorr_times, max_steps : int, float, int
         Sampler settings (see :func:`magcal.alignment.posterior.sample_posterior`).
     lt_harmonics : "auto" or int
-        Local-time harmonics per component fitted as nuisance; ``"auto"``: 3 for
-        records of 3 days or more (see :func:`resolve_lt_harmonics`), 0 disables.
+        Local-time harmonics per component fitted as nuisance; ``"auto"``: 3 candidate
+        harmonics for records of 3 days or more (see :func:`resolve_lt_harmonics`), kept
+        only when the data show a local-time field
+        (:func:`magcal.alignment.checks.select_lt_harmonics`); 0 disables.
     window_days : "auto", float or None
         Window length for the consistency check (see :func:`resolve_window_days`).
     inflate_inconsistent : bool
@@ -143,6 +171,12 @@ class Aligner:
         span_days = float(t_s[-1] - t_s[0]) / 86400.0
         k = resolve_lt_harmonics(self.lt_harmonics, span_days)
         kw = dict(fit_offset=self.fit_offset, fit_scale=self.fit_scale, lon_deg=lon_deg)
+        fits, selection = {}, None
+        if self.lt_harmonics == "auto" and k:
+            fits = {k: fit_alignment(times, data, ref, lt_harmonics=k, **kw),
+                    0: fit_alignment(times, data, ref, lt_harmonics=0, **kw)}
+            keep, selection = select_lt_harmonics(fits[k], fits[0])
+            k = k if keep else 0
         identity = identity_fit(times, data, ref, lt_harmonics=k if span_days >= 1.0 else 0,
                                 **kw)
         verdict = check_before(times, data, ref, identity, lt_harmonics=k,
@@ -150,10 +184,12 @@ class Aligner:
         self.windows_ = None
         if verdict.determinable:
             closed, result, warnings, checks = self._fit_rotation(times, data, ref, k,
-                                                                  span_days, kw)
+                                                                  span_days, kw, fits)
             verdict = check_after(result, verdict)
         else:
             closed, warnings, checks = None, [], {}
+        if selection is not None:
+            checks["nuisance_selection"] = selection
         if verdict.determinable:
             result = dataclasses.replace(result, determinability=verdict)
         else:
@@ -170,10 +206,17 @@ class Aligner:
         self.std_deg_ = result.std_deg
         return self
 
-    def _fit_rotation(self, times, data, ref, k, span_days, kw):
+    def _fit_rotation(self, times, data, ref, k, span_days, kw, fits):
         """Closed form, local-time check, posterior and window checks of a determinable
-        rotation: ``(closed_form, result, warnings, checks)``."""
-        closed = fit_alignment(times, data, ref, lt_harmonics=k, **kw)
+        rotation: ``(closed_form, result, warnings, checks)``; ``fits`` holds closed forms
+        already made, by number of harmonics."""
+        def closed_form(n_harmonics):
+            if n_harmonics not in fits:
+                fits[n_harmonics] = fit_alignment(times, data, ref, lt_harmonics=n_harmonics,
+                                                  **kw)
+            return fits[n_harmonics]
+
+        closed = closed_form(k)
         warnings, checks = [], {}
         if k == 0 and span_days < AUTO_LT_MIN_DAYS and self.lt_harmonics == "auto":
             checks["local_time_check"] = {
@@ -181,8 +224,7 @@ class Aligner:
                 "note": f"record of {span_days:.1f} days: shorter than "
                         f"{AUTO_LT_MIN_DAYS:g} days, a local-time field cannot be separated"}
         elif span_days >= AUTO_LT_MIN_DAYS or k:
-            other = fit_alignment(times, data, ref, lt_harmonics=0 if k else AUTO_LT_HARMONICS,
-                                  **kw)
+            other = closed_form(0 if k else AUTO_LT_HARMONICS)
             with_lt, without = (closed, other) if k else (other, closed)
             check, warn = local_time_check(with_lt, without, fitted=bool(k))
             checks["local_time_check"] = check
@@ -201,6 +243,7 @@ class Aligner:
         wd = resolve_window_days(self.window_days, span_days)
         if wd:
             result = self._window_checks(times, data, ref, result, wd, k, kw, checks, warnings)
+        checks["precision"] = precision_record(result, closed, fits.get(0))
         return closed, result, warnings, checks
 
     def _window_checks(self, times, data, ref, result, wd, k, kw, checks, warnings):
