@@ -68,7 +68,7 @@ def test_goes16_boom_pair(real_data):
     import glob
 
     from magcal.timeconv import epoch_seconds
-    from magcal.io.goes import read_goes_mag
+    from magcal.missions.goes import read_goes_mag
 
     folder = real_data("goes16", "l2_hires_5min")
     df = read_goes_mag(sorted(glob.glob(str(folder / "*.nc"))))

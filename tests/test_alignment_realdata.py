@@ -1,7 +1,7 @@
 """``magcal align`` on the real GOES-16 minutes (issue 13, cases 1-3).
 
 Data: ``../shared/real-data/goes16/l2_hires_5min`` (7 one-minute files, 10 Hz) read
-with :func:`magcal.io.goes.read_goes_mag`, reference T89 from ``magcal model`` with the
+with :func:`magcal.missions.goes.read_goes_mag`, reference T89 from ``magcal model`` with the
 CelesTrak Kp of 2017-03-05, both written as the CSV contract (the data file carries the
 reader's ``lon_deg, lat_deg, r_re`` columns). The truth used: over seven minutes the
 reference turns by a fraction of a nT, so with an offset fitted no rotation can be
@@ -29,7 +29,7 @@ COMPONENTS = ("Hp", "He", "Hn")
 @pytest.fixture(scope="module")
 def goes_pair(tmp_path_factory):
     from magcal.io.csv import write_csv_frame
-    from magcal.io.goes import read_goes_mag
+    from magcal.missions.goes import read_goes_mag
 
     folder = real_data_path("goes16", "l2_hires_5min")
     kp = real_data_path("indices", "celestrak_SW_2017-2023_subset.txt")

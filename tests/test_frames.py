@@ -210,7 +210,7 @@ def test_nan_vectors_stay_nan():
 
 @pytest.mark.parametrize("folder", ["l2_hires_5min", "l2_hires_gap"])
 def test_goes16_epn_gse_gsm_agree_with_our_transforms(folder, real_data):
-    from magcal.io.goes import read_goes_mag
+    from magcal.missions.goes import read_goes_mag
 
     df = read_goes_mag(real_data("goes16", folder))
     hpen = df[["Hp", "He", "Hn"]].to_numpy()

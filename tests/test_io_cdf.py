@@ -10,9 +10,15 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from magcal.errors import InputError
-from magcal.io.cdf import (ISTP_DATA_ATTRIBUTES, ISTP_GLOBAL_ATTRIBUTES, REQUIRED_GLOBAL_INPUTS,
-                           datetime64_to_tt2000, read_cdf, read_elfin_fgs, read_elfin_state,
-                           write_cdf_product)
+from magcal.io.cdf import (
+    ISTP_DATA_ATTRIBUTES,
+    ISTP_GLOBAL_ATTRIBUTES,
+    REQUIRED_GLOBAL_INPUTS,
+    datetime64_to_tt2000,
+    read_cdf,
+    write_cdf_product,
+)
+from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
 
 GLOBALS = {"Project": "ISTP>International Solar-Terrestrial Physics",
            "Source_name": "GK2A>Geo-KOMPSAT-2A", "Data_type": "L2>Level 2",

@@ -8,7 +8,7 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from magcal.errors import InputError
-from magcal.io.goes import EARTH_RADIUS_KM, read_goes_mag
+from magcal.missions.goes import EARTH_RADIUS_KM, read_goes_mag
 
 CORE = ["ib_x", "ib_y", "ib_z", "ob_x", "ob_y", "ob_z", "Hp", "He", "Hn",
         "gse_x", "gse_y", "gse_z", "gsm_x", "gsm_y", "gsm_z", "b_total",

@@ -38,7 +38,7 @@ def test_t04_with_qin_denton_drivers_equals_direct_irbem(real_data):
 def test_goes16_epn_versus_t89(real_data, capsys):
     """Uncalibrated checkout data: the difference is reported, not a pass mark."""
     from magcal.indices import kp_at, read_kp
-    from magcal.io.goes import read_goes_mag
+    from magcal.missions.goes import read_goes_mag
     from magcal.offsets import average_to_cadence
 
     frame = read_goes_mag(real_data("goes16", "l2_hires_5min"))

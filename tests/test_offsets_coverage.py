@@ -105,7 +105,7 @@ def goes_minutes(tmp_path_factory, request):
     from conftest import real_data_path
 
     from magcal.io.csv import write_csv_frame
-    from magcal.io.goes import read_goes_mag
+    from magcal.missions.goes import read_goes_mag
 
     files = sorted(real_data_path("goes16", "l2_hires_5min").glob("*.nc"))
     kp = real_data_path("indices", "celestrak_SW_2017-2023_subset.txt")

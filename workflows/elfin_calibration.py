@@ -32,7 +32,7 @@ from magcal.errors import InputError
 from magcal.io.jsonio import write_json
 from magcal.offline import configure_offline
 from magcal.provenance import make_provenance
-from magcal.spin.elfin import CREDIT, calibrate_elfin
+from magcal.missions.elfin import CREDIT, calibrate_elfin
 
 #: The repository holding this script (as called, and with symbolic links resolved).
 REPO_ROOTS = (Path(__file__).absolute().parents[1], Path(__file__).resolve().parents[1])
@@ -95,7 +95,7 @@ def _run(argv=None) -> int:
     ap.add_argument("--no-scan", action="store_true", help="skip the timing-offset scan")
     args = ap.parse_args(argv)
     configure_offline()
-    from magcal.io.cdf import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
     from magcal.io.csv import write_csv_frame
 
     fgs_path, state_path = args.data / FGS_FILE, args.data / STATE_FILE

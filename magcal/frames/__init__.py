@@ -2,7 +2,7 @@
 
 The Hpen frame (GOES "EPN" reordered): Hp along the local meridian, positive north; He
 earthward; Hn eastward. (Hp, He, Hn) is a left-handed triad. GOES-R files store EPN in
-the order (E, P, N) = (He, Hp, Hn); :func:`magcal.io.goes.read_goes_mag` reorders it.
+the order (E, P, N) = (He, Hp, Hn); :func:`magcal.missions.goes.read_goes_mag` reorders it.
 """
 
 from magcal.frames.geo import (

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from magcal.spin.despin import TWO_PI, spin
+from magcal.frames.spinning import TWO_PI, spin
 
 #: Galileo low-rate science sampling: 3 vectors per 2/3 s frame, spaced 7/30, 7/30, 6/30 s.
 GALILEO_FRAME_S = 2.0 / 3.0

@@ -6,7 +6,9 @@ despun with the spin phase ``p`` as
     BX = Bx cos p - By sin p,   BY = Bx sin p + By cos p,   BZ = Bz,
 
 and, without a phase column, ``p = 2 pi (t - t0) / S`` for spin period ``S``.
-All functions work on arrays; times are float seconds from an arbitrary epoch.
+All functions work on arrays; times are float seconds from an arbitrary epoch. The
+rotations themselves (:func:`despin`, :func:`spin`) live in :mod:`magcal.frames.spinning`
+so that simulators use them without importing the spin estimators.
 """
 
 from __future__ import annotations
@@ -14,51 +16,10 @@ from __future__ import annotations
 import numpy as np
 
 from magcal.errors import InputError
+from magcal.frames.spinning import TWO_PI, despin, spin
 
-TWO_PI = 2.0 * np.pi
-
-
-def despin(b_sc, phase_rad) -> np.ndarray:
-    """Rotate spacecraft-frame vectors into the despun (inertial) frame.
-
-    Parameters
-    ----------
-    b_sc : array_like, shape (n, 3)
-        Field in the rotating spacecraft frame (x, y in the spin plane, z spin axis).
-    phase_rad : array_like, shape (n,)
-        Spin phase ``p`` of each sample.
-
-    Returns
-    -------
-    ndarray, shape (n, 3)
-        ``(BX, BY, BZ)``.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> despin([[1.0, 0.0, 5.0]], [np.pi / 2]).round(12)
-    array([[0., 1., 5.]])
-    """
-    b = np.asarray(b_sc, dtype=float)
-    p = np.asarray(phase_rad, dtype=float)
-    c, s = np.cos(p), np.sin(p)
-    out = np.empty_like(b)
-    out[:, 0] = b[:, 0] * c - b[:, 1] * s
-    out[:, 1] = b[:, 0] * s + b[:, 1] * c
-    out[:, 2] = b[:, 2]
-    return out
-
-
-def spin(b_despun, phase_rad) -> np.ndarray:
-    """Inverse of :func:`despin`: despun vectors into the rotating spacecraft frame.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> spin(despin([[1.0, 2.0, 3.0]], [0.7]), [0.7]).round(12)
-    array([[1., 2., 3.]])
-    """
-    return despin(b_despun, -np.asarray(phase_rad, dtype=float))
+__all__ = ["TWO_PI", "check_period_consistent", "despin", "phase_from_data",
+           "phase_from_period", "spin"]
 
 
 def phase_from_period(t_s, period_s: float, t0_s: float | None = None) -> np.ndarray:

@@ -9,7 +9,7 @@ with ``b`` the raw counts, extended by slow drifts that the real data need:
   the offsets ``o(T)`` drift; ``T`` runs from -1 to 1 over the zone and the drifts are
   polynomials of degree ``axis_degree`` and ``offset_degree`` (0 gives the plain
   12-parameter model);
-* despun frame (rows of :func:`~magcal.spin.elfin_phase.despun_basis`, ``Z`` = spin
+* despun frame (rows of :func:`~magcal.missions.elfin_phase.despun_basis`, ``Z`` = spin
   axis from the attitude file): ``B_despun = despin(B_body, p)`` (CONTRACTS §4 sense),
   with the spin phase ``p`` = a quadratic in time plus a cubic spline with knots every
   ``phase_knot_s``;
@@ -19,7 +19,7 @@ Given the phase, the model is linear in the calibration parameters (ordinary lea
 squares, per component); given the calibration, the phase correction is the spline fit
 of the angle between the calibrated and the IGRF spin-plane field. The two steps
 alternate. The first phase comes from the counts alone
-(:func:`~magcal.spin.elfin_phase.phase_from_counts`); its sense is chosen by the fit.
+(:func:`~magcal.missions.elfin_phase.phase_from_counts`); its sense is chosen by the fit.
 """
 
 from __future__ import annotations
@@ -31,9 +31,15 @@ import pandas as pd
 
 from magcal.errors import InputError
 from magcal.io.jsonio import product_dict
+from magcal.missions.elfin_phase import (
+    TWO_PI,
+    despun_basis,
+    phase_from_counts,
+    repair_timestamps,
+    split_zones,
+    wrap,
+)
 from magcal.spin.despin import despin, spin
-from magcal.spin.elfin_phase import (TWO_PI, despun_basis, phase_from_counts,
-                                     repair_timestamps, split_zones, wrap)
 
 CREDIT = "ELFIN SOC (PI V. Angelopoulos, UCLA); data: Open Data for Scientific Use"
 _SCALE = 1.0e6  # counts are O(1e6): work with (counts - mean) / 1e6
@@ -86,7 +92,7 @@ class ZoneCalibration:
     rms_by_sense_nT : list of float
         Overall vector RMS with the phase sense +1 and -1 (the smaller one is kept).
     timestamp_anomalies : list of dict
-        From :func:`~magcal.spin.elfin_phase.repair_timestamps`.
+        From :func:`~magcal.missions.elfin_phase.repair_timestamps`.
     """
 
     start: str
@@ -398,16 +404,16 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
     Parameters
     ----------
     fgs : DataFrame
-        From :func:`magcal.io.cdf.read_elfin_fgs` (``b1, b2, b3`` counts, UTC index).
+        From :func:`magcal.missions.elfin_files.read_elfin_fgs` (``b1, b2, b3`` counts, UTC index).
     state : DataFrame
-        From :func:`magcal.io.cdf.read_elfin_state` (GEI position km, spin axis).
+        From :func:`magcal.missions.elfin_files.read_elfin_state` (GEI position km, spin axis).
     min_gap_s : float
         Gaps longer than this separate science zones.
     time_shift_s : float
         The reference is evaluated at ``t + time_shift_s`` (to scan for a timing
         offset between the counts and the orbit).
     repair_times : bool
-        Undo paired time-stamp jumps (:func:`~magcal.spin.elfin_phase.repair_timestamps`).
+        Undo paired time-stamp jumps (:func:`~magcal.missions.elfin_phase.repair_timestamps`).
     zones : sequence of int, optional
         Only these zone numbers (0-based).
     **fit_kw
