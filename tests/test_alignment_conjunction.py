@@ -107,3 +107,21 @@ def test_conjunction_rotation_and_offset():
     fit = cmp.fit
     assert np.all(np.abs(fit.angles_deg - [0.0, 1.0, -1.0]) < 3 * fit.std_deg)
     assert np.all(np.abs(fit.offset_nT - offset) < 3 * fit.offset_std_nT)
+
+
+def test_conjunction_rotation_not_determinable_in_a_steady_field():
+    # A sits still in a dipole with no disturbance: inside the conjunction its field never
+    # changes direction, so R(w) @ B + o cannot be told from B + o': the rotation is
+    # reported as not determinable, the offset still comes out (issue 13 case 1 class)
+    times, _, ma, pa, _, mb, pb = _simulate(6)
+    rng = np.random.default_rng(6)
+    offset = np.array([1.0, -1.5, -2.0])
+    da = ma + offset + rng.normal(0.0, 0.3, ma.shape)
+    cmp = compare_in_conjunction(times, da, ma, pa, mb.copy(), mb, pb, max_distance_km=RE_KM,
+                                 fit_rotation=True)
+    fit = cmp.fit
+    assert not fit.determinable and np.all(np.isnan(fit.angles_deg))
+    assert "Cramer-Rao" in fit.determinability.reason
+    assert np.all(np.abs(fit.offset_nT - offset) < 4 * fit.offset_std_nT)
+    doc = cmp.to_json()
+    assert doc["fit"]["determinable"] is False and doc["fit"]["angles_deg"]["Hp"] is None

@@ -131,8 +131,10 @@ def compare_in_conjunction(times, data_a, model_a, pos_a_km, data_b, model_b, po
     max_distance_km : float
         Conjunction threshold (the paper's MMS 4 comparison: below one Earth radius).
     fit_rotation : bool
-        Fit A's rotation relative to B as well (needs enough field variation inside
-        the conjunction; otherwise poorly determined, which the errors then show).
+        Fit A's rotation relative to B as well. It needs enough change of the field's
+        direction inside the conjunctions: when the data cannot determine it
+        (:mod:`magcal.alignment.determinability`) the angles are NaN, the offset is that
+        of the identity fit and ``fit.determinability`` says why.
     min_samples : int
 
     Returns
@@ -157,6 +159,25 @@ def compare_in_conjunction(times, data_a, model_a, pos_a_km, data_b, model_b, po
     resid_b_in_a = np.einsum("nij,nj->ni", basis_a, resid_b_geo)
     ref = np.asarray(model_a, float)[sel] + resid_b_in_a
     da = np.asarray(data_a, float)[sel]
-    fit = fit_alignment(t[sel], da, ref, fit_rotation=fit_rotation, fit_offset=True)
+    if fit_rotation:
+        fit = _rotation_if_determinable(t[sel], da, ref)
+    else:
+        fit = fit_alignment(t[sel], da, ref, fit_rotation=False, fit_offset=True)
     naive = np.nanmean(da - np.asarray(model_a, float)[sel], axis=0)
     return ConjunctionComparison(intervals=intervals, fit=fit, naive_offset_nT=naive)
+
+
+def _rotation_if_determinable(times, data, ref) -> AlignmentResult:
+    """Rotation and offset fit, or the offset-only fit with NaN angles and the reason
+    when the rotation is not determinable."""
+    from magcal.alignment.determinability import (check_after, check_before, identity_fit,
+                                                  not_determinable)
+
+    identity = identity_fit(times, data, ref)
+    verdict = check_before(times, data, ref, identity)
+    if verdict.determinable:
+        fit = fit_alignment(times, data, ref, fit_rotation=True, fit_offset=True)
+        verdict = check_after(fit, verdict)
+        if verdict.determinable:
+            return dataclasses.replace(fit, determinability=verdict)
+    return not_determinable(identity, verdict)
