@@ -18,3 +18,43 @@ def existing_file(path: str) -> Path:
 def add_output(parser, required: bool = True, help_text: str = "output file") -> None:
     """Add the standard ``-o/--output`` option."""
     parser.add_argument("-o", "--output", required=required, help=help_text)
+
+
+def add_model_arguments(p) -> None:
+    """Options shared by ``model`` and ``offsets fit``."""
+    from magcal.models.inputs import MODELS
+
+    p.add_argument("--kp", required=True, metavar="KP_FILE",
+                   help="Kp file: GFZ Kp_ap_Ap_SN_F107 text, GFZ Kp_def CSV, CelesTrak "
+                        "space-weather text or CSV time,kp (format detected)")
+    p.add_argument("--model", default="T89", type=str.upper, choices=MODELS,
+                   help="field model: IGRF only, or IGRF + T89 (Kp), T96, T01, T04 = "
+                        "TS04/TS05 (solar-wind drivers, --drivers); default T89")
+    p.add_argument("--drivers", metavar="FILE",
+                   help="Qin-Denton or OMNI2 hourly text, or CSV with IRBEM input columns "
+                        "(needed by T96, T01, T04)")
+    p.add_argument("--longitude", type=float, metavar="DEG",
+                   help="geostationary longitude (deg east; r = 6.6 RE, latitude 0); "
+                        "otherwise DATA.csv needs columns lon_deg,lat_deg,r_re")
+    p.add_argument("--cache-dir", metavar="DIR",
+                   help="on-disk cache of model evaluations (reruns are near free)")
+    p.add_argument("--jobs", type=int, default=None,
+                   help="worker processes for the model (default: all usable cores)")
+
+
+def add_spin_arguments(p) -> None:
+    """Options shared by ``spincal`` and ``flipper``: phase, units and spin sense."""
+    from magcal.spin.inputs import SPIN_SENSES
+
+    p.add_argument("--spin-period", type=float, default=None,
+                   help="spin period S in seconds, used when there is no phase column")
+    p.add_argument("--t0", default=None,
+                   help="reference time (ISO-8601 UTC) of phase 0 with --spin-period "
+                        "(default: the first sample)")
+    p.add_argument("--scale", type=float, default=1.0, metavar="NT_PER_UNIT",
+                   help="nT per input unit (e.g. nT per count for raw counts); the readings "
+                        "are multiplied by it (default 1: input in nT)")
+    p.add_argument("--spin-sense", choices=SPIN_SENSES, default="positive",
+                   help="spin sense about sensor 3: positive (the contract's phase "
+                        "2 pi (t - t0) / S, default), negative, or auto (taken from the "
+                        "readings); input turning the other way is refused")

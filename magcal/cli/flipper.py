@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-from magcal.cli._common import add_output, existing_file
-from magcal.cli.spincal import add_spin_arguments
+from magcal.cli._common import add_output, add_spin_arguments, existing_file
 from magcal.errors import InputError
 
 

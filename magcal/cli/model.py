@@ -4,28 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from magcal.cli._common import add_output, existing_file
-from magcal.models.inputs import MODELS
-
-
-def add_model_arguments(p) -> None:
-    """Options shared by ``model`` and ``offsets fit``."""
-    p.add_argument("--kp", required=True, metavar="KP_FILE",
-                   help="Kp file: GFZ Kp_ap_Ap_SN_F107 text, GFZ Kp_def CSV, CelesTrak "
-                        "space-weather text or CSV time,kp (format detected)")
-    p.add_argument("--model", default="T89", type=str.upper, choices=MODELS,
-                   help="field model: IGRF only, or IGRF + T89 (Kp), T96, T01, T04 = "
-                        "TS04/TS05 (solar-wind drivers, --drivers); default T89")
-    p.add_argument("--drivers", metavar="FILE",
-                   help="Qin-Denton or OMNI2 hourly text, or CSV with IRBEM input columns "
-                        "(needed by T96, T01, T04)")
-    p.add_argument("--longitude", type=float, metavar="DEG",
-                   help="geostationary longitude (deg east; r = 6.6 RE, latitude 0); "
-                        "otherwise DATA.csv needs columns lon_deg,lat_deg,r_re")
-    p.add_argument("--cache-dir", metavar="DIR",
-                   help="on-disk cache of model evaluations (reruns are near free)")
-    p.add_argument("--jobs", type=int, default=None,
-                   help="worker processes for the model (default: all usable cores)")
+from magcal.cli._common import add_model_arguments, add_output, existing_file
 
 
 def register(subparsers) -> None:

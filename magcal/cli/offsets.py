@@ -6,8 +6,7 @@ import sys
 
 import numpy as np
 
-from magcal.cli._common import add_output, existing_file
-from magcal.cli.model import add_model_arguments
+from magcal.cli._common import add_model_arguments, add_output, existing_file
 from magcal.errors import InputError
 from magcal.offsets.estimator import MIN_DAY_COVERAGE, MIN_LT_COVERAGE
 

@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-from magcal.cli._common import add_output, existing_file
+from magcal.cli._common import add_output, add_spin_arguments, existing_file
 from magcal.errors import InputError
-from magcal.spin.inputs import SPIN_SENSES
 
 
 def register(subparsers) -> None:
@@ -28,22 +27,6 @@ def register(subparsers) -> None:
                    help="with a flip column, calibrate the rows in this position (default 0)")
     add_output(p, help_text="CAL.json")
     p.set_defaults(func=run)
-
-
-def add_spin_arguments(p) -> None:
-    """Options shared by ``spincal`` and ``flipper``: phase, units and spin sense."""
-    p.add_argument("--spin-period", type=float, default=None,
-                   help="spin period S in seconds, used when there is no phase column")
-    p.add_argument("--t0", default=None,
-                   help="reference time (ISO-8601 UTC) of phase 0 with --spin-period "
-                        "(default: the first sample)")
-    p.add_argument("--scale", type=float, default=1.0, metavar="NT_PER_UNIT",
-                   help="nT per input unit (e.g. nT per count for raw counts); the readings "
-                        "are multiplied by it (default 1: input in nT)")
-    p.add_argument("--spin-sense", choices=SPIN_SENSES, default="positive",
-                   help="spin sense about sensor 3: positive (the contract's phase "
-                        "2 pi (t - t0) / S, default), negative, or auto (taken from the "
-                        "readings); input turning the other way is refused")
 
 
 def run(args) -> int:
