@@ -13,7 +13,10 @@ import time
 import numpy as np
 
 from magcal.offsets.estimator import quiet_mask
-from magcal.offsets.windows import MAD_TO_STD, window_grid, window_statistics
+from magcal.offsets.windows import window_grid, window_statistics
+
+# MAD -> standard deviation of a normal distribution, 1 / Phi^-1(3/4).
+MAD_TO_STD = 1.0 / 0.6744897501960817
 
 
 def baseline(t, diff, sel, starts, ends):

@@ -12,9 +12,12 @@ from magcal.offsets import (OffsetEstimator, apply_offsets, average_to_cadence,
                             interpolate_offsets, quiet_mask, read_offsets_csv,
                             window_grid, window_statistics, write_offsets_csv)
 from magcal.offsets.table import CONTRACT_COLUMNS
-from magcal.offsets.windows import DAY_NS, MAD_TO_STD
+from magcal.offsets.windows import DAY_NS
 
 MIN = np.timedelta64(60, "s")
+
+# MAD -> standard deviation of a normal distribution, 1 / Phi^-1(3/4).
+MAD_TO_STD = 1.0 / 0.6744897501960817
 
 
 def test_average_never_bridges_gaps():

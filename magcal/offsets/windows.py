@@ -2,7 +2,7 @@
 
 Windows of ``window_days`` stepped by ``step_days`` (28 and 7 in the SOSMAG paper). Per
 window and component: median (the offset), standard deviation, and the median absolute
-deviation scaled to a standard deviation (x 1.4826), over the selected (quiet) samples
+deviation scaled to a standard deviation (scipy's ``scale="normal"``), over the selected (quiet) samples
 in ``[start, end)``. The times are sorted once and every window is a pair of
 ``searchsorted`` bounds, so a year of 1-min data takes a fraction of a second.
 """
@@ -12,12 +12,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.stats import median_abs_deviation
 
 from magcal.errors import InputError
 
 DAY_NS = 86_400 * 10**9
-#: MAD -> standard deviation of a normal distribution.
-MAD_TO_STD = 1.482602218505602
 #: Local-time bins (one hour each) over which a window's coverage is counted.
 LT_BINS = 24
 
@@ -139,7 +138,7 @@ def window_statistics(t_ns, diff, selected, starts_ns, ends_ns, min_used: int = 
         else:
             median[i] = med
         std[i] = np.std(x, axis=0, ddof=1) if n_used[i] > 1 else 0.0
-        mad[i] = MAD_TO_STD * np.median(np.abs(x - med), axis=0)
+        mad[i] = median_abs_deviation(x, axis=0, scale="normal")
         reasons.append("")
     with np.errstate(invalid="ignore", divide="ignore"):
         frac = np.where(n_av > 0, n_used / np.maximum(n_av, 1), np.nan)
