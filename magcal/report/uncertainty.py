@@ -297,14 +297,13 @@ def offsets_section(root: Path, budget: list) -> tuple:
             caption="Estimator disagreement per window (same windows).",
             source=f"{_rel(main, root)}, {_rel(var, root)}", fmt="{:.2f}"))
     mean_std = np.nanmean(table.std_nT[ok], axis=0) if ok.any() else np.full(3, np.nan)
-    n_used = np.nanmedian(table.n_used[ok]) if ok.any() else np.nan
     budget.append(("below 0.1 mHz", "offset: estimator disagreement",
                    float(np.nanmax(worst_diff)) if np.isfinite(worst_diff).any() else np.nan,
                    REQUIREMENT_OFFSET_NT,
                    ", ".join(_rel(v, root) for v in variants) or "-"))
     budget.append(("below 0.1 mHz", "offset: quiet data-model std",
-                   float(np.nanmax(mean_std)), REQUIREMENT_OFFSET_NT, _rel(main, root)))
-    del n_used
+                   float(np.nanmax(mean_std)) if np.isfinite(mean_std).any() else np.nan,
+                   REQUIREMENT_OFFSET_NT, _rel(main, root)))
     return tuple(items)
 
 
