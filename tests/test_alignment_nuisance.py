@@ -93,3 +93,14 @@ def test_coverage_in_both_worlds(with_field):
         assert kept <= 5
         # the typical record's std is the bound of the model without local-time terms
         assert np.all(np.median(ratio, axis=0) <= 1.5)
+
+
+def test_nuisance_record_says_why_for_short_records_and_user_settings():
+    case = synthetic_pair(np.random.default_rng(1), n=500, cadence_s=300.0)  # 1.7 days
+    res = Aligner().fit(case.times, case.data, case.ref).result_
+    rec = res.checks["nuisance_selection"]
+    assert rec["kept"] is False and "shorter than 3 days" in rec["reason"]
+    assert rec["windows"]["window_days"] is None
+    res = Aligner(lt_harmonics=2, window_days=None).fit(case.times, case.data, case.ref).result_
+    rec = res.checks["nuisance_selection"]
+    assert rec["kept"] is True and rec["reason"] == "lt_harmonics = 2 set by the user"

@@ -43,6 +43,31 @@ def resolve_lt_harmonics(lt_harmonics, span_days: float) -> int:
     return k
 
 
+def nuisance_record(requested, k: int, span_days: float, selection, window_days) -> dict:
+    """Which nuisance terms were fitted and why (JSON-ready).
+
+    ``selection`` is the record of :func:`magcal.alignment.checks.select_lt_harmonics`
+    when the data decided; otherwise the reason is the setting or the record length.
+    """
+    if selection is not None:
+        out = dict(selection)
+    elif requested != "auto":
+        out = {"candidate_harmonics": int(k), "kept": bool(k),
+               "reason": f"lt_harmonics = {k} set by the user"}
+    else:
+        out = {"candidate_harmonics": 0, "kept": False,
+               "reason": f"record of {span_days:.2f} days: shorter than "
+                         f"{AUTO_LT_MIN_DAYS:g} days, a local-time field cannot be told from "
+                         "the offset and the slow noise"}
+    out["windows"] = {
+        "window_days": window_days,
+        "reason": ("consecutive windows fitted as a consistency check; intervals widen only "
+                   "when the windows disagree beyond their errors (window_consistency) or "
+                   "the whole record departs from them (whole_vs_windows)") if window_days
+        else "no windows: record shorter than 9 days (auto) or windows disabled"}
+    return out
+
+
 def precision_record(result, closed, without_lt=None) -> dict:
     """The precision the data allow next to the stated one (JSON-ready).
 
@@ -188,8 +213,9 @@ class Aligner:
             verdict = check_after(result, verdict)
         else:
             closed, warnings, checks = None, [], {}
-        if selection is not None:
-            checks["nuisance_selection"] = selection
+        checks["nuisance_selection"] = nuisance_record(
+            self.lt_harmonics, k, span_days, selection,
+            resolve_window_days(self.window_days, span_days))
         if verdict.determinable:
             result = dataclasses.replace(result, determinability=verdict)
         else:
