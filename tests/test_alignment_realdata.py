@@ -139,3 +139,29 @@ def test_cli_stderr_is_one_line_without_warnings(goes_pair):
     assert lines[0].startswith("magcal align: rotation not determinable")
     assert "Warning" not in proc.stderr and "Traceback" not in proc.stderr
     assert json.loads(align.read_text())["determinable"] is False
+
+
+def test_two_segments_an_hour_apart_not_determinable_either(tmp_path, capsys):
+    # l2_hires_gap: 2017-04-14 19:24-19:27 and 20:28-20:31 (dn files, samples stored out
+    # of order): over 1.1 h T89 still turns by about a nT only
+    from magcal.io.csv import write_csv_frame
+    from magcal.missions.goes import read_goes_mag
+
+    folder = real_data_path("goes16", "l2_hires_gap")
+    kp = real_data_path("indices", "celestrak_SW_2017-2023_subset.txt")
+    data, model, align = tmp_path / "gap.csv", tmp_path / "t89.csv", tmp_path / "align.json"
+    write_csv_frame(data, read_goes_mag(folder)[["Hp", "He", "Hn", "lon_deg", "lat_deg",
+                                                  "r_re"]])
+    assert main(["model", str(data), "--kp", str(kp), "-o", str(model)]) == 0
+    capsys.readouterr()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert main(["align", str(data), "--reference", str(model), "-o", str(align)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("magcal align: rotation not determinable")
+    doc = json.loads(align.read_text())
+    assert doc["determinable"] is False and doc["n_used"] == 3600
+    expect = _identity_rms_from_files(data, model)
+    got = np.array([doc["residual_rms_nT"][c] for c in COMPONENTS])
+    np.testing.assert_allclose(got, expect, rtol=0.05)
+    assert np.all(expect < 1.5)
