@@ -36,7 +36,7 @@ import pandas as pd
 from magcal.chain.config import ChainConfig
 from magcal.chain.partition import (FULL_ARRAYS, MINUTE_ARRAYS, STATE_DIR, FrameApply,
                                     PartitionTask, digest, read_partition_arrays,
-                                    read_partition_meta, run_partition, sha256_of)
+                                    read_partition_meta, run_partition)
 from magcal.chain.prepare import HPEN, CleanedData, MinuteData
 from magcal.chain.product import StageProduct, without_wall_clock
 from magcal.errors import InputError
@@ -53,18 +53,22 @@ class PartitionSummary:
     done: tuple = ()
     skipped: tuple = ()
     failed: tuple = ()  # ({"partition", "stage", "reason"}, ...)
+    seconds: float = 0.0
+    samples: int = 0
 
     def text(self) -> str:
         out = [f"partitions: {len(self.done)} done, {len(self.skipped)} skipped (unchanged), "
-               f"{len(self.failed)} failed"]
+               f"{len(self.failed)} failed in {self.seconds:.1f} s"]
         out += [f"    failed {f['partition']}: {f['reason']}" for f in self.failed]
         return "\n".join(out)
 
 
-def hash_inputs(files: list[Path], engine) -> list[str]:
-    """SHA-256 of every input file, hashed by the workers."""
-    found = dict(engine.map(sha256_of, [str(f) for f in files], "checksums"))
-    return [found[str(f)] for f in files]
+def hash_inputs(files: list[Path]) -> list[str]:
+    """SHA-256 of every input file (in the driver: hashing is bound by the disk, and a
+    task per file would cost more in process start-up than it saves)."""
+    from magcal.provenance import file_sha256
+
+    return [file_sha256(f) for f in files]
 
 
 # ------------------------------------------------------------------------------ fit
@@ -162,6 +166,9 @@ def fit_phase(cfg: ChainConfig, files, shas, state: Path):
 # ----------------------------------------------------------------------- partitions
 def run_partitions(cfg: ChainConfig, files, shas, fit: FrameApply, state: Path, engine):
     """Process every file whose result is missing; ``(records in time order, summary)``."""
+    import time
+
+    start = time.perf_counter()
     part = digest(_config_part(cfg))
     tasks, skipped, records = [], [], []
     for path, sha in zip(files, shas):
@@ -187,7 +194,9 @@ def run_partitions(cfg: ChainConfig, files, shas, fit: FrameApply, state: Path, 
     if not ok:
         raise InputError(f"every partition failed; {failed[0]['partition']}: "
                          f"{failed[0]['reason']}")
-    return ok, failed, PartitionSummary(done, tuple(skipped), failed)
+    samples = sum(r["n_samples"] for r in ok if r["file"] in done)
+    return ok, failed, PartitionSummary(done, tuple(skipped), failed,
+                                        time.perf_counter() - start, samples)
 
 
 def gather_minutes(records) -> MinuteData:

@@ -99,7 +99,7 @@ class Engine:
         from distributed import as_completed
 
         futures = self._client.map(func, list(items), pure=False)
-        for _ in as_completed(futures):
+        for _ in as_completed(futures, loop=self._client.loop):
             bar.update(1)
         return self._client.gather(futures)
 

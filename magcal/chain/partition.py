@@ -158,10 +158,3 @@ def read_partition_arrays(path: Path, names) -> dict:
             value = z[name]
             out[name] = value.astype("datetime64[ns]") if name.startswith("t_") else value
     return out
-
-
-def sha256_of(path: str) -> tuple[str, str]:
-    """``(path, SHA-256)``: a task, so an archive's files are hashed by the workers."""
-    from magcal.provenance import file_sha256
-
-    return path, file_sha256(path)

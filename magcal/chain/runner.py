@@ -183,7 +183,8 @@ class _Run:
                 "stages": [{"stage": r.stage, "status": r.status, "seconds": r.seconds,
                             "skipped": r.skipped} for r in self.records],
                 "partitions": None if parts is None else {
-                    "done": list(parts.done), "skipped": list(parts.skipped)},
+                    "done": list(parts.done), "skipped": list(parts.skipped),
+                    "seconds": parts.seconds, "samples_done": parts.samples},
                 "engine": engine,
                 "provenance": make_provenance("run", config.as_dict(), inputs=[config.path])}
 
@@ -242,7 +243,7 @@ def run_chain(config: ChainConfig | str | Path, outdir: str | Path,
         else:
             from magcal.chain.archive import hash_inputs
 
-            shas = hash_inputs(files, engine)
+            shas = hash_inputs(files)
             run = _Run(out, [{"path": str(p), "sha256": s} for p, s in zip(files, shas)],
                        progress)
         try:
