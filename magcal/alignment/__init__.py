@@ -22,7 +22,6 @@ from magcal.alignment.product import (AlignmentProduct, AlignSettings, align_pro
                                       match_frames)
 
 __all__ = ["AlignSettings", "Aligner", "AlignmentProduct", "AlignmentResult",
-           "Determinability", "align_product", "match_frames", "OUNoise", "WindowAngles",
-           "angles_by_window",
-           "fit_alignment", "fit_noise", "fit_ou", "sample_posterior", "simulate_ou",
-           "plot_angles_by_window", "plot_posterior_corner", "wahba_rotation"]
+           "Determinability", "OUNoise", "WindowAngles", "align_product", "angles_by_window",
+           "fit_alignment", "fit_noise", "fit_ou", "match_frames", "plot_angles_by_window",
+           "plot_posterior_corner", "sample_posterior", "simulate_ou", "wahba_rotation"]

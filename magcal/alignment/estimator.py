@@ -178,7 +178,7 @@ class Aligner:
         self.inflate_inconsistent = inflate_inconsistent
         self.max_angle_deg = max_angle_deg
 
-    def fit(self, times, data, ref, lon_deg=None) -> "Aligner":
+    def fit(self, times, data, ref, lon_deg=None) -> Aligner:
         """Fit on matched ``data`` and ``ref`` (n, 3) at ``times``; return self.
 
         ``lon_deg`` (east longitude, scalar or per sample) puts the local-time field in
@@ -195,7 +195,7 @@ class Aligner:
         t_s, _, _, _ = prepare(times, data, ref)
         span_days = float(t_s[-1] - t_s[0]) / 86400.0
         k = resolve_lt_harmonics(self.lt_harmonics, span_days)
-        kw = dict(fit_offset=self.fit_offset, fit_scale=self.fit_scale, lon_deg=lon_deg)
+        kw = {"fit_offset": self.fit_offset, "fit_scale": self.fit_scale, "lon_deg": lon_deg}
         fits, selection = {}, None
         if self.lt_harmonics == "auto" and k:
             fits = {k: fit_alignment(times, data, ref, lt_harmonics=k, **kw),

@@ -22,8 +22,15 @@ import numpy as np
 
 from magcal.frames.localtime import DAY_S, harmonic_basis, local_time_hours
 
-__all__ = ["DAY_S", "harmonic_basis", "local_time_hours", "harmonic_names",
-           "harmonic_profile", "peak_to_peak", "describe_harmonics"]
+__all__ = [
+    "DAY_S",
+    "describe_harmonics",
+    "harmonic_basis",
+    "harmonic_names",
+    "harmonic_profile",
+    "local_time_hours",
+    "peak_to_peak",
+]
 
 
 def harmonic_names(n_harmonics: int, components=("Hp", "He", "Hn")) -> tuple:

@@ -167,7 +167,7 @@ class LagStats:
                                    + (phi ** 2)[:, None, None] * self.m11)
         return g, float(0.5 * np.sum(self.count * np.log(k2)))
 
-    def sub(self, idx) -> "LagStats":
+    def sub(self, idx) -> LagStats:
         """Statistics of a subset of the columns."""
         ix = np.ix_(range(self.dt_s.size), idx, idx)
         return LagStats(self.n, self.dt_s, self.count, self.m00[ix], self.m01[ix],

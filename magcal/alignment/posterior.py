@@ -313,11 +313,11 @@ def sample_posterior(times, data, ref, rng: np.random.Generator, *, fit_offset: 
         "autocorr_steps_by_parameter": dict(zip(post.all_names, map(float, tau))),
         "min_autocorr_times": float(min_autocorr_times),
         "converged": converged,
-        "message": ("chain longer than {:g} autocorrelation times".format(min_autocorr_times)
+        "message": (f"chain longer than {min_autocorr_times:g} autocorrelation times"
                     if converged else
-                    "NOT CONVERGED: chain of {} steps is shorter than {:g} x the "
-                    "autocorrelation time {:.1f} steps; increase max_steps".format(
-                        n_steps, min_autocorr_times, tau_max)),
+                    f"NOT CONVERGED: chain of {n_steps} steps is shorter than "
+                    f"{min_autocorr_times:g} x the autocorrelation time {tau_max:.1f} steps; "
+                    "increase max_steps"),
         "priors": "angles uniform |w|<45 deg, offsets flat, scale uniform [0.5, 2], "
                   "noise std and tau log-uniform"
                   + (", local-time coefficients flat (integrated out)" if lt_harmonics else ""),

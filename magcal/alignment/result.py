@@ -114,7 +114,7 @@ class AlignmentResult:
         """Which angles differ from zero by more than ``n_std`` standard deviations."""
         return np.abs(self.angles_deg) > n_std * self.std_deg
 
-    def with_provenance(self, provenance: dict) -> "AlignmentResult":
+    def with_provenance(self, provenance: dict) -> AlignmentResult:
         """Copy of the result carrying a provenance record."""
         return dataclasses.replace(self, provenance=provenance)
 
