@@ -34,6 +34,11 @@ from pathlib import Path
 
 import numpy as np
 
+#: The environment before any LocalCluster: creating one sets OMP/OPENBLAS_NUM_THREADS=1
+#: in this process, which the magcal subprocesses would inherit (and discovery's BLAS
+#: sums differ in the last bits with the thread count).
+BASE_ENV = dict(os.environ, MPLBACKEND="Agg")
+
 PLAN = """target = "fgmo"
 direction = "coherent"
 highpass_s = 1800
@@ -108,8 +113,7 @@ def run(config: Path, out: Path, workers: int | None = None, scheduler: str | No
     cmd += ["--scheduler", scheduler] if scheduler else []
     before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     start = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True,
-                          env=dict(os.environ, MPLBACKEND="Agg"))
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=BASE_ENV)
     seconds = time.perf_counter() - start
     if proc.returncode not in (0, 3):
         raise SystemExit(f"magcal run failed ({proc.returncode}):\n{proc.stderr[-2000:]}")

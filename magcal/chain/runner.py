@@ -289,11 +289,13 @@ def _geostationary_stages(run: _Run, cfg: ChainConfig, files, shas, extras: dict
     state.mkdir(exist_ok=True)
     run.progress("-> fit: frames and PiCoG on the first "
                  f"{cfg['picog']['fit_days']:g} days")
+    start = time.perf_counter()
     try:
         fit, frames, ac = archive.fit_phase(cfg, files, shas, state)
     except InputError as exc:
-        run.fail("frames", exc)
+        run.fail("frames", exc, time.perf_counter() - start)
         raise
+    run.progress(f"   fit ready in {time.perf_counter() - start:.1f} s")
     run.stage("frames", lambda: (None, frames), key=fit.key)
     run.stage("ac", lambda: (None, ac), key=fit.key)
     run.progress(f"-> partitions ({engine.description})")
