@@ -162,3 +162,20 @@ def test_ac_quality_tables_hold_the_product_numbers(tmp_path):
     assert stab.rows[0] == ("paper", "2.3 fgmo-fgmi", "4.75", "2.19", "1.7", "0.259")
     assert bmax.rows[0] == ("paper", "2019-03-04, 2019-03-05", "32.306", "14.017")
     assert remn.source == stab.source == "ac/AC_QUALITY.json"
+
+
+def test_alignment_not_determinable_is_reported_not_crashed(tmp_path):
+    import json
+
+    from magcal.report.uncertainty import build_uncertainty_report
+
+    (tmp_path / "alignment").mkdir()
+    doc = {"schema_version": 1, "magcal_version": "x", "method": "gls", "n_used": 4200,
+           "determinable": False, "reason": "over 7 min the reference changes too little",
+           "angles_deg": {c: None for c in ("Hp", "He", "Hn")},
+           "std_deg": {c: None for c in ("Hp", "He", "Hn")},
+           "ci95_deg": {c: [None, None] for c in ("Hp", "He", "Hn")}, "warnings": []}
+    (tmp_path / "alignment" / "ALIGN.json").write_text(json.dumps(doc))
+    report = build_uncertainty_report(tmp_path)
+    text = " ".join(str(i.__dict__) for s in report.sections for i in s.items)
+    assert "do not determine the rotation" in text and "changes too little" in text

@@ -353,6 +353,12 @@ def alignment_section(root: Path, budget: list) -> tuple:
                                       if (doc.get("selection") or {}).get("kp_max") else "")
         + (f", {doc['lt_harmonics']} local-time harmonics fitted as nuisance"
            if doc.get("lt_harmonics") else "") + ").")]
+    if doc.get("determinable") is False:
+        items.append(Paragraph("The data do not determine the rotation: "
+                               f"{doc.get('reason') or 'see ALIGN.json'}. No angles are "
+                               "reported and the error budget has no alignment row."))
+        items += [Paragraph("Warning: " + w) for w in doc.get("warnings", [])]
+        return tuple(items)
     rows = [(c, doc["angles_deg"][c], doc["std_deg"][c], doc["ci95_deg"][c][0],
              doc["ci95_deg"][c][1]) for c in COMPONENTS]
     items.append(Table.from_records(
