@@ -156,17 +156,8 @@ class AlignmentPosterior:
 
 
 def _rotation_matrices(w) -> np.ndarray:
-    """Rotation matrices from rotation vectors (Rodrigues), shape (m, 3) -> (m, 3, 3)."""
-    angle = np.sqrt(np.sum(w ** 2, axis=1))
-    small = angle < 1e-8
-    safe = np.where(small, 1.0, angle)
-    a = np.where(small, 1.0 - angle ** 2 / 6.0, np.sin(angle) / safe)
-    b = np.where(small, 0.5 - angle ** 2 / 24.0, (1.0 - np.cos(angle)) / safe ** 2)
-    k = np.zeros((w.shape[0], 3, 3))
-    k[:, 0, 1], k[:, 0, 2] = -w[:, 2], w[:, 1]
-    k[:, 1, 0], k[:, 1, 2] = w[:, 2], -w[:, 0]
-    k[:, 2, 0], k[:, 2, 1] = -w[:, 1], w[:, 0]
-    return np.eye(3) + a[:, None, None] * k + b[:, None, None] * (k @ k)
+    """Rotation matrices from rotation vectors, shape (m, 3) -> (m, 3, 3)."""
+    return Rotation.from_rotvec(np.asarray(w, dtype=float).reshape(-1, 3)).as_matrix()
 
 
 def log_likelihood_direct(theta, times_s, data, ref, names, basis=None) -> float:
