@@ -22,6 +22,7 @@ loop stops when no candidate's gain is beyond chance or after ``max_effects`` ef
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -305,15 +306,17 @@ def _static_families(inputs: EffectInputs, settings: DiscoverySettings):
     return fam
 
 
-def _distinct_times(points, most: int = 3, min_sep_s: float = 3 * 3600.0) -> list[float]:
-    """The ``most`` strongest change times of :func:`change_points`, a time found in
-    several components counted once (merged when closer than ``min_sep_s``)."""
-    out: list[float] = []
-    for t, _, _ in sorted(points, key=lambda p: -p[2]):
-        if all(abs(t - u) > min_sep_s for u in out):
-            out.append(t)
-        if len(out) >= most:
-            break
+def _distinct_times(points, most: int = 3, min_sep_s: float = 3 * 3600.0):
+    """The ``most`` strongest change times of :func:`change_points` with the components
+    they were found in, a time found in several components counted once (merged when
+    closer than ``min_sep_s``): a list of ``(t_s, set of component indices)``."""
+    out: list[tuple[float, set]] = []
+    for t, c, _ in sorted(points, key=lambda p: -p[2]):
+        near = [u for u in out if abs(t - u[0]) <= min_sep_s]
+        if near:
+            near[0][1].add(c)
+        elif len(out) < most:
+            out.append((t, {c}))
     return out
 
 
@@ -436,19 +439,21 @@ class _Loop:
         if "step" in vocab:
             # change points of level searched in every component (ruptures); each time
             # found is tried in every component
-            for t_step in _distinct_times(change_points(inputs.times_s, residual,
-                                                        kind="step")):
+            for t_step, _ in _distinct_times(change_points(inputs.times_s, residual,
+                                                           kind="step")):
                 fams.append(("step", [Step(components=(c,), t_step_s=t_step) for c in comps],
                              n_step_trials(span)))
         if "drift" in vocab:
             t_ref = float(0.5 * (inputs.times_s[0] + inputs.times_s[-1]))
             drifting = self.covered.get("drift", set())
-            for t_break in _distinct_times(change_points(inputs.times_s, residual,
-                                                         kind="slope"), most=2):
-                # components with a drift already get the hinge alone, the others the
-                # hinge beside a rate (one family each: a family's columns are uniform)
+            for t_break, found in _distinct_times(change_points(inputs.times_s, residual,
+                                                                kind="slope"), most=2):
+                # tried in the components it was found in; those with a drift already
+                # get the hinge alone, the others the hinge beside a rate (one family
+                # each: a family's columns are uniform)
                 for with_rate in (True, False):
-                    group = [c for c in comps if (c not in drifting) == with_rate]
+                    group = [c for i, c in enumerate(comps) if i in found
+                             and (c not in drifting) == with_rate]
                     if group:
                         fams.append(("drift_break", [
                             Drift(components=(c,), t_ref_s=t_ref, t_break_s=t_break,
@@ -530,9 +535,8 @@ class _Loop:
             if win.family in ("step", "periodic", "drift_break"):
                 # scanned candidates were crossed with the base only: add them in full
                 cols = gram.add(win.effect.columns(self.inputs))
-                win = _Candidate(win.effect, cols, gram.score(self.base_cols + list(cols)),
-                                 win.comparison, win.component_z, win.family, win.z_needed,
-                                 win.delta_bic, win.n_eff, win.trials)
+                win = dataclasses.replace(win, columns=cols,
+                                          score=gram.score(self.base_cols + list(cols)))
             gap_before = profile_gap(self.inputs, residual, spectrum=False)
             rms_before = float(np.sqrt(base.sse_in / n_valid))
             self.added.append((win.effect, win.columns))

@@ -34,8 +34,10 @@ KINDS = {"drift": "drift", "drift_change": "drift", "diurnal": "diurnal",
          "spin_tone": "spin_tone"}
 
 #: Margin (in standard errors) of the detectability threshold above the significance the
-#: discovery loop requires: at the threshold a test at the loop's level has ~98% power.
-Z_POWER = 2.0
+#: discovery loop requires: 2 standard errors give ~98% power at the loop's level with the
+#: standard errors computed here; the loop's own run up to ~20% larger (its jackknife
+#: floor), and the extra half covers that.
+Z_POWER = 2.5
 #: Standard errors by which an effect's part that its nearest competitor cannot mimic
 #: must stand out for the effect to be named right rather than the competitor.
 Z_SEPARATE = 3.0
@@ -213,16 +215,18 @@ def _unit(kind: str, comp: int, bg: Background, rng: np.random.Generator, cov: d
 
 
 def noise_standard_error(signature, benign, max_lag: int | None = None,
-                         nuisance=None) -> float:
+                         nuisance=None, block: int | None = None) -> float:
     """Standard error of the amplitude of ``signature`` fitted with free offsets.
 
     The least-squares amplitude is ``a' y / |a|^2`` with ``a`` the signature after
     removing the offsets and any ``nuisance`` columns (shape (q, n, 3): terms fitted
-    together with it, or the competing effect that could mimic it) by least squares; its
-    variance under stationary noise with autocovariance ``g_c(k)`` is
-    ``sum_c sum_k g_c(k) r_a,c(k) / |a|^4``, summed (with a Bartlett taper) up to
-    ``max_lag`` samples (default ``n // 20``): a few correlation times of the noise are
-    enough, and longer sums only add estimation noise.
+    together with it, or the competing effect that could mimic it) by least squares. With
+    the noise ``e = s(t) u`` (``s`` its RMS in blocks of ``block`` samples, ``u`` with
+    autocovariance ``g_c(k)``) its variance is ``sum_c sum_k g_c(k) r_b,c(k) / |a|^4``
+    with ``b = s a``: a signature that is large when the noise is large (a rotation or a
+    scale error on storm days) is measured less well than stationary noise suggests. The
+    sum runs (with a Bartlett taper) up to ``max_lag`` samples (default ``n // 20``): a
+    few correlation times of the noise are enough, longer sums only add estimation noise.
 
     Examples
     --------
@@ -242,6 +246,15 @@ def noise_standard_error(signature, benign, max_lag: int | None = None,
         x = (x - x.mean(axis=1, keepdims=True)).reshape(len(x), -1)
         coef, *_ = np.linalg.lstsq(x.T, a.reshape(-1), rcond=None)
         a = a - (coef @ x).reshape(a.shape)
+    if block:
+        idx = np.arange(n) // int(block)
+        cnt = np.bincount(idx)
+        level = np.sqrt(np.stack([np.bincount(idx, weights=e[:, c] ** 2) / cnt
+                                  for c in range(e.shape[1])], axis=1))[idx]
+        level = np.where(level > 0, level, 1.0)
+        e, b = e / level, a * level
+    else:
+        b = a
     nfft = 1 << int(np.ceil(np.log2(2 * n)))
     lag = max(n // 20, 1) if max_lag is None else int(min(max_lag, n))
     var = 0.0
@@ -249,12 +262,12 @@ def noise_standard_error(signature, benign, max_lag: int | None = None,
         if not np.any(np.abs(a[:, c]) > 1e-12 * (np.abs(a).max() + 1e-300)):
             continue
         fe = np.fft.rfft(e[:, c], nfft)
-        fa = np.fft.rfft(a[:, c], nfft)
+        fb = np.fft.rfft(b[:, c], nfft)
         ge = np.fft.irfft(fe * np.conj(fe), nfft)[:lag] / n
-        ra = np.fft.irfft(fa * np.conj(fa), nfft)[:lag]
+        rb = np.fft.irfft(fb * np.conj(fb), nfft)[:lag]
         # a tapered sum (Bartlett window) keeps the estimate positive for long lags
         w = 1.0 - np.arange(lag) / lag
-        var += ge[0] * ra[0] + 2.0 * float(np.sum(w[1:] * ge[1:] * ra[1:]))
+        var += ge[0] * rb[0] + 2.0 * float(np.sum(w[1:] * ge[1:] * rb[1:]))
     norm2 = float(np.sum(a * a))
     return float(np.sqrt(max(var, 0.0)) / norm2) if norm2 > 0 else float("inf")
 
@@ -329,7 +342,7 @@ def z_detect(kind: str, span_s: float, settings=None) -> float:
     Examples
     --------
     >>> round(z_detect("drift", 30 * 86400.0), 1), round(z_detect("step", 30 * 86400.0), 1)
-    (5.2, 5.9)
+    (5.7, 6.4)
     """
     from scipy import stats
 
@@ -365,11 +378,12 @@ def detectability_threshold(kind: str, bg: Background, signature=None, rng=None,
         signature, _ = _unit(kind, comp, bg, rng or np.random.default_rng(0), cov)
     own = _columns_of(kind, comp, bg, cov) if kind == "activity" else np.zeros((0, bg.n, 3))
     lag = int(2 * _DAY_S / _cadence(bg))
-    se = noise_standard_error(signature, bg.benign, max_lag=lag, nuisance=own)
+    day = int(round(_DAY_S / _cadence(bg)))
+    se = noise_standard_error(signature, bg.benign, max_lag=lag, nuisance=own, block=day)
     thr = z_detect(kind, float(bg.t_s[-1] - bg.t_s[0])) * se
     comp_cols, comp_trials = _competitors(kind, signature, comp, bg, cov)
     if separated and len(comp_cols):
-        se_perp = noise_standard_error(signature, bg.benign, max_lag=lag,
+        se_perp = noise_standard_error(signature, bg.benign, max_lag=lag, block=day,
                                        nuisance=np.concatenate([own, comp_cols]))
         # a scanned competitor (the best of many step times) mimics noise by chance up to
         # sqrt(2 ln trials) standard errors: the unique part must stand out beyond that
