@@ -26,7 +26,7 @@ def register(subparsers) -> None:
             "nuisance terms degenerate with it, or a fit no better than the identity), "
             "ALIGN.json says \"determinable\": false with the reason, the angles are null, "
             "and one line on stderr says why (exit status 0)."))
-    p.add_argument("data", help="calibrated data, CSV time,Hp,He,Hn (nT)")
+    p.add_argument("data", help="calibrated data with Hp,He,Hn (nT): CSV, GOES-R netCDF or CDF")
     p.add_argument("--reference", required=True,
                    help="reference field (model or reference spacecraft), CSV time,Hp,He,Hn")
     p.add_argument("--mcmc", action="store_true",
@@ -78,7 +78,7 @@ def _auto_or_number(text, name, kind=float):
 def run(args) -> int:
     from magcal.alignment.product import (AlignSettings, align_product, match_frames,
                                           quiet_from_kp, resolve_longitude)
-    from magcal.io.csv import read_csv_frame
+    from magcal.io.formats import read_any
 
     data_path = existing_file(args.data)
     ref_path = existing_file(args.reference)
@@ -90,8 +90,8 @@ def run(args) -> int:
         window_days=_auto_or_number(args.window_days, "--window-days"),
         lt_harmonics=_auto_or_number(args.lt_harmonics, "--lt-harmonics", int),
         max_angle_deg=args.max_angle)
-    pair = match_frames(read_csv_frame(data_path, required=COLUMNS),
-                        read_csv_frame(ref_path, required=COLUMNS),
+    pair = match_frames(read_any(data_path, required=COLUMNS),
+                        read_any(ref_path, required=COLUMNS),
                         data_name=data_path, ref_name=ref_path)
     lon, lon_source = resolve_longitude(pair, args.longitude, data_name=data_path)
     inputs, quiet, selection = [data_path, ref_path], None, None
