@@ -69,6 +69,8 @@ def _what(fe) -> str:
         return f"periodic ({p['period_h']:.2f} h)"
     if name == "step":
         return f"step at {p['time']}"
+    if name == "drift" and "break_time" in p:
+        return f"drift (rate change at {p['break_time']})"
     if name == "rotation":
         angles = ", ".join(f"{v:+.2f}" for v in p["angles_deg"].values())
         return f"rotation ({angles} deg)"
