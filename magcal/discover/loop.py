@@ -438,10 +438,12 @@ class _Loop:
         comps = inputs.components
         if "step" in vocab:
             # change points of level searched in every component (ruptures); each time
-            # found is tried in every component
-            for t_step, _ in _distinct_times(change_points(inputs.times_s, residual,
-                                                           kind="step")):
-                fams.append(("step", [Step(components=(c,), t_step_s=t_step) for c in comps],
+            # is tried in the components it was found in (a step in several components
+            # at once is found in each of them)
+            for t_step, found in _distinct_times(change_points(inputs.times_s, residual,
+                                                               kind="step")):
+                fams.append(("step", [Step(components=(c,), t_step_s=t_step)
+                                      for i, c in enumerate(comps) if i in found],
                              n_step_trials(span)))
         if "drift" in vocab:
             t_ref = float(0.5 * (inputs.times_s[0] + inputs.times_s[-1]))
