@@ -117,7 +117,7 @@ def print_generalisation(out: dict, draws: int, cadence_s: float) -> None:
     n_free = sum(free.values())
     print(f"effect-free months with no effect added: {free.get('none', 0)}/{n_free} = "
           f"{100 * free.get('none', 0) / max(n_free, 1):.1f}% (required >= 95%); "
-          f"false additions: {dict((k, v) for k, v in free.items() if k != 'none')}")
+          f"false additions: { {k: v for k, v in free.items() if k != 'none'} }")
     ok, n_pairs, missed = out["pairs"]
     print(f"two hidden effects both named: {ok}/{n_pairs}" + (f"; missed {missed}" if missed
                                                               else ""))

@@ -378,7 +378,7 @@ def detectability_threshold(kind: str, bg: Background, signature=None, rng=None,
         signature, _ = _unit(kind, comp, bg, rng or np.random.default_rng(0), cov)
     own = _columns_of(kind, comp, bg, cov) if kind == "activity" else np.zeros((0, bg.n, 3))
     lag = int(2 * _DAY_S / _cadence(bg))
-    day = int(round(_DAY_S / _cadence(bg)))
+    day = round(_DAY_S / _cadence(bg))
     se = noise_standard_error(signature, bg.benign, max_lag=lag, nuisance=own, block=day)
     thr = z_detect(kind, float(bg.t_s[-1] - bg.t_s[0])) * se
     comp_cols, comp_trials = _competitors(kind, signature, comp, bg, cov)
