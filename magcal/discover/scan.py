@@ -205,9 +205,10 @@ def _long_run_variance(x: np.ndarray, smooth_bins: int) -> float:
 
     from magcal.discover.selection import integrated_autocorr_time
 
+    from scipy.stats import median_abs_deviation
+
     detail = x - median_filter(x, size=smooth_bins, mode="nearest")
-    mad = np.median(np.abs(detail - np.median(detail))) * 1.4826
-    var = float(max(mad, 1e-12) ** 2)
+    var = float(max(median_abs_deviation(detail, scale="normal"), 1e-12) ** 2)
     return var * integrated_autocorr_time(detail)
 
 
