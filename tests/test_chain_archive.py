@@ -279,3 +279,25 @@ def test_distributed_scheduler_gives_the_local_products(archive, tmp_path):
         res = run_chain(cfg, tmp_path / "dist", scheduler=cluster.scheduler_address)
     assert not res.failed and "distributed" in res.manifest["engine"]
     assert _products(tmp_path / "dist") == _products(out)
+
+
+def test_kp_records_invalidate_only_the_partitions_they_cover(tmp_path):
+    cfg = _archive(tmp_path, n_days=6)
+    out = tmp_path / "out"
+    run_chain(cfg, out, workers=1)
+    kp_path = tmp_path / "raw" / "kp.csv"
+    lines = kp_path.read_text().splitlines()
+    # a month of Kp appended after the archive's end: every partition stays valid
+    last = pd.Timestamp(lines[-1].split(",")[0])
+    extra = [f"{(last + pd.Timedelta(hours=3 * k)).isoformat()},1.0" for k in range(1, 240)]
+    kp_path.write_text("\n".join(lines + extra) + "\n")
+    again = run_chain(cfg, out, workers=1)
+    assert again.partitions.done == () and len(again.partitions.skipped) == 6
+    # one Kp value changed at noon of 2019-11-04: only that day's partition is redone
+    k = next(i for i, line in enumerate(lines) if line.startswith("2019-11-04T12:00:00"))
+    lines[k] = "2019-11-04T12:00:00,7.0"
+    kp_path.write_text("\n".join(lines + extra) + "\n")
+    changed = run_chain(cfg, out, workers=1)
+    assert [Path(f).name for f in changed.partitions.done] == ["day_20191104.csv"]
+    fresh = run_chain(cfg, tmp_path / "fresh", workers=1)
+    assert _products(out) == _products(tmp_path / "fresh") and not fresh.failed

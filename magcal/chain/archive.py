@@ -8,7 +8,8 @@ Phases of :func:`archive_stages` (driven by :func:`magcal.chain.runner.run_chain
    the configuration;
 2. **partitions**: one task per input file (:mod:`magcal.chain.partition`): common
    frame, PiCoG, Hpen, 1-min averages and model field, written atomically to
-   ``.partitions/<stem>-<key>.npz``; a file whose key is unchanged is skipped;
+   ``.partitions/<stem>-<key>.npz``; a file whose key is unchanged and whose Kp and
+   driver records (around its own times) are unchanged is skipped;
 3. **offsets** on the concatenated 1-min results (one task: medians of a year of 1-min
    samples take well under a second, less than shipping the data to workers); windows
    touching a failed partition name it in their ``reason``; ``OFFSETS.csv`` is replaced
@@ -73,19 +74,51 @@ def hash_inputs(files: list[Path]) -> list[str]:
 
 # ------------------------------------------------------------------------------ fit
 def _config_part(cfg: ChainConfig) -> dict:
-    """The configuration a partition's result depends on (and the checksums of the
-    files it names)."""
+    """The configuration a partition's result depends on. The Kp and driver files are
+    not in it: a partition depends only on their records around its own times
+    (:func:`index_digest`), so appending a month to the Kp file leaves earlier
+    partitions valid."""
     from magcal._version import __version__
-    from magcal.provenance import file_sha256
 
-    files = {}
-    for key, rel in (("kp", cfg["kp"]["file"]), ("drivers", cfg["model"]["drivers"])):
-        path = cfg.resolve(rel)
-        files[key] = file_sha256(path) if path is not None and path.is_file() else None
     model = {k: v for k, v in cfg["model"].items() if k not in ("jobs", "cache_dir")}
     inp = {k: v for k, v in cfg["input"].items() if k not in ("files", "simulate")}
     return {"version": __version__, "input": inp, "position": cfg["position"],
-            "model": model, "cadence_s": cfg["offsets"]["cadence_s"], "files": files}
+            "model": model, "cadence_s": cfg["offsets"]["cadence_s"]}
+
+
+def read_index_tables(cfg: ChainConfig) -> dict:
+    """The Kp series and the driver table of the configuration (None when not given)."""
+    from magcal.indices import read_drivers, read_kp
+
+    out = {}
+    for name, rel, reader in (("kp", cfg["kp"]["file"], read_kp),
+                              ("drivers", cfg["model"]["drivers"], read_drivers)):
+        path = cfg.resolve(rel)
+        out[name] = reader(path) if path is not None and path.is_file() else None
+    return out
+
+
+def index_digest(tables: dict, start: str, end: str, margin_h: float = 3.0) -> str:
+    """SHA-256 of the Kp and driver records a partition from ``start`` to ``end`` uses.
+
+    Kp is a 3-hour step function: the records from ``margin_h`` hours before ``start``
+    to ``end``; drivers are interpolated across gaps of at most 3 hours: the records
+    within ``margin_h`` hours on both sides.
+    """
+    parts = {}
+    for name, table in sorted(tables.items()):
+        if table is None:
+            parts[name] = None
+            continue
+        lo = pd.Timestamp(start) - pd.Timedelta(hours=margin_h)
+        hi = pd.Timestamp(end) + (pd.Timedelta(0) if name == "kp"
+                                  else pd.Timedelta(hours=margin_h))
+        rows = table[(table.index >= lo) & (table.index <= hi)]
+        frame = rows.to_frame() if isinstance(rows, pd.Series) else rows
+        parts[name] = {"t": rows.index.as_unit("ns").asi8.tolist(),
+                       "v": frame.to_numpy(dtype=float).tolist(),
+                       "c": [str(c) for c in frame.columns]}
+    return digest(parts)[:24]
 
 
 def _span(path: Path, sha: str, cfg: ChainConfig, spans: dict):
@@ -126,7 +159,8 @@ def _fit_files(cfg: ChainConfig, files, shas, state: Path) -> list[Path]:
 def fit_phase(cfg: ChainConfig, files, shas, state: Path):
     """Frames and PiCoG on the first days: ``(FrameApply, frames product, ac product)``.
 
-    Cached in ``state`` under the SHA-256 of the files used and the configuration.
+    Cached in ``state`` under the SHA-256 of the files used and of the configuration
+    of frames, PiCoG and input (not of Kp, model or position, which it does not use).
     """
     from magcal.chain import prepare
     from magcal.provenance import file_sha256
@@ -135,8 +169,10 @@ def fit_phase(cfg: ChainConfig, files, shas, state: Path):
     by_path = dict(zip(files, shas))
     plan = cfg["picog"]["plan"]
     plan_path = cfg.resolve(plan) if plan not in ("auto", "none") else None
+    config = _config_part(cfg)
     key = digest({"files": [by_path[f] for f in fit_files], "frames": cfg["frames"],
-                  "picog": cfg["picog"], "config": _config_part(cfg),
+                  "picog": cfg["picog"], "version": config["version"],
+                  "input": config["input"],
                   "plan": file_sha256(plan_path) if plan_path and plan_path.is_file()
                   else None})
     path = state / f"fit-{key[:24]}.pkl"
@@ -170,22 +206,28 @@ def run_partitions(cfg: ChainConfig, files, shas, fit: FrameApply, state: Path, 
 
     start = time.perf_counter()
     part = digest(_config_part(cfg))
+    tables = read_index_tables(cfg)
     tasks, skipped, records = [], [], []
     for path, sha in zip(files, shas):
         key = digest({"file": sha, "config": part, "fit": fit.key})[:24]
         result = state / f"{Path(path).stem}-{key}.npz"
         if result.is_file():
             try:
+                meta = read_partition_meta(result)
+            except (OSError, ValueError, KeyError):
+                meta = None  # unreadable leftover: recompute
+            if meta is not None and meta.get("index_digest") == index_digest(
+                    tables, meta["start"], meta["end"]):
                 records.append({"file": str(path), "sha256": sha, "key": key,
-                                "result": str(result), "status": "ok",
-                                **read_partition_meta(result)})
+                                "result": str(result), "status": "ok", **meta})
                 skipped.append(str(path))
                 continue
-            except (OSError, ValueError, KeyError):
-                result.unlink()  # unreadable leftover: recompute
         tasks.append(PartitionTask(config=cfg, file=str(path), sha256=sha, key=key,
                                    result=str(result), fit=fit))
     records += engine.map(run_partition, tasks, "partitions")
+    for r in records:  # the key downstream stages see names the index records as well
+        if r["status"] == "ok":
+            r["key"] = f"{r['key']}:{r['index_digest']}"
     ok = sorted((r for r in records if r["status"] == "ok"), key=lambda r: r["start"])
     failed = tuple({"partition": r["file"], "stage": "partition", "reason": r["reason"]}
                    for r in records if r["status"] != "ok")

@@ -125,13 +125,17 @@ def _process(task: PartitionTask) -> dict:
               "t_min": minute.times.astype("datetime64[ns]").astype(np.int64),
               "hpen_min": minute.hpen, "model_min": minute.model, "kp": minute.kp,
               "lon_deg": minute.lon_deg, "lat_deg": minute.lat_deg, "r_re": minute.r_re}
+    from magcal.chain.archive import index_digest, read_index_tables
+
     t = series.times
     days = sorted({str(d.date()) for d in t.floor("D").unique()})
     meta = {"n_samples": int(len(series)), "cadence_s": float(series.cadence_s),
             "sensors": [s for s in series.sensors if s], "start": str(t[0]),
             "end": str(t[-1]), "days": days, "n_minutes": int(len(minute.times)),
             "n_model_invalid": int(product.summary.get("n_invalid", 0)),
-            "warnings": list(product.warnings)}
+            "warnings": list(product.warnings),
+            # the Kp and driver records this partition used (a rerun compares them)
+            "index_digest": index_digest(read_index_tables(cfg), str(t[0]), str(t[-1]))}
     write_partition(Path(task.result), arrays, meta)
     return meta
 

@@ -305,7 +305,11 @@ def _geostationary_stages(run: _Run, cfg: ChainConfig, files, shas, extras: dict
     run.stage("read", archive.read_product, cfg, files, shas, records, run.partitions,
               key=digest({"shas": shas, "partitions": pkeys, "failed": failed}))
     minute = archive.gather_minutes(records)
-    run.stage("model", archive.model_product, minute, cfg, records, key=digest(pkeys))
+    index_files = [cfg.resolve(cfg["kp"]["file"]), cfg.resolve(cfg["model"]["drivers"])]
+    run.stage("model", archive.model_product, minute, cfg, records,
+              key=digest({"partitions": pkeys, "index_files": [  # named in its provenance
+                  file_sha256(p) if p is not None and p.is_file() else None
+                  for p in index_files]}))
     table = run.stage("offsets", archive.offsets_stage, minute, cfg, failed, records)
     run.stage("corrected", archive.corrected_stage, run, table, records, cfg, engine)
     offsets_sha = file_sha256(run.outdir / "offsets" / "OFFSETS.csv")
