@@ -102,7 +102,7 @@ def archive(tmp_path_factory):
 def test_partitioned_record_equals_the_whole_record_in_one_piece(archive):
     from magcal.chain import prepare
 
-    tmp, cfg_path, out, result = archive
+    _, cfg_path, out, result = archive
     assert not result.failed and len(result.partitions.done) == 12
     cfg = read_chain_config(cfg_path)
     files = cfg.input_files()
@@ -148,7 +148,7 @@ def test_offset_product_follows_the_injected_offsets(archive):
 
 
 def test_rerun_skips_every_partition_and_leaves_identical_products(archive):
-    _, cfg, out, first = archive
+    _, cfg, out, _ = archive
     before = _products(out)
     again = run_chain(cfg, out, workers=2)
     assert again.partitions.done == () and len(again.partitions.skipped) == 12

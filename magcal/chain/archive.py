@@ -35,9 +35,17 @@ import numpy as np
 import pandas as pd
 
 from magcal.chain.config import ChainConfig
-from magcal.chain.partition import (FULL_ARRAYS, MINUTE_ARRAYS, STATE_DIR, FrameApply,
-                                    PartitionTask, digest, read_partition_arrays,
-                                    read_partition_meta, run_partition)
+from magcal.chain.partition import (
+    FULL_ARRAYS,
+    MINUTE_ARRAYS,
+    STATE_DIR,
+    FrameApply,
+    PartitionTask,
+    digest,
+    read_partition_arrays,
+    read_partition_meta,
+    run_partition,
+)
 from magcal.chain.prepare import HPEN, CleanedData, MinuteData
 from magcal.chain.product import StageProduct, without_wall_clock
 from magcal.errors import InputError
@@ -298,7 +306,7 @@ def model_product(minute: MinuteData, cfg: ChainConfig, records):
     n_invalid = int((~np.isfinite(minute.model).all(axis=1)).sum())
     kp_ok = np.isfinite(minute.kp)
     med = np.nanmedian(minute.hpen - minute.model, axis=0).tolist()
-    summary = {"model": cfg["model"]["name"].upper(), "n_samples": int(len(minute.times)),
+    summary = {"model": cfg["model"]["name"].upper(), "n_samples": len(minute.times),
                "n_invalid": n_invalid,
                "kp_range": [float(minute.kp[kp_ok].min()), float(minute.kp[kp_ok].max())]
                if kp_ok.any() else None, "data_minus_model_median_nT": med}
@@ -449,7 +457,7 @@ def write_corrected_day(task: DayTask) -> dict:
                         float_format="%.6f")
         counts = np.bincount(np.asarray(flag, dtype=int), minlength=4)[:4]
         return {"day": task.day, "status": "ok", "sha256": file_sha256(task.path),
-                "n": int(len(frame)), "flags": counts.tolist()}
+                "n": len(frame), "flags": counts.tolist()}
     except Exception as exc:  # noqa: BLE001 - one day must not stop the others
         return {"day": task.day, "status": "failed", "reason": f"{type(exc).__name__}: {exc}"}
 

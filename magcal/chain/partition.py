@@ -98,8 +98,7 @@ def run_partition(task: PartitionTask) -> dict:
 def _process(task: PartitionTask) -> dict:
     import warnings
 
-    from magcal.chain.prepare import CleanedData, apply_frame, load_series, naive_times, \
-        run_model
+    from magcal.chain.prepare import CleanedData, apply_frame, load_series, naive_times, run_model
 
     cfg = task.config
     fit = task.fit
@@ -129,9 +128,9 @@ def _process(task: PartitionTask) -> dict:
 
     t = series.times
     days = sorted({str(d.date()) for d in t.floor("D").unique()})
-    meta = {"n_samples": int(len(series)), "cadence_s": float(series.cadence_s),
+    meta = {"n_samples": len(series), "cadence_s": float(series.cadence_s),
             "sensors": [s for s in series.sensors if s], "start": str(t[0]),
-            "end": str(t[-1]), "days": days, "n_minutes": int(len(minute.times)),
+            "end": str(t[-1]), "days": days, "n_minutes": len(minute.times),
             "n_model_invalid": int(product.summary.get("n_invalid", 0)),
             "warnings": list(product.warnings),
             # the Kp and driver records this partition used (a rerun compares them)
@@ -142,9 +141,8 @@ def _process(task: PartitionTask) -> dict:
 
 def write_partition(path: Path, arrays: dict, meta: dict) -> Path:
     """Write a partition result atomically (``.npz`` with its record as JSON)."""
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as handle:
-            np.savez(handle, meta=np.array(json.dumps(meta)), **arrays)
+    with atomic_path(path) as tmp, open(tmp, "wb") as handle:
+        np.savez(handle, meta=np.array(json.dumps(meta)), **arrays)
     return path
 
 

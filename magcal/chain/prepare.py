@@ -231,8 +231,6 @@ def run_ac(data: CommonFrameData, config: ChainConfig) -> tuple[CleanedData, Sta
     offsets stage handles DC.
     With ``plan = "none"`` or a single sensor the target passes through unchanged.
     """
-    from magcal.ac.estimator import PiCoG, apply_upload
-
     kind, plan, plan_files, opts = _plan_for(config, data.target)
     raw = data.series[data.target]
     summary: dict = {"target": data.target, "sensors": list(data.sensors), "plan": kind,
