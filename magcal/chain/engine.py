@@ -18,6 +18,10 @@ from collections.abc import Callable, Sequence
 from magcal.errors import InputError
 
 
+#: Thread-count variables of the BLAS libraries, set to 1 for local pool workers.
+_BLAS_THREADS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
 def usable_cores() -> int:
     """Cores this process may run on."""
     try:
@@ -48,6 +52,7 @@ class Engine:
         self._client = None
         self._own_client = False
         self._pool = None
+        self._env_set: list[str] = []
         if scheduler is not None:
             self._client, self._own_client = _connect(scheduler)
 
@@ -86,11 +91,21 @@ class Engine:
 
     def _get_pool(self):
         # One pool for the whole run, handed to Dask's multiprocessing scheduler (which
-        # would otherwise spawn fresh processes for every stage).
+        # would otherwise spawn fresh processes for every stage). Its workers run BLAS
+        # on one thread each, as dask.distributed's do: N workers x N BLAS threads
+        # would oversubscribe the cores. The driver's BLAS libraries are loaded first,
+        # so the driver keeps its own setting.
         if self._pool is None:
             import multiprocessing
             from concurrent.futures import ProcessPoolExecutor
 
+            import numpy  # noqa: F401
+            import scipy.linalg  # noqa: F401
+
+            for var in _BLAS_THREADS:
+                if var not in os.environ:
+                    self._env_set.append(var)
+                    os.environ[var] = "1"
             self._pool = ProcessPoolExecutor(self.workers,
                                              mp_context=multiprocessing.get_context("spawn"))
         return self._pool
@@ -108,6 +123,9 @@ class Engine:
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
+        for var in self._env_set:
+            os.environ.pop(var, None)
+        self._env_set = []
         if self._client is not None and self._own_client:
             self._client.close()
         self._client = None

@@ -1,16 +1,20 @@
 """``run_chain``: one configuration in, every product and a manifest out.
 
-The runner reads the configuration, optionally simulates its input (the demo), reads
-the instrument files, then calls the stages in chain order::
+The runner reads the configuration, optionally simulates its input (the demo), then
+runs the stages in chain order::
 
-    read -> frames -> ac (PiCoG) -> Hpen -> model -> offsets -> corrected
-         -> alignment -> discover -> report
+    frames, ac (fit phase) -> partitions (read, common frame, PiCoG, Hpen, 1-min
+    model; one Dask task per file) -> read, model -> offsets -> corrected
+    -> truth -> alignment -> discover -> report
 
-Each stage's :class:`~magcal.chain.product.StageProduct` is written to
-``OUTDIR/<stage>/`` and listed in ``OUTDIR/MANIFEST.json`` with its SHA-256 and the
-SHA-256 of the inputs it was made from (CONTRACTS §7). A stage that cannot run on the
-data (e.g. alignment on minutes of data) is listed under ``failed`` with its reason;
-the rest complete.
+(:mod:`magcal.chain.archive`; the spinning chain runs in memory,
+:mod:`magcal.chain.spin`). Each stage's :class:`~magcal.chain.product.StageProduct` is
+written to ``OUTDIR/<stage>/`` and listed in ``OUTDIR/MANIFEST.json`` with its SHA-256
+and the SHA-256 of the inputs it was made from (CONTRACTS §7). A stage whose inputs
+are unchanged since the last run into the same OUTDIR is skipped (its marker in
+``OUTDIR/.partitions`` names its key and files). A stage that cannot run on the data
+(e.g. alignment on minutes of data) or a file that cannot be read is listed under
+``failed`` with its reason; the rest complete.
 """
 
 from __future__ import annotations
@@ -366,21 +370,6 @@ def _simulate_input(cfg: ChainConfig, out: Path, progress) -> dict:
         progress(f"-> simulate the raw input (seed {seed}) into {out / 'raw'}")
     result = simulate_archive(ArchiveConfig(**spec), rng=np.random.default_rng(seed))
     return write_archive_files(result, out / "raw")
-
-
-def _read(cfg: ChainConfig, files):
-    from magcal.chain.prepare import load_series
-
-    series = load_series(cfg, files)
-    span_h = (series.times[-1] - series.times[0]).total_seconds() / 3600.0
-    summary = {"files": [str(f) for f in files], "n_samples": len(series),
-               "cadence_s": series.cadence_s, "sensors": [s for s in series.sensors if s],
-               "span_hours": span_h, "start": str(series.times[0]),
-               "end": str(series.times[-1]), "history": list(series.provenance)}
-    line = (f"{len(files)} file(s), {len(series)} samples at {series.cadence_s:g} s over "
-            f"{span_h:.2f} h; sensors {', '.join(summary['sensors'])}")
-    return series, StageProduct(stage="read", summary=summary, lines=(line,),
-                                provenance=make_provenance("read", {}, inputs=files))
 
 
 def _report(out: Path, cfg: ChainConfig):
