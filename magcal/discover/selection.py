@@ -23,7 +23,7 @@ import numpy as np
 
 DAY_S = 86400.0
 #: Smallest Bartlett variance factor accepted for a coefficient (see model_covariance).
-TAU_FLOOR = 0.05
+TAU_FLOOR = 0.001
 
 
 def time_blocks(times_s, block_s: float = DAY_S, min_blocks: int = 8) -> np.ndarray:
