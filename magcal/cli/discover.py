@@ -16,7 +16,8 @@ def register(subparsers) -> None:
                     "model, add the one with the strongest held-out evidence (days as "
                     "cross-validation blocks), refit and repeat until no candidate earns "
                     "its parameters. Writes REPORT.json and prints the account.")
-    p.add_argument("measured", help="MEASURED.csv (time plus component columns, e.g. Hp,He,Hn)")
+    p.add_argument("measured", help="MEASURED (time plus component columns, e.g. Hp,He,Hn; "
+                   "CSV, GOES-R netCDF or CDF)")
     p.add_argument("model", help="MODEL.csv with the same component columns")
     p.add_argument("--covariates", help="COV.csv: time plus any of temperature (deg C), kp, "
                                         "dst (nT), lon_deg, phase (rad)")
@@ -30,14 +31,14 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from magcal.discover import discover_gap
-    from magcal.io.csv import read_csv_frame
+    from magcal.io.formats import read_any
     from magcal.io.jsonio import write_json
     from magcal.provenance import make_provenance
 
     meas_path = existing_file(args.measured)
     model_path = existing_file(args.model)
-    measured = read_csv_frame(meas_path)
-    model = read_csv_frame(model_path)
+    measured = read_any(meas_path)
+    model = read_any(model_path)
     shared = [c for c in measured.columns if c in model.columns]
     if not shared:
         raise InputError("no component column in common with MODEL.csv "
@@ -47,7 +48,7 @@ def run(args) -> int:
     inputs = [meas_path, model_path]
     if args.covariates:
         cov_path = existing_file(args.covariates)
-        cov = read_csv_frame(cov_path)
+        cov = read_any(cov_path)
         known = {"temperature", "kp", "dst", "lon_deg", "phase"}
         if not known & set(cov.columns):
             raise InputError("no covariate column (expected any of temperature, kp, dst, "
