@@ -4,7 +4,7 @@ Phases of :func:`archive_stages` (driven by :func:`magcal.chain.runner.run_chain
 
 1. **fit**: frames and PiCoG on the first ``[picog] fit_days`` days of data (the upload
    matrices are constant, they are the product); the result is cached as
-   ``.partitions/fit-<key>.pkl``, the key being the SHA-256 of the files used and of
+   ``.partitions/fit-<key>.json``, the key being the SHA-256 of the files used and of
    the configuration;
 2. **partitions**: one task per input file (:mod:`magcal.chain.partition`): common
    frame, PiCoG, Hpen, 1-min averages and model field, written atomically to
@@ -27,7 +27,6 @@ the partitions of one day in the corrected stage); the driver holds the 1-min re
 from __future__ import annotations
 
 import json
-import pickle
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -50,6 +49,7 @@ from magcal.chain.prepare import HPEN, CleanedData, MinuteData
 from magcal.chain.product import StageProduct, without_wall_clock
 from magcal.errors import InputError
 from magcal.io.atomic import atomic_path
+from magcal.io.jsonio import to_jsonable
 from magcal.provenance import make_provenance
 
 _DAY_NS = 86_400 * 10**9
@@ -183,10 +183,9 @@ def fit_phase(cfg: ChainConfig, files, shas, state: Path):
                   "input": config["input"],
                   "plan": file_sha256(plan_path) if plan_path and plan_path.is_file()
                   else None})
-    path = state / f"fit-{key[:24]}.pkl"
+    path = state / f"fit-{key[:24]}.json"
     if path.is_file():
-        with open(path, "rb") as handle:
-            return pickle.load(handle)
+        return _fit_from_json(json.loads(path.read_text()))
     series = prepare.load_series(cfg, fit_files)
     common, frames = prepare.run_frames(series, cfg)
     _, ac = prepare.run_ac(common, cfg)
@@ -201,10 +200,42 @@ def fit_phase(cfg: ChainConfig, files, shas, state: Path):
                                                                       fit_files]})
     ac = replace(ac, summary={**ac.summary, "fit_files": [str(f) for f in fit_files]},
                  lines=ac.lines + (note,))
-    value = (fit, frames, ac)
+    doc = _fit_to_json(fit, frames, ac)
     with atomic_path(path) as tmp:
-        tmp.write_bytes(pickle.dumps(value))
-    return value
+        tmp.write_text(json.dumps(doc, allow_nan=False))
+    return _fit_from_json(doc)  # the same objects a rerun restores
+
+
+def _product_to_json(product: StageProduct) -> dict:
+    if product.tables or product.writers:
+        raise ValueError(f"stage {product.stage}: only summaries and documents are cached")
+    return to_jsonable({"stage": product.stage, "summary": product.summary,
+                        "lines": product.lines, "documents": product.documents,
+                        "provenance": product.provenance, "warnings": product.warnings})
+
+
+def _product_from_json(doc: dict) -> StageProduct:
+    return StageProduct(stage=doc["stage"], summary=doc["summary"], lines=tuple(doc["lines"]),
+                        documents=doc["documents"], provenance=doc["provenance"],
+                        warnings=tuple(doc["warnings"]))
+
+
+def _fit_to_json(fit: FrameApply, frames: StageProduct, ac: StageProduct) -> dict:
+    """The fit artefact as plain JSON (never pickled: the cache is read back as input)."""
+    return {"fit": to_jsonable({"key": fit.key, "sensors": fit.sensors, "target": fit.target,
+                                "transforms": {s: [m, o] for s, (m, o) in
+                                               fit.transforms.items()},
+                                "to_hpen": fit.to_hpen, "upload": fit.upload}),
+            "frames": _product_to_json(frames), "ac": _product_to_json(ac)}
+
+
+def _fit_from_json(doc: dict):
+    f = doc["fit"]
+    fit = FrameApply(key=f["key"], sensors=tuple(f["sensors"]), target=f["target"],
+                     transforms={s: (np.asarray(m, dtype=float), np.asarray(o, dtype=float))
+                                 for s, (m, o) in f["transforms"].items()},
+                     to_hpen=np.asarray(f["to_hpen"], dtype=float), upload=f["upload"])
+    return fit, _product_from_json(doc["frames"]), _product_from_json(doc["ac"])
 
 
 # ----------------------------------------------------------------------- partitions
