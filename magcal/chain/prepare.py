@@ -19,6 +19,7 @@ from magcal.chain.config import ChainConfig
 from magcal.chain.product import StageProduct
 from magcal.errors import InputError
 from magcal.provenance import make_provenance
+from magcal.stats import finite_rms
 from magcal.timeseries import VectorSeries
 
 HPEN = ("Hp", "He", "Hn")
@@ -27,12 +28,6 @@ HPEN = ("Hp", "He", "Hn")
 def naive_times(index: pd.DatetimeIndex) -> np.ndarray:
     """UTC ``datetime64[ns]`` values of a tz-aware index."""
     return index.tz_convert("UTC").tz_localize(None).as_unit("ns").to_numpy()
-
-
-def _rms(x) -> float:
-    x = np.asarray(x, dtype=float)
-    x = x[np.isfinite(x)]
-    return float(np.sqrt(np.mean(x ** 2))) if x.size else float("nan")
 
 
 # ----------------------------------------------------------------------------- input
@@ -192,7 +187,7 @@ def _to_hpen(series: VectorSeries, config: ChainConfig, vectors: dict, target: s
         doc = {"source": "configuration" if spec != "identity" else "identity",
                "matrix": matrix.tolist()}
     if file_hpen is not None and ref is not None:
-        doc["check_rms_nT"] = _rms(ref @ matrix.T - file_hpen)
+        doc["check_rms_nT"] = finite_rms(ref @ matrix.T - file_hpen)
     return matrix, doc
 
 
@@ -257,7 +252,7 @@ def run_ac(data: CommonFrameData, config: ChainConfig) -> tuple[CleanedData, Sta
     hpen = cleaned @ data.to_hpen.T
     if data.input_hpen is not None:
         own = data.input_hpen
-        summary["hpen_vs_input_rms_nT"] = _rms(hpen - own)
+        summary["hpen_vs_input_rms_nT"] = finite_rms(hpen - own)
         summary["hpen_vs_input_mean_nT"] = np.nanmean(hpen - own, axis=0).tolist()
         lines.append(f"Hpen of the product against the input's own Hp,He,Hn: "
                      f"{summary['hpen_vs_input_rms_nT']:.3f} nT rms")
@@ -287,7 +282,7 @@ def _ac_metrics(raw, cleaned, data: CommonFrameData, params: dict) -> dict:
     removed = raw - cleaned
     removed = removed - np.nanmean(removed, axis=0)
     ident = float(np.abs(sum(np.asarray(m) for m in params["M"].values()) - np.eye(3)).max())
-    return {"removed_rms_nT": _rms(removed), "identity_error": ident,
+    return {"removed_rms_nT": finite_rms(removed), "identity_error": ident,
             "G_nT": params.get("G"), "n_bands_worse": len(params.get("worse_than_raw") or [])}
 
 

@@ -14,14 +14,9 @@ from magcal.chain.config import ChainConfig
 from magcal.chain.prepare import HPEN, CleanedData, naive_times
 from magcal.chain.product import StageProduct
 from magcal.errors import InputError
+from magcal.stats import finite_rms
 
 _DAY_NS = 86_400 * 10**9
-
-
-def _rms(x) -> float:
-    x = np.asarray(x, dtype=float)
-    x = x[np.isfinite(x)]
-    return float(np.sqrt(np.mean(x ** 2))) if x.size else float("nan")
 
 
 def offsets_against_truth(table, t_truth: np.ndarray, true_offsets: np.ndarray) -> dict:
@@ -52,10 +47,10 @@ def offsets_against_truth(table, t_truth: np.ndarray, true_offsets: np.ndarray) 
     away = inside.copy()
     for j in jumps:
         away &= np.abs(t_ns - t_ns[j]) > half
-    per = {c: _rms(err[inside, k]) for k, c in enumerate(HPEN)}
-    return {"rms_nT": _rms(err[inside]), "rms_per_component_nT": per,
+    per = {c: finite_rms(err[inside, k]) for k, c in enumerate(HPEN)}
+    return {"rms_nT": finite_rms(err[inside]), "rms_per_component_nT": per,
             "max_abs_nT": float(np.nanmax(np.abs(err[inside]))) if inside.any() else None,
-            "rms_away_from_steps_nT": _rms(err[away]),
+            "rms_away_from_steps_nT": finite_rms(err[away]),
             "max_abs_away_from_steps_nT": float(np.nanmax(np.abs(err[away])))
             if away.any() else None,
             "n_steps_in_truth": int(len(jumps)),
@@ -91,10 +86,10 @@ def run_truth(cleaned: CleanedData, table, raw_target, config: ChainConfig):
         res_c = (got - want) - np.nanmean(got - want, axis=0)
         res_r = (raw - want) - np.nanmean(raw - want, axis=0)
         ratio = np.nanmean(res_r ** 2) / np.nanmean(res_c ** 2)
-        summary["ac"] = {"rms_raw_nT": _rms(res_r), "rms_cleaned_nT": _rms(res_c),
+        summary["ac"] = {"rms_raw_nT": finite_rms(res_r), "rms_cleaned_nT": finite_rms(res_c),
                          "power_reduction": float(ratio), "n_compared": int(ok.sum())}
-        lines.append(f"AC cleaning vs truth: disturbance rms {_rms(res_r):.3f} -> "
-                     f"{_rms(res_c):.3f} nT ({ratio:.0f}x in power)")
+        lines.append(f"AC cleaning vs truth: disturbance rms {finite_rms(res_r):.3f} -> "
+                     f"{finite_rms(res_c):.3f} nT ({ratio:.0f}x in power)")
     if not summary:
         raise InputError("the truth file has neither offset_Hp,.. nor clean_Hp,.. columns",
                          file=path)

@@ -13,19 +13,18 @@ import numpy as np
 
 from magcal.discover.effects import DAY_S, EffectInputs
 from magcal.discover.scan import periodogram, scan_step
+from magcal.stats import finite_rms
 
 
 def rms(residual) -> float:
-    """Root mean square over all finite entries (nT).
+    """Root mean square over all finite entries (nT); see :func:`magcal.stats.finite_rms`.
 
     Examples
     --------
     >>> rms(np.array([[3.0, 4.0], [np.nan, 0.0]]))
     2.886751345948129
     """
-    r = np.asarray(residual, dtype=float)
-    ok = np.isfinite(r)
-    return float(np.sqrt(np.mean(r[ok] ** 2))) if ok.any() else float("nan")
+    return finite_rms(residual)
 
 
 def local_time_profile(lt_h, residual, bin_h: float = 1.0):

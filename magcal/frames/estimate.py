@@ -23,6 +23,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from magcal.errors import InputError
+from magcal.stats import finite_rms
 
 #: An offset model is chosen when it lowers the residual RMS by at least this factor.
 OFFSET_GAIN = 2.0
@@ -85,10 +86,6 @@ class RotationFit:
                     "ZYX", degrees=True).tolist()}
 
 
-def _rms(x) -> float:
-    return float(np.sqrt(np.mean(np.square(x))))
-
-
 def estimate_rotation(b_sensor, b_reference, fit_offset="auto") -> RotationFit:
     """Fit the rotation of a sensor into the frame of a reference field.
 
@@ -132,9 +129,9 @@ def estimate_rotation(b_sensor, b_reference, fit_offset="auto") -> RotationFit:
                          "(need 10) to estimate a rotation")
     rot0, _ = Rotation.align_vectors(r, b)
     m0 = rot0.as_matrix()
-    rms0 = _rms(r - b @ m0.T)
+    rms0 = finite_rms(r - b @ m0.T)
     m1, o1 = _gauss_newton(b, r, m0)
-    rms1 = _rms((b - o1) @ m1.T - r)
+    rms1 = finite_rms((b - o1) @ m1.T - r)
     use_offset = (bool(fit_offset) if fit_offset != "auto"
                   else rms1 * OFFSET_GAIN < rms0 and rms0 > EXACT_NT)
     matrix, offset = (m1, o1) if use_offset else (m0, np.zeros(3))
@@ -144,10 +141,10 @@ def estimate_rotation(b_sensor, b_reference, fit_offset="auto") -> RotationFit:
     cov = np.linalg.pinv(jtj) * float(np.sum(resid ** 2)) / n_dof
     return RotationFit(
         matrix=matrix, offset_nT=offset, fit_offset=use_offset,
-        rms_nT=_rms(resid), rms_rotation_only_nT=rms0, rms_with_offset_nT=rms1,
+        rms_nT=finite_rms(resid), rms_rotation_only_nT=rms0, rms_with_offset_nT=rms1,
         angle_std_deg=np.degrees(np.sqrt(np.diag(cov)[:3])),
         condition=float(np.sqrt(np.linalg.cond(jtj))), n_used=int(len(b)),
-        field_variation_nT=_rms(r - r.mean(axis=0)))
+        field_variation_nT=finite_rms(r - r.mean(axis=0)))
 
 
 def _skew_blocks(v: np.ndarray) -> np.ndarray:
