@@ -17,7 +17,6 @@ from collections.abc import Callable, Sequence
 
 from magcal.errors import InputError
 
-
 #: Thread-count variables of the BLAS libraries, set to 1 for local pool workers.
 _BLAS_THREADS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 

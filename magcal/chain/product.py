@@ -16,7 +16,6 @@ import pandas as pd
 
 from magcal.io.jsonio import to_jsonable, write_json
 
-
 #: Keys of provenance records that hold wall-clock times (products carry none of them,
 #: so a rerun gives byte-identical files; the run time is in MANIFEST.json only).
 WALL_CLOCK_KEYS = ("created_utc", "time_utc")
