@@ -301,3 +301,20 @@ def test_kp_records_invalidate_only_the_partitions_they_cover(tmp_path):
     assert [Path(f).name for f in changed.partitions.done] == ["day_20191104.csv"]
     fresh = run_chain(cfg, tmp_path / "fresh", workers=1)
     assert _products(out) == _products(tmp_path / "fresh") and not fresh.failed
+
+
+def test_results_of_changed_or_removed_files_are_pruned(tmp_path):
+    cfg = _archive(tmp_path, n_days=6)
+    out = tmp_path / "out"
+    run_chain(cfg, out, workers=1)
+    state = out / ".partitions"
+    assert len(list(state.glob("*.npz"))) == 6
+    raw = sorted((tmp_path / "raw").glob("day_*.csv"))
+    raw[-1].unlink()  # a day leaves the archive
+    text = raw[3].read_text().splitlines()  # after the 3 days the fit uses
+    raw[3].write_text("\n".join(text[:-1]) + "\n")  # a day changes (its last sample cut)
+    again = run_chain(cfg, out, workers=1)
+    assert [Path(f).name for f in again.partitions.done] == [raw[3].name]
+    names = sorted(p.name.rsplit("-", 1)[0] for p in state.glob("*.npz"))
+    assert names == sorted(p.stem for p in raw[:-1])  # one result per file still there
+    assert len(list(state.glob("fit-*.json"))) == 1

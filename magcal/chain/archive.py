@@ -280,6 +280,22 @@ def run_partitions(cfg: ChainConfig, files, shas, fit: FrameApply, state: Path, 
                                         time.perf_counter() - start, samples)
 
 
+def prune_partitions(state: Path, records, fit_key: str) -> int:
+    """Remove partition results and fit artefacts this run does not use; return how many.
+
+    Results of files that left the archive, changed, or were made under another
+    configuration would otherwise pile up (several MB per day of 1 s data). Only
+    ``*.npz`` results and ``fit-*.json`` artefacts are touched.
+    """
+    keep = {Path(r["result"]).name for r in records} | {f"fit-{fit_key[:24]}.json"}
+    removed = 0
+    for path in list(state.glob("*.npz")) + list(state.glob("fit-*.json")):
+        if path.name not in keep:
+            path.unlink(missing_ok=True)
+            removed += 1
+    return removed
+
+
 def gather_minutes(records) -> MinuteData:
     """The 1-min results of every partition, in time order (duplicate times dropped)."""
     parts = [read_partition_arrays(Path(r["result"]), MINUTE_ARRAYS) for r in records]

@@ -305,6 +305,7 @@ def _geostationary_stages(run: _Run, cfg: ChainConfig, files, shas, extras: dict
     run.progress(f"-> partitions ({engine.description})")
     records, failed, run.partitions = archive.run_partitions(cfg, files, shas, fit, state,
                                                              engine)
+    archive.prune_partitions(state, records, fit.key)
     pkeys = [r["key"] for r in records]
     run.stage("read", archive.read_product, cfg, files, shas, records, run.partitions,
               key=digest({"shas": shas, "partitions": pkeys, "failed": failed}))
