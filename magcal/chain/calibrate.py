@@ -111,12 +111,7 @@ def _reference(minute: MinuteData, config: ChainConfig):
 
     path = config.resolve(ref)
     frame = read_any(path, required=HPEN)
-    t = frame.index.tz_convert("UTC").tz_localize(None).as_unit("ns").asi8
-    tq = minute.times.astype("datetime64[ns]").astype(np.int64)
-    out = np.full((len(tq), 3), np.nan)
-    k = np.searchsorted(t, tq)
-    hit = (k < len(t)) & (t[np.minimum(k, len(t) - 1)] == tq)
-    out[hit] = frame[list(HPEN)].to_numpy(dtype=float)[k[hit]]
+    out = frame[list(HPEN)].reindex(_index(minute.times)).to_numpy(dtype=float)
     return out, [path]
 
 

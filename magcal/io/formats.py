@@ -320,19 +320,16 @@ def convert_files(inputs, output: str | os.PathLike, fmt: str, *,
 
     paths = [Path(p) for p in inputs]
     frames = [read_any(p, input_format) for p in paths]
+    from magcal.timeseries import validate_frame
+
     joined = pd.concat(frames, axis=0, sort=False).sort_index(kind="stable")
-    dup = joined.index.duplicated(keep="first")
     repairs = [dict(r, file=str(p)) for f, p in zip(frames, paths)
                for r in f.attrs.get("repairs", [])]
-    if dup.any():
-        same = joined[joined.index.duplicated(keep=False)].groupby(level=0).nunique(dropna=False)
-        if (same > 1).to_numpy().any():
-            t = joined.index[np.flatnonzero(dup)[0]]
-            raise InputError(f"the inputs hold different values at {t.isoformat()}",
-                             file=paths[0], column="time")
-        joined = joined[~dup]
-        repairs.append({"what": "exact duplicate samples of overlapping files dropped",
-                        "column": "time", "count": int(dup.sum())})
+    # the same duplicate policy as the chain's input: exact copies dropped and counted,
+    # different values at one time refused
+    joined, report = validate_frame(joined, on_duplicate="drop", mixed_cadence="allow",
+                                    source=paths[0])
+    repairs += [dict(r.__dict__, column="time") for r in report.repairs]
     joined.attrs["formats"] = [f.attrs.get("format", "?") for f in frames]
     joined.attrs["source"] = [str(p) for p in paths]
     prov = make_provenance("convert", {"format": fmt, "repairs": repairs}, inputs=paths)
