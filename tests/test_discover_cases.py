@@ -236,6 +236,35 @@ def test_scale():
     _check_floor(res, case)
 
 
+def test_a_scale_beyond_the_plausible_bound_is_not_named_scale():
+    # a signature proportional to the model field but 80 % of it: no working fluxgate
+    # has that scale error, so the loop must not name it (it says why in its rounds)
+    m, t_s, day, phi = _axes()
+    case = make_case({"big": m.model_nT * np.array([0.0, 0.8, 0.0])})
+    res = _run(case)
+    assert "scale" not in res.names, res.account()
+    flagged = [c for r in res.rounds for c in r["candidates"]
+               if c["name"] == "scale" and "implausible" in c]
+    assert flagged and "0.8" in flagged[0]["implausible"]
+
+
+def test_storm_field_without_dst_is_not_named_rotation_or_scale():
+    # the demo's failure: a storm-time field (Burton Dst coupled 0.7/0.1/0.05) and a
+    # local-time field, with Kp but no Dst among the covariates. A rotation and a scale
+    # fit early stand in for them and reach implausible values once the activity and
+    # diurnal terms are in: they must be dropped (and said), not delivered.
+    from magcal.simulate.month import local_time_field
+
+    m, t_s, day, phi = _axes()
+    case = make_case({"storm": np.outer(m.dst, [0.7, 0.1, 0.05]),
+                      "lt": local_time_field(m.local_time_h, (8.0, 5.0, 1.5))})
+    res = discover_gap(case.measured, case.model, case.covariates.drop(columns=["dst"]),
+                       longitude_deg=LON_DEG)
+    assert set(res.names) <= {"offset", "activity", "diurnal"}, res.account()
+    assert {"activity", "diurnal"} <= set(res.names), res.account()
+    assert not {"rotation", "scale"} & set(res.names)
+
+
 def test_rotation():
     m, t_s, day, phi = _axes()
     w = np.deg2rad([0.0, 3.0, -3.0])

@@ -101,6 +101,10 @@ def account_lines(result) -> list[str]:
             line += "; preferred over " + ", ".join(
                 f"{k} (z = {v['z_vs_winner']:.1f})" for k, v in told.items())
         lines.append(line)
+    for r in result.rounds:
+        for d in r.get("dropped", ()):
+            lines.append(f"dropped {d['name']} on {_comps(d['components'])} in round "
+                         f"{r['round']}: {d['reason']}")
     lines.append(f"final gap: RMS {result.gap_final['rms_nT']:.2f} nT; "
                  f"stopped: {result.stopped_because}")
     return lines

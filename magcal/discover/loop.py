@@ -68,6 +68,17 @@ class DiscoverySettings:
         Periodogram peaks tried as ``periodic`` candidates per round.
     vocabulary : tuple of str
         Effect names to try (subset of :data:`EFFECT_NAMES`).
+    max_scale : float
+        Largest scale-factor error (dimensionless) named as ``scale``: a sanity bound,
+        not a prior. A working fluxgate's scale errors are of order 1e-3 to 1e-2; a
+        fitted ``s`` of half the field means the model-proportional signature stands in
+        for something else (a short record, an unmodelled field that varies with the
+        model, such as a storm-time field) and is not named. The bound sits above the
+        detectability thresholds of a month of 1-min geostationary data (0.07-0.2, see
+        the README), so detectable errors are still named.
+    max_rotation_deg : float
+        Largest rotation angle named as ``rotation``, for the same reason (mounting
+        errors are of order a degree; the detectability thresholds are 5-7 deg).
     """
 
     max_effects: int = 8
@@ -81,6 +92,8 @@ class DiscoverySettings:
     spin_harmonics: int = 2
     n_periods: int = 3
     vocabulary: tuple[str, ...] = EFFECT_NAMES
+    max_scale: float = 0.5
+    max_rotation_deg: float = 20.0
 
     def as_dict(self) -> dict:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
@@ -245,6 +258,7 @@ class _Candidate:
     delta_bic: float = float("nan")
     n_eff: float = float("nan")
     trials: float = 1.0
+    implausible: str = ""
 
     @property
     def name(self) -> str:
@@ -258,7 +272,7 @@ class _Candidate:
 
     @property
     def passes(self) -> bool:
-        return self.significant
+        return self.significant and not self.implausible
 
     @property
     def log_p_corrected(self) -> float:
@@ -405,7 +419,20 @@ class _Loop:
         score = self.gram.score(base_cols + list(cols))
         merged = _merge(chosen)
         return _Candidate(merged, cols, score, self._compare(base, score, merged), comp_cmp,
-                          family, z_need, trials=trials)
+                          family, z_need, trials=trials,
+                          implausible=self._implausible(merged, score.beta[len(base_cols):]))
+
+    def _implausible(self, effect: Effect, beta) -> str:
+        """Why fitted values are outside what the effect can physically be ('' if not)."""
+        beta = np.abs(np.asarray(beta, dtype=float))
+        if isinstance(effect, Scale) and beta.size and beta.max() > self.settings.max_scale:
+            return (f"scale {beta.max():.3g} beyond the plausible {self.settings.max_scale:g} "
+                    "(the model-proportional signature stands in for something else)")
+        if isinstance(effect, Rotation) and beta.size and \
+                np.rad2deg(beta.max()) > self.settings.max_rotation_deg:
+            return (f"rotation {np.rad2deg(beta.max()):.3g} deg beyond the plausible "
+                    f"{self.settings.max_rotation_deg:g} deg")
+        return ""
 
     def _family(self, family: str, variants, base: CVScore):
         if family in ("rotation",) and family in self.covered:
@@ -510,11 +537,17 @@ class _Loop:
             rounds.append({"round": len(rounds) + 1, "candidates": [
                 {"name": c.name, "components": list(c.effect.components),
                  "n_params": len(c.columns), "trials": c.trials, "log_p_corrected": c.log_p_corrected,
+                 **({"implausible": c.implausible} if c.implausible else {}),
                  **c.effect.hyper(), **c.comparison.as_dict()}
                 for c in sorted(cands, key=lambda c: -c.comparison.gain)]})
             passing = [c for c in cands if c.passes]
             if not passing:
-                if cands:
+                named = [c for c in cands if c.significant and c.implausible]
+                if named:
+                    best = max(named, key=lambda c: c.comparison.z)
+                    stopped = (f"the only candidates beyond chance are implausible: "
+                               f"{best.name}, {best.implausible}")
+                elif cands:
                     best = max(cands, key=lambda c: c.comparison.z - c.z_needed)
                     stopped = (f"no candidate's held-out gain is beyond chance (best "
                                f"remaining: {best.name}, z = {best.comparison.z:.1f}, needs "
@@ -553,6 +586,17 @@ class _Loop:
             rms_after = float(np.sqrt(base.sse_in / n_valid))
             effects_log.append((win.effect, win.columns, rms_before, rms_after, evidence,
                                 gap_before))
+            dropped = self._drop_implausible(base)
+            if dropped:
+                # a scale or rotation whose value in the joint fit left the plausible
+                # range was standing in for the effect just added (or for one another):
+                # it is taken out and not tried again
+                keep = {id(e) for e, _ in self.added}
+                effects_log = self._restate(
+                    [entry for entry in effects_log if id(entry[0]) in keep], n_valid)
+                base = gram.score(self.base_cols)
+                residual = gram.residual(self.base_cols, base.beta)
+                rounds[-1]["dropped"] = dropped
         if stopped is None:  # pragma: no cover - the loop always sets it
             stopped = "stopped"
         fitted = []
@@ -563,6 +607,37 @@ class _Loop:
                                        rb, ra, ev, gb))
             k += q
         return fitted, residual, stopped, rounds
+
+    def _restate(self, log: list, n_valid: int) -> list:
+        """The RMS before and after each kept effect, recomputed without the dropped ones."""
+        out = []
+        cols: list[int] = []
+        rms = float(np.sqrt(self.gram.score([]).sse_in / n_valid))
+        for eff, c, _, _, ev, gb in log:
+            cols += list(c)
+            after = float(np.sqrt(self.gram.score(cols).sse_in / n_valid))
+            out.append((eff, c, rms, after, ev, gb))
+            rms = after
+        return out
+
+    def _drop_implausible(self, base: CVScore) -> list[dict]:
+        """Remove added effects whose coefficients in the joint fit ``base`` are outside
+        the plausible range; return what was removed and why."""
+        out = []
+        k = 0
+        kept = []
+        for eff, cols in self.added:
+            why = self._implausible(eff, base.beta[k:k + len(cols)])
+            k += len(cols)
+            if why:
+                out.append({"name": eff.name, "components": list(eff.components),
+                            "reason": f"in the joint fit: {why}"})
+                self.covered.setdefault(eff.name, set()).update(
+                    {"all"} if eff.coupled else set(eff.components))
+            else:
+                kept.append((eff, cols))
+        self.added = kept
+        return out
 
     def _evidence(self, win: _Candidate, cands, base: CVScore, residual, n_valid) -> dict:
         s = self.settings
