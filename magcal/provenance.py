@@ -35,7 +35,8 @@ def utc_now_iso() -> str:
 
 def make_provenance(step: str, parameters: Mapping[str, Any] | None = None,
                     inputs: Iterable[str | os.PathLike] = (),
-                    history: Iterable[Mapping[str, Any]] = ()) -> dict:
+                    history: Iterable[Mapping[str, Any]] = (), *,
+                    wall_clock: bool = True) -> dict:
     """Build a provenance record for a product.
 
     Parameters
@@ -48,24 +49,30 @@ def make_provenance(step: str, parameters: Mapping[str, Any] | None = None,
         Input files; each is listed with its SHA-256 checksum and size in bytes.
     history : iterable of mapping
         Earlier processing steps (e.g. a series' own provenance) to carry along.
+    wall_clock : bool
+        Record when the product was made (``created_utc``). False leaves out every
+        wall-clock time (also the :data:`WALL_CLOCK_KEYS` of ``history``), so the same
+        inputs give a byte-identical product on every run (the chain's products).
 
     Returns
     -------
     dict
         ``{"magcal_version", "created_utc", "step", "parameters", "inputs", "history",
-        "platform"}``.
+        "platform"}`` (without ``created_utc`` when ``wall_clock`` is False).
 
     Examples
     --------
     >>> rec = make_provenance("demo", {"window_days": 28})
     >>> rec["step"], rec["parameters"]["window_days"]
     ('demo', 28)
+    >>> "created_utc" in make_provenance("demo", wall_clock=False)
+    False
     """
     files = []
     for path in inputs:
         p = Path(path)
         files.append({"path": str(p), "sha256": file_sha256(p), "bytes": p.stat().st_size})
-    return {
+    record = {
         "magcal_version": __version__,
         "created_utc": utc_now_iso(),
         "step": step,
@@ -74,3 +81,25 @@ def make_provenance(step: str, parameters: Mapping[str, Any] | None = None,
         "history": [dict(h) for h in history],
         "platform": {"python": platform.python_version(), "machine": platform.machine()},
     }
+    return record if wall_clock else without_wall_clock(record)
+
+
+#: Keys of provenance records that hold wall-clock times (``wall_clock=False`` records,
+#: and the chain's products, carry none of them).
+WALL_CLOCK_KEYS = ("created_utc", "time_utc")
+
+
+def without_wall_clock(obj):
+    """``obj`` (nested dicts and lists) without the :data:`WALL_CLOCK_KEYS`.
+
+    Examples
+    --------
+    >>> without_wall_clock({"step": "x", "created_utc": "2026-01-01T00:00:00Z",
+    ...                     "history": [{"step": "validate", "time_utc": "..."}]})
+    {'step': 'x', 'history': [{'step': 'validate'}]}
+    """
+    if isinstance(obj, dict):
+        return {k: without_wall_clock(v) for k, v in obj.items() if k not in WALL_CLOCK_KEYS}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(without_wall_clock(v) for v in obj)
+    return obj

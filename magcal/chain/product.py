@@ -15,27 +15,7 @@ from typing import Callable
 import pandas as pd
 
 from magcal.io.jsonio import to_jsonable, write_json
-
-#: Keys of provenance records that hold wall-clock times (products carry none of them,
-#: so a rerun gives byte-identical files; the run time is in MANIFEST.json only).
-WALL_CLOCK_KEYS = ("created_utc", "time_utc")
-
-
-def without_wall_clock(obj):
-    """``obj`` (nested dicts and lists) without the :data:`WALL_CLOCK_KEYS`.
-
-    Examples
-    --------
-    >>> without_wall_clock({"step": "x", "created_utc": "2026-01-01T00:00:00Z",
-    ...                     "history": [{"step": "validate", "time_utc": "..."}]})
-    {'step': 'x', 'history': [{'step': 'validate'}]}
-    """
-    if isinstance(obj, dict):
-        return {k: without_wall_clock(v) for k, v in obj.items() if k not in WALL_CLOCK_KEYS}
-    if isinstance(obj, (list, tuple)):
-        return type(obj)(without_wall_clock(v) for v in obj)
-    return obj
-
+from magcal.provenance import WALL_CLOCK_KEYS, without_wall_clock  # noqa: F401 - re-exported
 
 @dataclass(frozen=True)
 class StageProduct:
