@@ -67,8 +67,9 @@ orders = [ { window_s = 3600 }, { window_s = 36000 } ]
 
 
 def _archive(folder: Path, n_days: int = 12, cadence_s: float = 60.0, seed: int = 5,
-             plan: str = "none") -> Path:
-    """Simulated raw daily files, Kp and truth in ``folder/raw``; the CHAIN.toml path."""
+             plan: str = "none", stages: bool = False) -> Path:
+    """Simulated raw daily files, Kp and truth in ``folder/raw``; the CHAIN.toml path.
+    ``stages`` also runs the alignment and discovery (tasks on a worker)."""
     from magcal.simulate.archive import ArchiveConfig, simulate_archive, write_archive_files
 
     res = simulate_archive(ArchiveConfig(n_days=n_days, cadence_s=cadence_s,
@@ -76,7 +77,12 @@ def _archive(folder: Path, n_days: int = 12, cadence_s: float = 60.0, seed: int 
                            rng=np.random.default_rng(seed))
     write_archive_files(res, folder / "raw")
     cfg = folder / "CHAIN.toml"
-    cfg.write_text(CHAIN.format(plan=plan))
+    text = CHAIN.format(plan=plan)
+    if stages:
+        text = text.replace("[alignment]\nenabled = false", "[alignment]\nenabled = true")
+        text = text.replace("[discover]\nenabled = false",
+                            "[discover]\nenabled = true\nmax_effects = 2")
+    cfg.write_text(text)
     return cfg
 
 
@@ -91,9 +97,9 @@ def _products(out: Path) -> dict:
 
 @pytest.fixture(scope="module")
 def archive(tmp_path_factory):
-    """One 12-day archive run with two local workers."""
+    """One 12-day archive run with two local workers, alignment and discovery included."""
     tmp = tmp_path_factory.mktemp("archive")
-    cfg = _archive(tmp)
+    cfg = _archive(tmp, stages=True)
     out = tmp / "out"
     result = run_chain(cfg, out, workers=2)
     return tmp, cfg, out, result
@@ -153,7 +159,7 @@ def test_rerun_skips_every_partition_and_leaves_identical_products(archive):
     again = run_chain(cfg, out, workers=2)
     assert again.partitions.done == () and len(again.partitions.skipped) == 12
     skipped = {r.stage for r in again.records if r.skipped}
-    assert {"frames", "ac", "read", "model"} <= skipped
+    assert {"frames", "ac", "read", "model", "alignment", "discover"} <= skipped
     assert _products(out) == before
     assert not (out / "offsets" / "previous").exists()  # OFFSETS.csv unchanged
 
@@ -212,6 +218,58 @@ def test_a_corrupt_day_fails_only_its_partition(tmp_path, capsys):
         pd.to_datetime(table["end"]) > "2019-11-07")
     named = table["reason"].str.contains("day_20191107.csv failed")
     assert touches.any() and (named == touches).all()
+
+
+def test_a_missing_day_fails_as_its_own_partition(tmp_path, capsys):
+    cfg = _archive(tmp_path, n_days=12)
+    (tmp_path / "raw" / "day_20191107.csv").unlink()  # a hole in the daily sequence
+    out = tmp_path / "out"
+    assert main(["run", str(cfg), "-o", str(out), "--quiet", "--workers", "2"]) == 3
+    captured = capsys.readouterr()
+    assert "failed 2019-11-07: no input file covers this day" in captured.out  # summary
+    assert "2019-11-07" in captured.err and "Traceback" not in captured.err
+    manifest = json.loads((out / "MANIFEST.json").read_text())
+    failed = [f for f in manifest["failed"] if f["stage"] == "partition"]
+    assert [f["partition"] for f in failed] == ["2019-11-07"]
+    assert "day_20191106.csv and day_20191108.csv" in failed[0]["reason"]
+    assert len(manifest["partitions"]["done"]) == 11
+    table = pd.read_csv(out / "offsets" / "OFFSETS.csv", keep_default_na=False)
+    touches = (pd.to_datetime(table["start"]) < "2019-11-08") & (
+        pd.to_datetime(table["end"]) > "2019-11-07")
+    named = table["reason"].str.contains("no input file for 2019-11-07")
+    assert touches.any() and (named == touches).all()
+
+
+def test_missing_days_are_the_uncovered_days_no_failed_file_explains():
+    from magcal.chain.archive import missing_days
+
+    ok = [{"file": f"d/day_{d}.csv", "days": [f"2019-11-{d}"]} for d in ("01", "02", "05",
+                                                                         "08")]
+    got = missing_days(ok, ())
+    assert [m["partition"] for m in got] == ["2019-11-03", "2019-11-04", "2019-11-06",
+                                            "2019-11-07"]
+    # a corrupt file between 05 and 08 is named for that gap instead
+    corrupt = ({"partition": "d/day_06.csv", "stage": "partition", "reason": "bad"},)
+    assert [m["day"] for m in missing_days(ok, corrupt)] == ["2019-11-03", "2019-11-04"]
+
+
+@pytest.mark.loopback
+def test_an_unreachable_scheduler_is_exit_2_with_one_line(tmp_path, capsys, monkeypatch):
+    import socket
+
+    from magcal.chain import engine
+
+    monkeypatch.setattr(engine, "CONNECT_TIMEOUT_S", 1.0)
+    with socket.socket() as sock:  # a port nobody listens on once closed
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    cfg = _archive(tmp_path, n_days=2)
+    start = time.monotonic()
+    status = main(["run", str(cfg), "-o", str(tmp_path / "out"), "--quiet",
+                   "--scheduler", f"tcp://127.0.0.1:{port}"])
+    assert status == 2 and time.monotonic() - start < 10
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"cannot reach the dask scheduler tcp://127.0.0.1:{port}" in err[0]
 
 
 def test_killed_run_resumes_to_the_uninterrupted_products(tmp_path):
@@ -318,3 +376,34 @@ def test_results_of_changed_or_removed_files_are_pruned(tmp_path):
     names = sorted(p.name.rsplit("-", 1)[0] for p in state.glob("*.npz"))
     assert names == sorted(p.stem for p in raw[:-1])  # one result per file still there
     assert len(list(state.glob("fit-*.json"))) == 1
+
+
+def test_discovery_is_given_means_of_a_long_record():
+    from dataclasses import replace
+
+    from magcal.chain.calibrate import discovery_interval, mean_record
+    from magcal.chain.prepare import MinuteData
+
+    def record(days):
+        t = (np.datetime64("2019-01-01T00:00:30", "ns")
+             + np.arange(int(days * 1440)) * np.timedelta64(60, "s"))
+        x = np.arange(len(t), dtype=float)
+        ramp = np.column_stack([x, 2 * x, -x])
+        one = np.ones(len(t))
+        return MinuteData(t, ramp, 0.5 * ramp, 0.1 * x, 128.0 * one, 0 * one, 6.6 * one)
+
+    # at most 50,000 samples: the 1-min record up to 34 days, 10-min means for 335 days
+    assert discovery_interval(record(30), 60.0) == 60.0
+    assert discovery_interval(record(335), 60.0) == 600.0
+    short = record(2)
+    assert mean_record(short, 60.0, 60.0) is short
+    hpen = short.hpen.copy()
+    hpen[10:16] = np.nan  # 4 of the 10 minutes of the second bin left: under half
+    means = mean_record(replace(short, hpen=hpen), 600.0, 60.0)
+    assert len(means.times) == 2 * 144 - 1
+    assert str(means.times[0]) == "2019-01-01T00:05:00.000000000"  # the bin's centre
+    # a linear ramp's mean is its value at the bin's centre: minute 4.5, 24.5, ...
+    np.testing.assert_allclose(means.hpen[:2, 0], [4.5, 24.5])
+    np.testing.assert_allclose(means.model[:2, 1], [4.5, 24.5])
+    np.testing.assert_allclose(means.kp[:2], [0.45, 2.45])
+    np.testing.assert_allclose(means.r_re, 6.6)

@@ -17,11 +17,16 @@ Phases of :func:`archive_stages` (driven by :func:`magcal.chain.runner.run_chain
 4. **corrected**: one task per UTC day, the interpolated offsets applied to the stored
    full-cadence Hpen; a day is rewritten only when its partitions or the offset windows
    its interpolation uses changed;
-5. **truth, alignment, discovery, report** on the 1-min data, each skipped when its
-   inputs are unchanged.
+5. **alignment and discovery** on the 1-min record, each one task on a worker
+   (:class:`MinuteTask`) started as soon as its inputs exist, so it runs while the
+   driver writes the model tables and the offsets and the other worker writes the
+   corrected days; discovery is given means of the record when it is long
+   (:func:`magcal.chain.calibrate.discovery_interval`);
+6. **truth, report** in the driver. Every stage is skipped when its inputs are unchanged.
 
 Only a few partitions' full-cadence data are in memory at once (one per worker, plus
-the partitions of one day in the corrected stage); the driver holds the 1-min record.
+the partitions of one day in the corrected stage); the driver holds the 1-min record,
+and so does a worker running the alignment or discovery.
 """
 
 from __future__ import annotations
@@ -270,6 +275,7 @@ def run_partitions(cfg: ChainConfig, files, shas, fit: FrameApply, state: Path, 
     ok = sorted((r for r in records if r["status"] == "ok"), key=lambda r: r["start"])
     failed = tuple({"partition": r["file"], "stage": "partition", "reason": r["reason"]}
                    for r in records if r["status"] != "ok")
+    failed += missing_days(ok, failed)
     done = tuple(r["file"] for r in records if r["status"] == "ok" and r["file"] not in
                  skipped)
     if not ok:
@@ -278,6 +284,30 @@ def run_partitions(cfg: ChainConfig, files, shas, fit: FrameApply, state: Path, 
     samples = sum(r["n_samples"] for r in ok if r["file"] in done)
     return ok, failed, PartitionSummary(done, tuple(skipped), failed,
                                         time.perf_counter() - start, samples)
+
+
+def missing_days(ok, failed) -> tuple:
+    """Failure entries for the UTC days inside the archive's span that no input file
+    covers: a day absent from the daily file sequence fails as its own partition.
+
+    A run of uncovered days between two readable files (``ok``, in time order) that
+    has a failed file between them in file order is that file's (it is named by
+    :func:`mark_failed_windows`); any other uncovered day is missing. Each entry has
+    ``partition`` (the day), ``stage``, ``reason`` and ``day``.
+    """
+    failed_files = sorted(f["partition"] for f in failed)
+    out = []
+    for before, after in zip(ok, ok[1:]):
+        first = pd.Timestamp(before["days"][-1]) + pd.Timedelta(days=1)
+        last = pd.Timestamp(after["days"][0]) - pd.Timedelta(days=1)
+        lo, hi = sorted((before["file"], after["file"]))
+        if first > last or any(lo < f < hi for f in failed_files):
+            continue
+        for day in pd.date_range(first, last, freq="D"):
+            out.append({"partition": f"{day:%Y-%m-%d}", "stage": "partition", "day":
+                        f"{day:%Y-%m-%d}", "reason": "no input file covers this day "
+                        f"(between {Path(before['file']).name} and {Path(after['file']).name})"})
+    return tuple(out)
 
 
 def prune_partitions(state: Path, records, fit_key: str) -> int:
@@ -335,13 +365,13 @@ def read_product(cfg: ChainConfig, files, shas, records, summary: PartitionSumma
            "sensors": sensors, "span_hours": span_h, "start": start, "end": end,
            "n_partitions": len(files), "failed": list(summary.failed),
            "model_warnings": sorted({w for r in records for w in r.get("warnings", [])})}
-    prov = make_provenance("read", {"format": cfg["input"]["format"]})
+    prov = make_provenance("read", {"format": cfg["input"]["format"]}, wall_clock=False)
     prov["inputs"] = [{"path": str(f), "sha256": s, "bytes": Path(f).stat().st_size}
                       for f, s in zip(files, shas)]
     line = (f"{len(files)} file(s), {samples} samples at {cadence:g} s over {span_h:.2f} h; "
             f"sensors {', '.join(sensors)}")
     return None, StageProduct(stage="read", summary=doc, lines=(line,),
-                              provenance=without_wall_clock(prov))
+                              provenance=prov)
 
 
 def model_product(minute: MinuteData, cfg: ChainConfig, records):
@@ -361,13 +391,13 @@ def model_product(minute: MinuteData, cfg: ChainConfig, records):
     model = {k: v for k, v in cfg["model"].items() if k != "jobs"}  # same whatever the workers
     prov = make_provenance("model", {"model": model, "position": cfg["position"],
                                      "cadence_s": cfg["offsets"]["cadence_s"]},
-                           inputs=[kp_path] if kp_path is not None else [])
+                           inputs=[kp_path] if kp_path is not None else [], wall_clock=False)
     line = (f"{len(minute.times)} samples at {cfg['offsets']['cadence_s']:g} s from "
             f"{len(records)} partition(s); {summary['model']} at the spacecraft "
             f"({n_invalid} NaN); median data - model "
             + ", ".join(f"{c} {v:+.2f}" for c, v in zip(HPEN, med)) + " nT")
     product = StageProduct(stage="model", summary=summary, lines=(line,),
-                           provenance=without_wall_clock(prov),
+                           provenance=prov,
                            tables={"MODEL.csv": pd.DataFrame(minute.model, index=index,
                                                              columns=list(HPEN)),
                                    "DATA_HPEN.csv": data})
@@ -379,27 +409,38 @@ def mark_failed_windows(table, failed, records):
 
     A failed file's times are unknown (it could not be read): it is placed in the gap
     between the neighbouring readable files in file order (from the sample after the
-    previous file's last one to the next file's first sample).
+    previous file's last one to the next file's first sample). A missing day (an entry
+    with ``day``, :func:`missing_days`) marks the windows that touch that UTC day.
     """
     if not failed:
         return table
     by_file = {r["file"]: r for r in records}
-    order = sorted(set(by_file) | {f["partition"] for f in failed})
+    order = sorted(set(by_file) | {f["partition"] for f in failed if "day" not in f})
     start = table.start.astype("datetime64[ns]").astype(np.int64)
     end = table.end.astype("datetime64[ns]").astype(np.int64)
     reasons = list(table.reason) if len(table.reason) else [""] * len(start)
     for f in failed:
-        k = order.index(f["partition"])
-        before = [by_file[o] for o in order[:k] if o in by_file]
-        after = [by_file[o]["start"] for o in order[k + 1:] if o in by_file]
-        # the gap starts where the previous file's next sample would have been
-        lo = (pd.Timestamp(before[-1]["end"]).value + int(before[-1]["cadence_s"] * 1e9)
-              if before else np.iinfo(np.int64).min)
-        hi = pd.Timestamp(after[0]).value if after else np.iinfo(np.int64).max
-        note = f"partition {Path(f['partition']).name} failed ({f['reason']})"
+        if "day" in f:  # a day no file covers (missing_days)
+            lo = pd.Timestamp(f["day"]).value
+            hi, note = lo + _DAY_NS, f"no input file for {f['day']}"
+        else:
+            lo, hi = _file_gap(order, order.index(f["partition"]), by_file)
+            note = f"partition {Path(f['partition']).name} failed ({f['reason']})"
         for w in np.flatnonzero((start < hi) & (end > lo)):
             reasons[w] = f"{reasons[w]}; {note}" if reasons[w] else note
     return replace(table, reason=tuple(reasons))
+
+
+def _file_gap(order, k, by_file):
+    """Times (ns) of the gap between the readable files around ``order[k]`` in file
+    order: from where the previous file's next sample would have been to the next
+    file's first sample (open at an end without a readable neighbour)."""
+    before = [by_file[o] for o in order[:k] if o in by_file]
+    after = [by_file[o]["start"] for o in order[k + 1:] if o in by_file]
+    lo = (pd.Timestamp(before[-1]["end"]).value + int(before[-1]["cadence_s"] * 1e9)
+          if before else np.iinfo(np.int64).min)
+    hi = pd.Timestamp(after[0]).value if after else np.iinfo(np.int64).max
+    return lo, hi
 
 
 # -------------------------------------------------------------------------- offsets
@@ -521,7 +562,7 @@ def corrected_stage(run, table, records, cfg: ChainConfig, engine):
     for r in records:
         for d in r["days"]:
             by_day.setdefault(d, []).append(r)
-    prov = without_wall_clock(make_provenance("offsets apply", {"flag_meaning": FLAG_MEANING}))
+    prov = make_provenance("offsets apply", {"flag_meaning": FLAG_MEANING}, wall_clock=False)
     tasks, keys = [], {}
     for d, parts in sorted(by_day.items()):
         keys[d] = _bracket_key(table, d, [p["key"] for p in parts])
@@ -558,6 +599,48 @@ def corrected_stage(run, table, records, cfg: ChainConfig, engine):
     warnings += tuple(f"corrected day failed: {f}" for f in failed)
     return None, StageProduct(stage="corrected", summary=summary, lines=lines,
                               provenance=prov, warnings=warnings)
+
+
+# ------------------------------------------------------- stages on the 1-min record
+@dataclass(frozen=True)
+class MinuteTask:
+    """A stage on the whole 1-min record run as one task on a worker: the partition
+    records it reads the record from (not the record itself: shipping a year of 1-min
+    samples to a worker costs more than reading them there), the configuration and,
+    for the alignment, the offset table."""
+
+    records: tuple
+    config: ChainConfig
+    table: object = None
+
+
+def timed(job) -> tuple:
+    """``func(task)`` of ``job = (func, task)`` with the seconds it took on the worker:
+    ``(value, product, seconds)`` for :meth:`magcal.chain.runner._Run.stage`."""
+    import time
+
+    func, task = job
+    start = time.perf_counter()
+    value, product = func(task)
+    return value, product, time.perf_counter() - start
+
+
+def discovery_on_minutes(task: MinuteTask):
+    """Model-gap discovery (:func:`magcal.chain.calibrate.run_discovery`) on the 1-min
+    record of ``task.records``."""
+    from magcal.chain.calibrate import run_discovery
+
+    return run_discovery(gather_minutes(task.records), task.config)
+
+
+def alignment_on_minutes(task: MinuteTask):
+    """The alignment (:func:`magcal.chain.calibrate.run_alignment`) on the 1-min record of
+    ``task.records`` corrected with ``task.table``."""
+    from magcal.chain.calibrate import run_alignment
+
+    minute = gather_minutes(task.records)
+    corrected = corrected_for_alignment(minute, task.table, task.records, task.config)
+    return run_alignment(corrected, minute, task.config)
 
 
 def corrected_for_alignment(minute: MinuteData, table, records, cfg: ChainConfig):

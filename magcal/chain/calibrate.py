@@ -32,8 +32,8 @@ def run_offsets(minute: MinuteData, config: ChainConfig):
     est = OffsetEstimator(kp_max=cfg["kp_max"], window_days=cfg["window_days"],
                           step_days=cfg["step_days"], min_used=cfg["min_used"],
                           method=cfg["method"])
-    prov = without_wall_clock(make_provenance("offsets", {"offsets": cfg,
-                                                          "model": config["model"]["name"]}))
+    prov = make_provenance("offsets", {"offsets": cfg, "model": config["model"]["name"]},
+                           wall_clock=False)
     est.fit(minute.times, minute.hpen, minute.model, minute.kp, lon_deg=minute.lon_deg,
             provenance=prov)
     table = est.table_
@@ -68,39 +68,6 @@ class CorrectedData:
     flag: np.ndarray
     full_times: np.ndarray
     full_hpen: np.ndarray
-
-
-def run_corrected(cleaned: CleanedData, minute: MinuteData, table, config: ChainConfig):
-    """Subtract the interpolated offsets; one ``corrected/CORRECTED_<day>.csv`` per UTC day.
-
-    When no window is valid, the data are written uncorrected with ``offset_flag = 3``
-    (no valid offset) so the files still cover the input's times.
-    """
-    from magcal.offsets import FLAG_MEANING, apply_offsets
-
-    t_all = naive_times(cleaned.times)
-    valid = np.isfinite(table.offset_nT).all(axis=1).any()
-    if valid:
-        corr, _, flag = apply_offsets(t_all, cleaned.hpen, table)
-        corr_min, _, flag_min = apply_offsets(minute.times, minute.hpen, table)
-    else:
-        corr, flag = cleaned.hpen.copy(), np.full(len(t_all), 3, dtype=np.int8)
-        corr_min, flag_min = minute.hpen.copy(), np.full(len(minute.times), 3, dtype=np.int8)
-    frame = pd.DataFrame(corr, index=cleaned.times, columns=list(HPEN))
-    frame["offset_flag"] = np.asarray(flag, dtype=int)
-    days = frame.index.floor("D")
-    tables = {f"CORRECTED_{day:%Y%m%d}.csv": part for day, part in frame.groupby(days)}
-    counts = np.bincount(np.asarray(flag, dtype=int), minlength=4)
-    summary = {"n_samples": int(len(frame)), "n_files": len(tables),
-               "flags": {FLAG_MEANING[k]: int(counts[k]) for k in range(4)}}
-    lines = (f"{len(frame)} samples in {len(tables)} daily files; interpolated {counts[0]}, "
-             f"held {counts[1] + counts[2]}, no offset {counts[3]}",)
-    warnings = ("no valid offset: corrected files hold the uncorrected data (offset_flag 3)",
-                ) if not valid else ()
-    prov = make_provenance("offsets apply", {"flag_meaning": FLAG_MEANING})
-    product = StageProduct(stage="corrected", summary=summary, lines=lines, tables=tables,
-                           provenance=prov, warnings=warnings)
-    return CorrectedData(minute.times, corr_min, np.asarray(flag_min), t_all, corr), product
 
 
 def _reference(minute: MinuteData, config: ChainConfig):
@@ -175,12 +142,86 @@ def run_alignment(corrected: CorrectedData, minute: MinuteData, config: ChainCon
                              provenance=doc.get("provenance", {}), warnings=tuple(warnings))
 
 
+#: Most samples discovery is given. Its memory and time grow with the samples (about
+#: 6.5 kB and 0.23 ms per 1-min sample: a year of 1-min data took 3 GB in the driver),
+#: so a longer record is averaged to the shortest of :data:`DISCOVERY_INTERVALS_S`
+#: that keeps it under this many samples. The effects it names (offsets, drifts,
+#: steps, local-time harmonics, rotations, activity) live on hours to months.
+DISCOVERY_MAX_SAMPLES = 50_000
+#: Averaging intervals discovery may use (s), shortest first; longer records use
+#: whole multiples of a day's divisors in hours.
+DISCOVERY_INTERVALS_S = (60, 120, 300, 600, 900, 1800, 3600, 7200, 10800, 21600, 43200, 86400)
+
+
+def discovery_interval(minute: MinuteData, cadence_s: float) -> float:
+    """Averaging interval (s) that keeps :data:`DISCOVERY_MAX_SAMPLES` or fewer samples.
+
+    The record's span (first to last sample plus one cadence) divided by the interval
+    bounds the number of means; the interval is never shorter than ``cadence_s`` (the
+    record is then used as it is).
+
+    Examples
+    --------
+    >>> t = np.datetime64("2019-01-01", "ns") + np.arange(335 * 1440) * np.timedelta64(60, "s")
+    >>> m = MinuteData(t, *(np.zeros((len(t), 3)),) * 2, *(np.zeros(len(t)),) * 4)
+    >>> discovery_interval(m, 60.0), discovery_interval(replace(m, times=t[:91 * 1440]), 60.0)
+    (600.0, 300.0)
+    """
+    t = np.asarray(minute.times, dtype="datetime64[ns]").astype(np.int64)
+    span_s = (t[-1] - t[0]) / 1e9 + cadence_s if len(t) else 0.0
+    for interval in DISCOVERY_INTERVALS_S:
+        if interval >= cadence_s and span_s / interval <= DISCOVERY_MAX_SAMPLES:
+            return float(max(interval, cadence_s))
+    return float(max(DISCOVERY_INTERVALS_S[-1], cadence_s))
+
+
+def mean_record(minute: MinuteData, interval_s: float, cadence_s: float) -> MinuteData:
+    """Means of ``minute`` over UTC-aligned bins of ``interval_s`` (labelled at their
+    centres), from the samples with both data and model; a bin needs half of its
+    samples. ``interval_s <= cadence_s`` returns ``minute`` itself.
+
+    Kp and the position are averaged over the same samples (NaN stays NaN only where a
+    bin has no finite value).
+    """
+    if interval_s <= cadence_s:
+        return minute
+    t = np.asarray(minute.times, dtype="datetime64[ns]").astype(np.int64)
+    step = int(round(interval_s * 1e9))
+    ok = np.isfinite(minute.hpen).all(axis=1) & np.isfinite(minute.model).all(axis=1)
+    bins, inverse = np.unique(t[ok] // step, return_inverse=True)
+    keep = np.bincount(inverse, minlength=len(bins)) >= 0.5 * interval_s / cadence_s
+
+    def means(values):
+        v = np.asarray(values, dtype=float)[ok].reshape(int(ok.sum()), -1)
+        finite = np.isfinite(v)
+        sums = np.column_stack([np.bincount(inverse, np.where(finite[:, k], v[:, k], 0.0),
+                                            len(bins)) for k in range(v.shape[1])])
+        counts = np.column_stack([np.bincount(inverse, finite[:, k], len(bins))
+                                  for k in range(v.shape[1])])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)[keep]
+        return out if np.ndim(values) == 2 else out[:, 0]
+
+    times = (bins[keep] * step + step // 2).astype("datetime64[ns]")
+    return MinuteData(times, means(minute.hpen), means(minute.model), means(minute.kp),
+                      means(minute.lon_deg), means(minute.lat_deg), means(minute.r_re))
+
+
 def run_discovery(minute: MinuteData, config: ChainConfig):
-    """Model-gap discovery on the cleaned 1-min data against the model (CONTRACTS §5)."""
+    """Model-gap discovery on the cleaned data against the model (CONTRACTS §5).
+
+    It runs on the 1-min record when that has at most :data:`DISCOVERY_MAX_SAMPLES`
+    samples, else on its means over the interval :func:`discovery_interval` picks
+    (10 min for a year); ``REPORT.json``'s provenance names the interval and the number
+    of samples used.
+    """
     from magcal.discover.loop import discover_gap
     from magcal.io.formats import read_any
 
     cfg = config["discover"]
+    cadence = float(config["offsets"]["cadence_s"])
+    interval = discovery_interval(minute, cadence)
+    minute = mean_record(minute, interval, cadence)
     index = _index(minute.times)
     measured = pd.DataFrame(minute.hpen, index=index, columns=list(HPEN))
     model = pd.DataFrame(minute.model, index=index, columns=list(HPEN))
@@ -192,17 +233,24 @@ def run_discovery(minute: MinuteData, config: ChainConfig):
     covariates = pd.DataFrame({"kp": minute.kp, "lon_deg": minute.lon_deg}, index=index)
     inputs = []
     if cov_path is not None:
-        extra = read_any(cov_path)
-        covariates = covariates.join(extra.reindex(index, method="nearest",
-                                                   tolerance=pd.Timedelta("90s")),
-                                     rsuffix="_file")
+        extra = read_any(cov_path).reindex(index, method="nearest", tolerance=pd.Timedelta(
+            seconds=max(90.0, interval / 2)))
+        covariates = covariates.join(extra.rename(columns={
+            c: f"{c}_file" for c in extra.columns if c in covariates.columns}))
         inputs.append(cov_path)
     result = discover_gap(measured[ok], model[ok], covariates=covariates[ok],
                           longitude_deg=float(np.nanmedian(minute.lon_deg)),
                           max_effects=cfg["max_effects"])
-    prov = without_wall_clock(make_provenance("discover", {"discover": cfg}, inputs=inputs))
+    sampling = {"interval_s": interval, "n_samples": int(ok.sum()),
+                "max_samples": DISCOVERY_MAX_SAMPLES,
+                "rule": f"means over the shortest interval of {list(DISCOVERY_INTERVALS_S)} s "
+                        f"(not below the {cadence:g} s cadence) that gives at most "
+                        f"{DISCOVERY_MAX_SAMPLES} samples"}
+    prov = make_provenance("discover", {"discover": cfg, "sampling": sampling},
+                           inputs=inputs, wall_clock=False)
     doc = result.with_provenance(prov).to_json()
-    lines = [f"gap rms {doc['gap_initial']['rms_nT']:.2f} -> {doc['gap_final']['rms_nT']:.2f} "
+    lines = [f"on {int(ok.sum())} samples at {interval:g} s: gap rms "
+             f"{doc['gap_initial']['rms_nT']:.2f} -> {doc['gap_final']['rms_nT']:.2f} "
              f"nT; stopped because {doc['stopped_because']}"]
     lines += [f"+ {e['name']} ({', '.join(e['components'])}): {e['rms_before_nT']:.2f} -> "
               f"{e['rms_after_nT']:.2f} nT" for e in doc["effects"]]

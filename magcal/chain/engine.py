@@ -1,21 +1,29 @@
 """Where the partition tasks of a chain run execute: Dask's local or distributed scheduler.
 
 :class:`Engine` maps a picklable function over a list of picklable items and returns the
-results in the items' order, with a progress bar per stage (tqdm, stderr). The local
-engine runs Dask's multiprocessing scheduler on one pool of ``workers`` spawned
-processes kept for the whole run (one worker: Dask's synchronous scheduler, no
-processes at all); the distributed engine submits to a ``dask.distributed`` scheduler
-(an address, or a ``Client``). The task functions never raise (they return failure
-records), so a failed partition cannot cancel the others.
+results in the items' order, with a progress bar per stage (tqdm, stderr);
+:meth:`Engine.submit` starts one task and returns at once, so a long stage (discovery,
+alignment) runs on a worker while the driver goes on. The local engine runs Dask's
+multiprocessing scheduler on one pool of ``workers`` spawned processes kept for the
+whole run, also for one worker: every task then runs in a process whose BLAS uses one
+thread, so a product is byte-identical whatever the number of workers (BLAS sums on
+two threads differ from one thread's in the last bits). The distributed engine submits
+to a ``dask.distributed`` scheduler (an address, or a ``Client``); its process workers
+run BLAS on one thread as well. The partition task functions never raise (they return
+failure records), so a failed partition cannot cancel the others.
 """
 
 from __future__ import annotations
 
 import os
 import sys
+import threading
 from collections.abc import Callable, Sequence
 
 from magcal.errors import InputError
+
+#: Seconds to wait for a ``--scheduler`` address to answer before giving up (exit 2).
+CONNECT_TIMEOUT_S = 10.0
 
 #: Thread-count variables of the BLAS libraries, set to 1 for local pool workers.
 _BLAS_THREADS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
@@ -82,11 +90,24 @@ class Engine:
                 bar.update(1)
 
         tasks = [dask.delayed(func, pure=False)(item) for item in items]
-        with _Bar():
-            if self.workers == 1 or len(items) == 1:
-                return list(dask.compute(*tasks, scheduler="synchronous"))
-            return list(dask.compute(*tasks, scheduler="processes", pool=self._get_pool(),
-                                     num_workers=self.workers))
+        # the callback is given to this computation only (not made active for every
+        # computation): a task started by submit() runs at the same time
+        return list(dask.compute(*tasks, scheduler="processes", pool=self._get_pool(),
+                                 num_workers=self.workers, callbacks=[_Bar()._callback]))
+
+    def submit(self, func: Callable, item) -> Pending:
+        """Start ``func(item)`` on a worker and return at once; ``.result()`` waits for
+        its value (or raises its exception). Tasks submitted before a :meth:`map` are
+        started before that map's tasks (the pool serves tasks first come, first
+        served)."""
+        if self._client is not None:
+            return Pending(self._client.submit(func, item, pure=False).result)
+        import dask
+
+        task = dask.delayed(func, pure=False)(item)
+        pool = self._get_pool()
+        return Pending.in_thread(lambda: dask.compute(task, scheduler="processes", pool=pool,
+                                                      num_workers=1)[0])
 
     def _get_pool(self):
         # One pool for the whole run, handed to Dask's multiprocessing scheduler (which
@@ -136,6 +157,40 @@ class Engine:
         self.close()
 
 
+class Pending:
+    """A started task: :meth:`result` waits for its value or raises its exception."""
+
+    def __init__(self, wait: Callable):
+        self._wait = wait
+
+    @classmethod
+    def in_thread(cls, compute: Callable) -> Pending:
+        """Run ``compute()`` (a Dask computation that waits on the pool) in a driver
+        thread, so the driver goes on while a worker runs the task."""
+        box: dict = {}
+
+        def target():
+            try:
+                box["value"] = compute()
+            except BaseException as exc:  # noqa: BLE001 - handed to result()
+                box["error"] = exc
+
+        thread = threading.Thread(target=target, daemon=True)
+        thread.start()
+
+        def wait():
+            thread.join()
+            if "error" in box:
+                raise box["error"]
+            return box["value"]
+
+        return cls(wait)
+
+    def result(self):
+        """The task's value (waits for it)."""
+        return self._wait()
+
+
 def _connect(scheduler):
     """A client for ``scheduler`` (address or Client); InputError when unreachable."""
     try:
@@ -148,6 +203,7 @@ def _connect(scheduler):
         raise InputError(f"--scheduler must be an address such as tcp://host:8786, got "
                          f"{scheduler!r}")
     try:
-        return Client(scheduler, timeout="10s", set_as_default=False), True
+        return Client(scheduler, timeout=f"{CONNECT_TIMEOUT_S}s", set_as_default=False), True
     except (OSError, TimeoutError, ValueError) as exc:
-        raise InputError(f"cannot reach the dask scheduler {scheduler}: {exc}") from None
+        reason = " ".join(str(exc).split())  # one line, whatever distributed says
+        raise InputError(f"cannot reach the dask scheduler {scheduler}: {reason}") from None

@@ -126,15 +126,27 @@ class _Run:
 
         return self.outdir / STATE_DIR / f"stage-{name}.json"
 
-    def _reuse(self, name: str, key: str) -> bool:
-        """Record a stage as skipped when its marker has ``key`` and its files are intact."""
+    def _finished(self, name: str, key: str) -> dict | None:
+        """The marker of a stage whose last run had ``key`` and left its files intact."""
         marker = self._marker(name)
         if not marker.is_file():
-            return False
+            return None
         done = json.loads(marker.read_text())
         if done.get("key") != key or not all(
                 (self.outdir / e["path"]).is_file()
                 and file_sha256(self.outdir / e["path"]) == e["sha256"] for e in done["entries"]):
+            return None
+        return done
+
+    def unchanged(self, name: str, key: str) -> bool:
+        """Whether :meth:`stage` with ``key`` will skip ``name`` (so a caller need not
+        start its work)."""
+        return self._finished(name, key) is not None
+
+    def _reuse(self, name: str, key: str) -> bool:
+        """Record a stage as skipped when its marker has ``key`` and its files are intact."""
+        done = self._finished(name, key)
+        if done is None:
             return False
         self.entries += done["entries"]
         product = StageProduct(stage=name, lines=tuple(done["lines"]),
@@ -149,24 +161,29 @@ class _Run:
               key: str | None = None):
         """Run one stage; write its product; on failure record it (and re-raise if the
         later stages need its output). With ``key``, a stage whose last run had the same
-        key and left its files intact is not run again (its value is then None)."""
+        key and left its files intact is not run again (its value is then None).
+
+        ``func`` returns ``(value, product)``, or ``(value, product, seconds)`` when
+        the work ran on a worker (:func:`magcal.chain.archive.timed`): the record then
+        holds the worker's seconds, not the driver's wait.
+        """
         if key is not None and self._reuse(name, key):
             return None
         self.progress(f"-> {name}")
         start = time.perf_counter()
         first = len(self.entries)
         try:
-            value, product = func(*args)
+            value, product, *worker = func(*args)
         except InputError as exc:
             self.fail(name, exc, time.perf_counter() - start)
             if required:
                 raise
             return None
+        seconds = worker[0] if worker else time.perf_counter() - start
         paths = product.write(self.outdir / product.stage)
         for p in paths:
             self.add_entry(p, product.stage, [i["sha256"] for i in self.inputs])
-        self.records.append(StageRecord(name, "ok", time.perf_counter() - start, product,
-                                        tuple(paths)))
+        self.records.append(StageRecord(name, "ok", seconds, product, tuple(paths)))
         if key is not None:
             with atomic_path(self._marker(name)) as tmp:
                 tmp.write_text(json.dumps({"key": key, "entries": self.entries[first:],
@@ -287,7 +304,7 @@ def remove_partial_files(outdir: Path) -> int:
 def _geostationary_stages(run: _Run, cfg: ChainConfig, files, shas, extras: dict,
                           engine) -> None:
     """Fit phase, partitions on Dask, then the stages on the 1-min record."""
-    from magcal.chain import archive, calibrate
+    from magcal.chain import archive
 
     state = run.outdir / STATE_DIR
     state.mkdir(exist_ok=True)
@@ -307,6 +324,16 @@ def _geostationary_stages(run: _Run, cfg: ChainConfig, files, shas, extras: dict
                                                              engine)
     archive.prune_partitions(state, records, fit.key)
     pkeys = [r["key"] for r in records]
+    # discovery needs only the 1-min record: it starts on a worker now and runs while
+    # the driver writes the model tables, the offsets and the corrected days
+    discover_key = pending_discover = None
+    if cfg["discover"]["enabled"]:
+        cov = cfg.resolve(cfg["discover"]["covariates"])
+        discover_key = digest({"partitions": pkeys, "cfg": cfg["discover"],
+                               "cov": file_sha256(cov) if cov and cov.is_file() else None})
+        if not run.unchanged("discover", discover_key):
+            pending_discover = engine.submit(archive.timed, (
+                archive.discovery_on_minutes, archive.MinuteTask(tuple(records), cfg)))
     run.stage("read", archive.read_product, cfg, files, shas, records, run.partitions,
               key=digest({"shas": shas, "partitions": pkeys, "failed": failed}))
     minute = archive.gather_minutes(records)
@@ -316,8 +343,19 @@ def _geostationary_stages(run: _Run, cfg: ChainConfig, files, shas, extras: dict
                   file_sha256(p) if p is not None and p.is_file() else None
                   for p in index_files]}))
     table = run.stage("offsets", archive.offsets_stage, minute, cfg, failed, records)
-    run.stage("corrected", archive.corrected_stage, run, table, records, cfg, engine)
     offsets_sha = file_sha256(run.outdir / "offsets" / "OFFSETS.csv")
+    align_key = pending_align = None
+    if cfg["alignment"]["enabled"]:  # on a worker too, while the corrected days are written
+        ref = cfg["alignment"]["reference"]
+        ref_path = cfg.resolve(ref) if ref != "model" else None
+        align_key = digest({"partitions": pkeys, "offsets": offsets_sha,
+                            "cfg": cfg["alignment"], "cadence_s": cfg["offsets"]["cadence_s"],
+                            "ref": file_sha256(ref_path) if ref_path and ref_path.is_file()
+                            else None})
+        if not run.unchanged("alignment", align_key):
+            pending_align = engine.submit(archive.timed, (
+                archive.alignment_on_minutes, archive.MinuteTask(tuple(records), cfg, table)))
+    run.stage("corrected", archive.corrected_stage, run, table, records, cfg, engine)
     extras.update(minute=minute, table=table)
     if cfg["truth"]["file"]:
         from magcal.chain.truth import run_truth
@@ -330,22 +368,13 @@ def _geostationary_stages(run: _Run, cfg: ChainConfig, files, shas, extras: dict
             return run_truth(full, table, full.raw_hpen, cfg)
 
         extras["truth"] = run.stage("truth", truth, required=False, key=key)
-    if cfg["alignment"]["enabled"]:
-        ref = cfg["alignment"]["reference"]
-        ref_path = cfg.resolve(ref) if ref != "model" else None
-        key = digest({"partitions": pkeys, "offsets": offsets_sha, "cfg": cfg["alignment"],
-                      "cadence_s": cfg["offsets"]["cadence_s"],
-                      "ref": file_sha256(ref_path) if ref_path and ref_path.is_file() else
-                      None})
-        extras["align"] = run.stage("alignment", lambda: calibrate.run_alignment(
-            archive.corrected_for_alignment(minute, table, records, cfg), minute, cfg),
-            required=False, key=key)
-    if cfg["discover"]["enabled"]:
-        cov = cfg.resolve(cfg["discover"]["covariates"])
-        key = digest({"partitions": pkeys, "cfg": cfg["discover"],
-                      "cov": file_sha256(cov) if cov and cov.is_file() else None})
-        extras["discover"] = run.stage("discover", calibrate.run_discovery, minute, cfg,
-                                       required=False, key=key)
+    if align_key is not None:
+        extras["align"] = run.stage("alignment", pending_align.result if pending_align
+                                    else None, required=False, key=align_key)
+    if discover_key is not None:
+        extras["discover"] = run.stage("discover", pending_discover.result if pending_discover
+                                       else None, required=False, key=discover_key)
+
 
 def _simulate_input(cfg: ChainConfig, out: Path, progress) -> dict:
     """Write the simulated raw archive of ``[input] simulate`` into ``OUTDIR/raw``.
