@@ -84,6 +84,7 @@ class ArchiveResult:
     offset_nT: np.ndarray
     clean_outboard: np.ndarray
     kp_3h: pd.Series
+    dst_nT: np.ndarray
     config: ArchiveConfig
 
 
@@ -132,17 +133,21 @@ def simulate_archive(config: ArchiveConfig | None = None, *,
                + cfg.inboard_gain * disturbance
                + noise_rng.standard_normal(clean.shape) * cfg.inboard_noise_nT)
     return ArchiveResult(times=t, outboard=outboard, inboard=inboard, offset_nT=offset,
-                         clean_outboard=clean, kp_3h=month.kp_3h, config=cfg)
+                         clean_outboard=clean, kp_3h=month.kp_3h, dst_nT=month.dst,
+                         config=cfg)
 
 
 def write_archive_files(result: ArchiveResult, folder: str | Path) -> dict:
     """Write one ``raw/day_YYYYMMDD.csv`` per UTC day (``time,fgmo_x..,fgmi_x..``), the
-    Kp file ``raw/kp.csv`` and the truth ``raw/truth.csv`` (offsets and clean outboard).
+    Kp file ``raw/kp.csv``, the hourly Dst file ``raw/dst.csv`` (``time,dst`` in nT,
+    hourly means stamped at the start of the hour, as the Kyoto WDC publishes it: the
+    storm-time field in the simulated ambient follows it) and the truth
+    ``raw/truth.csv`` (offsets and clean outboard).
 
     Returns
     -------
     dict
-        ``{"files": [...], "kp": path, "truth": path}``.
+        ``{"files": [...], "kp": path, "dst": path, "truth": path}``.
     """
     from magcal.indices.kp import write_kp_csv
     from magcal.io.csv import write_csv_frame
@@ -160,5 +165,8 @@ def write_archive_files(result: ArchiveResult, folder: str | Path) -> dict:
                          + [f"clean_{c}" for c in ("Hp", "He", "Hn")])
     truth_path = write_csv_frame(out / "truth.csv", truth.iloc[::6], float_format="%.4f")
     kp_path = write_kp_csv(out / "kp.csv", result.kp_3h)
-    return {"files": [str(f) for f in files], "kp": str(kp_path), "truth": str(truth_path),
+    dst = pd.Series(result.dst_nT, index=index, name="dst").resample("1h").mean()
+    dst_path = write_csv_frame(out / "dst.csv", dst.to_frame(), float_format="%.2f")
+    return {"files": [str(f) for f in files], "kp": str(kp_path), "dst": str(dst_path),
+            "truth": str(truth_path),
             "config": asdict(result.config)}
