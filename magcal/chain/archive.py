@@ -134,34 +134,53 @@ def index_digest(tables: dict, start: str, end: str, margin_h: float = 3.0) -> s
     return digest(parts)[:24]
 
 
-def _span(path: Path, sha: str, cfg: ChainConfig, spans: dict):
-    """First and last time of a file (cached by checksum)."""
-    if sha not in spans:
-        from magcal.io.formats import read_any
+def file_span(job) -> dict:
+    """First and last time of one file, ``job = (path, format)``: ``{"span": [first,
+    last]}`` or ``{"error": reason}`` (a task: it never raises)."""
+    from magcal.io.formats import read_any
 
-        frame = read_any(path, cfg["input"]["format"])
+    path, fmt = job
+    try:
+        frame = read_any(path, fmt)
         if len(frame.index) == 0:
             raise InputError("no samples", file=path)
-        spans[sha] = [str(frame.index[0]), str(frame.index[-1])]
-    return pd.Timestamp(spans[sha][0])
+    except InputError as exc:
+        return {"error": str(exc)}
+    return {"span": [str(frame.index[0]), str(frame.index[-1])]}
 
 
-def _fit_files(cfg: ChainConfig, files, shas, state: Path) -> list[Path]:
-    """The readable files starting within ``fit_days`` of the first readable one."""
+def _fit_files(cfg: ChainConfig, files, shas, state: Path, engine) -> list[Path]:
+    """The readable files starting within ``fit_days`` of the first readable one.
+
+    The files' spans are read on the workers, as many files at a time as there are
+    workers, and cached in ``state/spans.json`` by checksum.
+    """
     spans_path = state / "spans.json"
     spans = json.loads(spans_path.read_text()) if spans_path.is_file() else {}
     chosen, first, errors = [], None, []
     limit = pd.Timedelta(days=float(cfg["picog"]["fit_days"]))
-    for path, sha in zip(files, shas):
-        try:
-            start = _span(path, sha, cfg, spans)
-        except InputError as exc:
-            errors.append(exc)
-            continue
-        first = start if first is None else first
-        if start - first >= limit:
+    pairs = list(zip(files, shas))
+    done = False
+    for k in range(0, len(pairs), engine.workers):
+        batch = pairs[k:k + engine.workers]
+        todo = [(path, sha) for path, sha in batch if sha not in spans]
+        jobs = [(str(path), cfg["input"]["format"]) for path, _ in todo]
+        for (_, sha), res in zip(todo, engine.map(file_span, jobs, "file spans")):
+            if "error" in res:
+                errors.append(InputError(res["error"]))
+            else:
+                spans[sha] = res["span"]
+        for path, sha in batch:
+            if sha not in spans:
+                continue
+            start = pd.Timestamp(spans[sha][0])
+            first = start if first is None else first
+            if start - first >= limit:
+                done = True
+                break
+            chosen.append(path)
+        if done:
             break
-        chosen.append(path)
     with atomic_path(spans_path) as tmp:
         tmp.write_text(json.dumps(spans, sort_keys=True))
     if not chosen:
@@ -169,7 +188,7 @@ def _fit_files(cfg: ChainConfig, files, shas, state: Path) -> list[Path]:
     return chosen
 
 
-def fit_phase(cfg: ChainConfig, files, shas, state: Path):
+def fit_phase(cfg: ChainConfig, files, shas, state: Path, engine):
     """Frames and PiCoG on the first days: ``(FrameApply, frames product, ac product)``.
 
     Cached in ``state`` under the SHA-256 of the files used and of the configuration
@@ -178,7 +197,7 @@ def fit_phase(cfg: ChainConfig, files, shas, state: Path):
     from magcal.chain import prepare
     from magcal.provenance import file_sha256
 
-    fit_files = _fit_files(cfg, files, shas, state)
+    fit_files = _fit_files(cfg, files, shas, state, engine)
     by_path = dict(zip(files, shas))
     plan = cfg["picog"]["plan"]
     plan_path = cfg.resolve(plan) if plan not in ("auto", "none") else None
@@ -612,6 +631,7 @@ class MinuteTask:
     records: tuple
     config: ChainConfig
     table: object = None
+    folder: str = ""
 
 
 def timed(job) -> tuple:
@@ -623,6 +643,14 @@ def timed(job) -> tuple:
     start = time.perf_counter()
     value, product = func(task)
     return value, product, time.perf_counter() - start
+
+
+def model_on_minutes(task: MinuteTask):
+    """The model stage (:func:`model_product`) with its tables written into
+    ``task.folder`` on the worker (formatting a year of 1-min CSV takes seconds)."""
+    minute = gather_minutes(task.records)
+    _, product = model_product(minute, task.config, task.records)
+    return None, product.with_tables_written(task.folder)
 
 
 def discovery_on_minutes(task: MinuteTask):

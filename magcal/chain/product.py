@@ -8,7 +8,7 @@ stage's provenance (parameters and input checksums).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
@@ -76,6 +76,37 @@ class StageProduct:
             written = writer(out / name)
             paths.append(Path(written) if written is not None else out / name)
         return paths
+
+
+    def with_tables_written(self, folder: str | Path) -> StageProduct:
+        """Write the tables into ``folder`` now; return the product with writers that
+        only name the written files in their place.
+
+        A worker writes a stage's large tables (a year of 1-min samples is seconds of
+        CSV formatting) while the driver goes on; :meth:`write` in the driver then lists
+        the same files in the same order.
+        """
+        from magcal.io.csv import write_csv_frame
+
+        out = Path(folder)
+        out.mkdir(parents=True, exist_ok=True)
+        prov = without_wall_clock(self.provenance)
+        done = {name: Written(_write_table(write_csv_frame, out / name, table, prov))
+                for name, table in self.tables.items()}
+        return replace(self, tables={}, writers={**done, **self.writers})
+
+
+@dataclass(frozen=True)
+class Written:
+    """A writer of a file already written (:meth:`StageProduct.with_tables_written`):
+    returns its path."""
+
+    path: Path
+
+    def __call__(self, path) -> Path:
+        if Path(path) != self.path:
+            raise ValueError(f"{self.path} was written, not {path}")
+        return self.path
 
 
 def _write_table(writer: Callable, path: Path, table: pd.DataFrame, provenance: dict) -> Path:

@@ -179,10 +179,10 @@ class _Run:
             if required:
                 raise
             return None
-        seconds = worker[0] if worker else time.perf_counter() - start
         paths = product.write(self.outdir / product.stage)
         for p in paths:
             self.add_entry(p, product.stage, [i["sha256"] for i in self.inputs])
+        seconds = worker[0] if worker else time.perf_counter() - start
         self.records.append(StageRecord(name, "ok", seconds, product, tuple(paths)))
         if key is not None:
             with atomic_path(self._marker(name)) as tmp:
@@ -312,7 +312,7 @@ def _geostationary_stages(run: _Run, cfg: ChainConfig, files, shas, extras: dict
                  f"{cfg['picog']['fit_days']:g} days")
     start = time.perf_counter()
     try:
-        fit, frames, ac = archive.fit_phase(cfg, files, shas, state)
+        fit, frames, ac = archive.fit_phase(cfg, files, shas, state, engine)
     except InputError as exc:
         run.fail("frames", exc, time.perf_counter() - start)
         raise
@@ -334,14 +334,17 @@ def _geostationary_stages(run: _Run, cfg: ChainConfig, files, shas, extras: dict
         if not run.unchanged("discover", discover_key):
             pending_discover = engine.submit(archive.timed, (
                 archive.discovery_on_minutes, archive.MinuteTask(tuple(records), cfg)))
+    # the model tables (two CSV files of every 1-min sample) are written by a worker
+    # too; the stage is recorded after the corrected days, when they are surely done
+    index_files = [cfg.resolve(cfg["kp"]["file"]), cfg.resolve(cfg["model"]["drivers"])]
+    model_key = digest({"partitions": pkeys, "index_files": [  # named in its provenance
+        file_sha256(p) if p is not None and p.is_file() else None for p in index_files]})
+    pending_model = None if run.unchanged("model", model_key) else engine.submit(
+        archive.timed, (archive.model_on_minutes, archive.MinuteTask(
+            tuple(records), cfg, folder=str(run.outdir / "model"))))
     run.stage("read", archive.read_product, cfg, files, shas, records, run.partitions,
               key=digest({"shas": shas, "partitions": pkeys, "failed": failed}))
     minute = archive.gather_minutes(records)
-    index_files = [cfg.resolve(cfg["kp"]["file"]), cfg.resolve(cfg["model"]["drivers"])]
-    run.stage("model", archive.model_product, minute, cfg, records,
-              key=digest({"partitions": pkeys, "index_files": [  # named in its provenance
-                  file_sha256(p) if p is not None and p.is_file() else None
-                  for p in index_files]}))
     table = run.stage("offsets", archive.offsets_stage, minute, cfg, failed, records)
     offsets_sha = file_sha256(run.outdir / "offsets" / "OFFSETS.csv")
     align_key = pending_align = None
@@ -356,6 +359,7 @@ def _geostationary_stages(run: _Run, cfg: ChainConfig, files, shas, extras: dict
             pending_align = engine.submit(archive.timed, (
                 archive.alignment_on_minutes, archive.MinuteTask(tuple(records), cfg, table)))
     run.stage("corrected", archive.corrected_stage, run, table, records, cfg, engine)
+    run.stage("model", pending_model.result if pending_model else None, key=model_key)
     extras.update(minute=minute, table=table)
     if cfg["truth"]["file"]:
         from magcal.chain.truth import run_truth
