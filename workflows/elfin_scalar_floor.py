@@ -1,0 +1,66 @@
+"""ELFIN-A scalar residual against |IGRF|: the linear floor and the spin-harmonic model.
+
+Usage::
+
+    python workflows/elfin_scalar_floor.py [--data DIR] [--out FILE.csv]
+
+Per science zone of 2022-01-12: the best 9-parameter scalar calibration (the linear
+floor), its residual and fast part (after a 5th-order polynomial), the spin harmonics
+left in it (angle of the field in the sensor's spin plane), and what the harmonic model
+(constant 4x + drifting 1x, 2x) leaves. The measuring code is
+:mod:`magcal.missions.elfin_scalar`; this script only reads, calls and prints.
+
+Data: ELFIN SOC (PI V. Angelopoulos, UCLA), "Open Data for Scientific Use".
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from magcal.errors import InputError
+from magcal.offline import configure_offline
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from elfin_calibration import DEFAULT_DATA, FGS_FILE, STATE_FILE  # noqa: E402
+
+
+def main(argv=None) -> int:
+    """Run; bad or missing input is one line on stderr and exit status 2."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=DEFAULT_DATA,
+                    help=f"folder with {FGS_FILE} and {STATE_FILE}")
+    ap.add_argument("--out", type=Path, default=None, help="also write the table as CSV")
+    ap.add_argument("--drift-degree", type=int, default=3,
+                    help="degree of the drifting 1x/2x coefficients (default 3)")
+    args = ap.parse_args(argv)
+    configure_offline()
+    from magcal.missions.elfin import CREDIT
+    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin_scalar import scalar_floor_table, scalar_zones
+
+    try:
+        for name in (FGS_FILE, STATE_FILE):
+            if not (args.data / name).is_file():
+                raise InputError("ELFIN file not found (give --data DIR)", file=args.data / name)
+        zones = scalar_zones(read_elfin_fgs(args.data / FGS_FILE),
+                             read_elfin_state(args.data / STATE_FILE))
+    except InputError as exc:
+        print(f"elfin_scalar_floor: error: {exc}", file=sys.stderr)
+        return 2
+    tab = scalar_floor_table(zones, drift_degree=args.drift_degree)
+    print(f"ELFIN-A 2022-01-12 scalar residual |B| - |IGRF| per zone (nT); {CREDIT}")
+    cols = ["zone", "sun_fraction", "floor_rms_nT", "floor_fast_nT", "amp1_nT", "amp2_nT",
+            "amp3_nT", "amp4_nT", "drift1_rms_nT", "drift2_rms_nT", "model_fast_nT"]
+    print(tab[cols].round(1).to_string(index=False))
+    med = tab[cols[2:]].median()
+    print("median: " + ", ".join(f"{k} {v:.1f}" for k, v in med.items()))
+    if args.out is not None:
+        tab.to_csv(args.out, index=False)
+        print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
