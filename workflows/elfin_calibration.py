@@ -93,6 +93,8 @@ def _run(argv=None) -> int:
                     help="output folder (default: elfin-calibration-out in the working "
                          "directory)")
     ap.add_argument("--no-scan", action="store_true", help="skip the timing-offset scan")
+    ap.add_argument("--linear-only", action="store_true",
+                    help="skip the spin-harmonic correction (the linear calibration only)")
     args = ap.parse_args(argv)
     configure_offline()
     from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
@@ -108,6 +110,11 @@ def _run(argv=None) -> int:
                            inputs=[fgs_path, state_path])
     cal = calibrate_elfin(fgs, state, provenance=prov)
     tab = cal.table()
+    correction = None
+    if not args.linear_only:
+        from magcal.missions.elfin_correction import correct_elfin_calibration
+
+        cal, correction = correct_elfin_calibration(cal)
 
     scan = {}
     if not args.no_scan:
@@ -118,6 +125,8 @@ def _run(argv=None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     payload = cal.to_json()
     payload["table"] = tab.to_dict(orient="records")
+    if correction is not None:
+        payload["spin_harmonic_correction"] = correction.to_dict(orient="records")
     payload["timing_scan"] = {"shifts_s": list(SHIFTS_S), "note": "IGRF evaluated at t + "
                               "shift; the per-zone RMS for each shift", "by_shift": scan}
     write_json(args.out / "elfin_calibration.json", payload)
@@ -135,6 +144,13 @@ def _run(argv=None) -> int:
               f"{row.rms_vector_nT:6.1f} ({', '.join(f'{v:.0f}' for v in z.rms_vector_nT)})"
               f"  {row.rms_vector_constant_nT:8.1f}  "
               f"{', '.join(f'{g:.5f}' for g in z.gains_nT_per_count)}  {z.spin_period_s:.4f}")
+    if correction is not None:
+        med = correction.drop(columns=["zone", "fixed_amplitudes_nT", "drift_rms_nT"]).median()
+        print("  spin-harmonic correction (median over zones, nT): scalar RMS "
+              f"{med['scalar_rms_before_nT']:.1f} -> {med['scalar_rms_after_nT']:.1f}, "
+              f"fast part {med['scalar_fast_before_nT']:.1f} -> "
+              f"{med['scalar_fast_after_nT']:.1f}, vector RMS "
+              f"{med['vector_rms_before_nT']:.1f} -> {med['vector_rms_after_nT']:.1f}")
     if scan:
         best = {k: float(np.median(v["rms_vector_nT"])) for k, v in scan.items()}
         print("  timing scan (median vector RMS nT by shift s): "

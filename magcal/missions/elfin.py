@@ -343,7 +343,8 @@ class ElfinCalibration:
 
     ``field`` is a DataFrame (UTC index ``time``) with ``zone``, ``used`` (0/1),
     calibrated ``bx_gei, by_gei, bz_gei`` and ``bx_despun ... bz_despun``, the IGRF
-    ``igrf_x_gei ...`` and ``igrf_x_despun ...``, and the spin ``phase`` (rad).
+    ``igrf_x_gei ...`` and ``igrf_x_despun ...``, the spin ``phase`` (rad) and the
+    attitude file's spin axis ``spin_axis_gei_x ..`` (despun Z, defines the despun frame).
     """
 
     zones: tuple
@@ -464,6 +465,8 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
             for j, c in enumerate("xyz"):
                 data[name.format(c)] = arr[:, j]
         data["phase"] = fit.phase
+        for j, c in enumerate("xyz"):
+            data[f"spin_axis_gei_{c}"] = ax[:, j]
         frames.append(pd.DataFrame(data, index=pd.DatetimeIndex(idx, name="time")))
     params = {"min_gap_s": min_gap_s, "time_shift_s": time_shift_s,
               "repair_times": repair_times, **{k: v for k, v in fit_kw.items()}}

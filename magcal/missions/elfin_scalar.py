@@ -24,7 +24,7 @@ Data: ELFIN SOC (PI V. Angelopoulos, UCLA), "Open Data for Scientific Use".
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -248,20 +248,28 @@ class HarmonicFit:
         ``{k: rms}`` of each drifting harmonic's contribution.
     residual_nT : ndarray
         What the model leaves (its slow part removed by the polynomial).
+    coefficients : dict
+        ``{k: complex ndarray (n,)}``: the harmonic ``k`` contributes
+        ``Re(c_k(t) e^{i k psi})`` at each sample (constant for the fixed harmonics).
     """
 
     fixed_amplitudes_nT: dict
     drift_rms_nT: dict
     residual_nT: np.ndarray
+    coefficients: dict = field(default_factory=dict)
 
 
 def fit_spin_harmonics(t_s, residual, psi, *, fixed=(4,), drifting=(1, 2),
-                       drift_degree: int = 3, poly_degree: int = 5) -> HarmonicFit:
+                       drift_degree: int = 3, poly_degree: int = 5,
+                       fixed_scale=None) -> HarmonicFit:
     """Fit constant and slowly drifting spin harmonics to a scalar residual.
 
     Model: ``r = P(T) + sum_fixed Re(c_k e^{i k psi}) + sum_drifting Re(c_k(T) e^{i k
     psi})`` with ``T`` in [-1, 1] over the zone, ``P`` a polynomial of ``poly_degree``
     and ``c_k(T)`` complex polynomials of ``drift_degree``. Linear least squares.
+    ``fixed_scale`` (n,), if given, multiplies the fixed harmonics: a non-linearity
+    whose size follows the field (a cubic: ``(|B_perp| / median)^3``); the amplitudes
+    reported are then those at ``fixed_scale == 1``.
 
     Returns
     -------
@@ -269,25 +277,30 @@ def fit_spin_harmonics(t_s, residual, psi, *, fixed=(4,), drifting=(1, 2),
     """
     x = _unit_time(t_s)
     r = np.asarray(residual, dtype=float)
-    blocks = [np.vander(x, poly_degree + 1), _harmonics(psi, fixed)]
-    drift_cols = [_harmonics(psi, [k])[:, :, None] * (x[:, None, None] ** np.arange(drift_degree + 1))
-                  for k in drifting]
+    scale = np.ones(len(x)) if fixed_scale is None else np.asarray(fixed_scale, dtype=float)
+    blocks = [np.vander(x, poly_degree + 1), _harmonics(psi, fixed) * scale[:, None]]
+    powers = x[:, None, None] ** np.arange(drift_degree + 1)
+    drift_cols = [_harmonics(psi, [k])[:, :, None] * powers for k in drifting]
     blocks += [d.reshape(len(x), -1) for d in drift_cols]
     design = np.column_stack(blocks)
     w = np.linalg.lstsq(design, r, rcond=None)[0]
     n0 = poly_degree + 1
-    fixed_amp = {}
+    fixed_amp, coefs = {}, {}
     for i, k in enumerate(fixed):
         a, b = w[n0 + 2 * i], w[n0 + 2 * i + 1]
         fixed_amp[int(k)] = (float(np.hypot(a, b)), float(np.arctan2(b, a)))
+        coefs[int(k)] = (a - 1j * b) * scale
     pos = n0 + 2 * len(fixed)
     drift_rms = {}
     for k, d in zip(drifting, drift_cols):
         m = d.shape[1] * d.shape[2]
         drift_rms[int(k)] = rms(d.reshape(len(x), -1) @ w[pos:pos + m])
+        wk = w[pos:pos + m].reshape(2, -1)          # rows: cos, sin; columns: powers of T
+        tpow = x[:, None] ** np.arange(drift_degree + 1)
+        coefs[int(k)] = coefs.get(int(k), 0) + tpow @ wk[0] - 1j * (tpow @ wk[1])
         pos += m
     return HarmonicFit(fixed_amplitudes_nT=fixed_amp, drift_rms_nT=drift_rms,
-                       residual_nT=r - design @ w)
+                       residual_nT=r - design @ w, coefficients=coefs)
 
 
 @dataclass(frozen=True)
@@ -356,9 +369,10 @@ def scalar_zones(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float = 6
         mag = np.linalg.norm(CubicSpline(ts[sel], igrf_gei(state.index[sel], pos[sel]))(t), axis=1)
         c = counts_all[a:b]
         ok = (t >= t[0] + skip_s) & np.all(np.isfinite(c), axis=1)
+        lit = sun[sel][np.isfinite(sun[sel])]
         out.append(ScalarZone(number=k, start=str(fgs.index[a].tz_convert(None)), t_s=t[ok],
                               counts=c[ok], igrf_nT=mag[ok],
-                              sun_fraction=float(np.nanmean(sun[sel])) if np.any(np.isfinite(sun[sel])) else float("nan")))
+                              sun_fraction=float(lit.mean()) if lit.size else float("nan")))
     return out
 
 
