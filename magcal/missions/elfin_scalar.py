@@ -380,7 +380,7 @@ def scalar_floor_table(zones, *, drift_degree: int = 3, fixed=(4,), drifting=(1,
                        poly_degree: int = 5) -> pd.DataFrame:
     """Per-zone scalar numbers: the linear floor, its spin harmonics, the harmonic model.
 
-    Columns: ``zone, start, sun_fraction, n``, ``floor_rms_nT`` and ``floor_fast_nT``
+    Columns: ``zone, start, sun_fraction, n, mean_igrf_nT``, ``floor_rms_nT`` and ``floor_fast_nT``
     (the 9-parameter fit; fast = after a ``poly_degree`` polynomial), ``amp{k}_nT`` for
     k = 1..4 (constant harmonics of the sensor-frame angle in the floor residual),
     ``fixed{k}_nT`` for the model's constant harmonics, ``model_fast_nT`` (what
@@ -395,7 +395,8 @@ def scalar_floor_table(zones, *, drift_degree: int = 3, fixed=(4,), drifting=(1,
         model = fit_spin_harmonics(z.t_s, r, psi, fixed=fixed, drifting=drifting,
                                    drift_degree=drift_degree, poly_degree=poly_degree)
         rows.append({"zone": z.number, "start": z.start, "sun_fraction": z.sun_fraction,
-                     "n": int(z.t_s.size), "floor_rms_nT": rms(r),
+                     "n": int(z.t_s.size), "mean_igrf_nT": float(np.mean(z.igrf_nT)),
+                     "floor_rms_nT": rms(r),
                      "floor_fast_nT": rms(fast_part(z.t_s, r, poly_degree)),
                      **{f"amp{k}_nT": v for k, v in amps.items()},
                      **{f"fixed{k}_nT": v[0] for k, v in model.fixed_amplitudes_nT.items()},
