@@ -159,12 +159,18 @@ def _run(argv=None) -> int:
           f"{ripple.offset_diff_nT.max():.0f} nT (ripple std "
           f"{ripple.offset_std_nT.max():.0f} nT)")
     if correction is not None:
-        med = correction.drop(columns=["zone", "fixed_amplitudes_nT", "drift_rms_nT"]).median()
+        med = correction.drop(columns=["zone", "fixed_amplitudes_nT", "drift_rms_nT",
+                                       "fixed_std_nT", "fixed_at_45000nT"]).median()
         print("  spin-harmonic correction (median over zones, nT): scalar RMS "
               f"{med['scalar_rms_before_nT']:.1f} -> {med['scalar_rms_after_nT']:.1f}, "
               f"fast part {med['scalar_fast_before_nT']:.1f} -> "
               f"{med['scalar_fast_after_nT']:.1f}, vector RMS "
               f"{med['vector_rms_before_nT']:.1f} -> {med['vector_rms_after_nT']:.1f}")
+        amp = np.array([d[4] for d in correction["fixed_at_45000nT"]])
+        err = np.array([d[4] for d in correction["fixed_std_nT"]])
+        print(f"  4x non-linearity at |B_perp| = 45000 nT: {amp.mean():.1f} nT mean over zones, "
+              f"spread {amp.std(ddof=1):.1f} nT (per-zone standard error "
+              f"{np.median(err):.2f} nT)")
     if scan:
         best = {k: float(np.median(v["rms_vector_nT"])) for k, v in scan.items()}
         print("  timing scan (median vector RMS nT by shift s): "

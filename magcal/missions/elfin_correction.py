@@ -60,8 +60,10 @@ def harmonic_vector_correction(t_s, b_body, ref_magnitude_nT, *, fixed=(4,), dri
     -------
     corrected : ndarray (n, 3)
     info : dict
-        ``fixed_amplitudes_nT`` (first pass), ``drift_rms_nT`` and the scalar RMS and
-        fast-part RMS before and after (on the fitted samples).
+        ``fixed_amplitudes_nT`` (first pass, at the median |beta|), their standard errors
+        ``fixed_std_nT``, ``fixed_at_45000nT`` (scaled to |beta| = 45000 nT with
+        ``fixed_power``: comparable across zones), ``drift_rms_nT`` and the scalar RMS
+        and fast-part RMS before and after (on the fitted samples).
     """
     t = np.asarray(t_s, dtype=float)
     b = np.array(b_body, dtype=float)
@@ -86,7 +88,12 @@ def harmonic_vector_correction(t_s, b_body, ref_magnitude_nT, *, fixed=(4,), dri
         b[:, 0] += delta.real
         b[:, 1] += delta.imag
     r1 = np.linalg.norm(b, axis=1) - ref
+    b_in = np.asarray(b_body, dtype=float)
+    ref_perp = float(np.median(np.hypot(b_in[:, 0], b_in[:, 1])[use]))
     info = {"fixed_amplitudes_nT": {k: v[0] for k, v in first.fixed_amplitudes_nT.items()},
+            "fixed_std_nT": first.fixed_std_nT,
+            "fixed_at_45000nT": {k: v[0] * (45000.0 / ref_perp) ** fixed_power
+                                 for k, v in first.fixed_amplitudes_nT.items()},
             "drift_rms_nT": first.drift_rms_nT,
             "scalar_rms_before_nT": rms(r0[use]), "scalar_rms_after_nT": rms(r1[use]),
             "scalar_fast_before_nT": rms(fast_part(t[use], r0[use], poly_degree)),

@@ -244,6 +244,9 @@ class HarmonicFit:
     ----------
     fixed_amplitudes_nT : dict
         ``{k: (amplitude, phase_rad)}`` of the constant-coefficient harmonics.
+    fixed_std_nT : dict
+        ``{k: standard error of the amplitude}`` (white-residual least squares; the
+        residual is not white, so read it as a lower bound).
     drift_rms_nT : dict
         ``{k: rms}`` of each drifting harmonic's contribution.
     residual_nT : ndarray
@@ -257,6 +260,7 @@ class HarmonicFit:
     drift_rms_nT: dict
     residual_nT: np.ndarray
     coefficients: dict = field(default_factory=dict)
+    fixed_std_nT: dict = field(default_factory=dict)
 
 
 def fit_spin_harmonics(t_s, residual, psi, *, fixed=(4,), drifting=(1, 2),
@@ -285,10 +289,14 @@ def fit_spin_harmonics(t_s, residual, psi, *, fixed=(4,), drifting=(1, 2),
     design = np.column_stack(blocks)
     w = np.linalg.lstsq(design, r, rcond=None)[0]
     n0 = poly_degree + 1
-    fixed_amp, coefs = {}, {}
+    var = np.sum((r - design @ w) ** 2) / max(len(r) - design.shape[1], 1)
+    cov_fixed = var * np.linalg.pinv(design.T @ design)[n0:n0 + 2 * len(fixed), n0:n0 + 2 * len(fixed)]
+    fixed_amp, coefs, fixed_std = {}, {}, {}
     for i, k in enumerate(fixed):
         a, b = w[n0 + 2 * i], w[n0 + 2 * i + 1]
         fixed_amp[int(k)] = (float(np.hypot(a, b)), float(np.arctan2(b, a)))
+        fixed_std[int(k)] = float(np.sqrt(0.5 * (cov_fixed[2 * i, 2 * i]
+                                                + cov_fixed[2 * i + 1, 2 * i + 1])))
         coefs[int(k)] = (a - 1j * b) * scale
     pos = n0 + 2 * len(fixed)
     drift_rms = {}
@@ -300,7 +308,8 @@ def fit_spin_harmonics(t_s, residual, psi, *, fixed=(4,), drifting=(1, 2),
         coefs[int(k)] = coefs.get(int(k), 0) + tpow @ wk[0] - 1j * (tpow @ wk[1])
         pos += m
     return HarmonicFit(fixed_amplitudes_nT=fixed_amp, drift_rms_nT=drift_rms,
-                       residual_nT=r - design @ w, coefficients=coefs)
+                       residual_nT=r - design @ w, coefficients=coefs,
+                       fixed_std_nT=fixed_std)
 
 
 @dataclass(frozen=True)
