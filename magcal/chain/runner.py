@@ -4,9 +4,11 @@ The runner reads the configuration, optionally simulates its input (the demo), t
 runs the stages in chain order::
 
     frames, ac (fit phase) -> partitions (read, common frame, PiCoG, Hpen, 1-min
-    model; one Dask task per file) -> read, model -> offsets -> corrected
+    model; one Dask task per file) -> read -> offsets -> corrected -> model
     -> truth -> alignment -> discover -> report
 
+where the model tables, the alignment and discovery are single tasks started on a
+worker as soon as their inputs exist and recorded in this order when done
 (:mod:`magcal.chain.archive`; the spinning chain runs in memory,
 :mod:`magcal.chain.spin`). Each stage's :class:`~magcal.chain.product.StageProduct` is
 written to ``OUTDIR/<stage>/`` and listed in ``OUTDIR/MANIFEST.json`` with its SHA-256
