@@ -465,6 +465,8 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
             for j, c in enumerate("xyz"):
                 data[name.format(c)] = arr[:, j]
         data["phase"] = fit.phase
+        for j in range(3):
+            data[f"b{j + 1}"] = fgs[f"b{j + 1}"].to_numpy()[a:b]
         for j, c in enumerate("xyz"):
             data[f"spin_axis_gei_{c}"] = ax[:, j]
         frames.append(pd.DataFrame(data, index=pd.DatetimeIndex(idx, name="time")))
