@@ -344,7 +344,9 @@ class ElfinCalibration:
     ``field`` is a DataFrame (UTC index ``time``) with ``zone``, ``used`` (0/1),
     calibrated ``bx_gei, by_gei, bz_gei`` and ``bx_despun ... bz_despun``, the IGRF
     ``igrf_x_gei ...`` and ``igrf_x_despun ...``, the spin ``phase`` (rad) and the
-    attitude file's spin axis ``spin_axis_gei_x ..`` (despun Z, defines the despun frame).
+    attitude file's spin axis ``spin_axis_gei_x ..`` (despun Z, defines the despun frame)
+    and the raw counts ``b1, b2, b3`` (for fits that start again from the counts, e.g.
+    :func:`magcal.missions.elfin_joint.calibrate_joint`).
     """
 
     zones: tuple
