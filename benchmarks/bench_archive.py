@@ -13,6 +13,8 @@ measures in the same run:
 * a GOES-like sample (``--goes-days`` days of 10 Hz two-sensor data): the chain's
   seconds per day, where a partition's and a corrected day's time go, and the year
   extrapolated from them;
+* the floor of this machine: the same kind of work (reading daily files) in one process
+  and split over two, so the chain's ratio can be read against what the VM allows;
 * the IRBEM fork pool of :func:`magcal.models.field.model_field_hpen` (``n_jobs=2``)
   against the same request split into Dask tasks on two local workers, and the model's
   share of a partition (is it worth turning the fork pool into Dask tasks?).
@@ -188,6 +190,11 @@ def archive_figures(args, work: Path) -> None:
           f"{t1:.1f} s ({n / t1:,.0f} samples/s, {c1:.0f} CPU s, {l1} before), 2 workers "
           f"{t2:.1f} s ({n / t2:,.0f} samples/s, {c2:.0f} CPU s, {l2} before): ratio "
           f"{t1 / t2:.2f}; products {same_w}", flush=True)
+    f1, f2 = parallel_floor(sorted((work / "raw").glob("day_*.csv"))[:12])
+    print(f"floor of this machine for the same kind of work (reading 12 of the daily files "
+          f"with magcal.io.formats.read_any, no magcal run): 1 process {f1:.1f} s, 2 "
+          f"processes {f2:.1f} s, ratio {f1 / f2:.2f} ({load()}); magcal's ratio is "
+          f"{(t1 / t2) / (f1 / f2):.2f} of it", flush=True)
     from distributed import LocalCluster
 
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
@@ -207,6 +214,33 @@ def archive_figures(args, work: Path) -> None:
     t5, _, _ = run(cfg, work / "out2", workers=2)
     print(f"rerun after adding {args.month} days: {t5:.1f} s = {100 * t5 / t2:.1f}% of the "
           f"first run ({load()}); {stage_seconds(work / 'out2')}", flush=True)
+
+
+def _read_files(paths) -> int:
+    from magcal.io.formats import read_any
+
+    return sum(len(read_any(p)) for p in paths)
+
+
+def parallel_floor(files) -> tuple[float, float]:
+    """Seconds to read ``files`` in one process, and split over two spawned processes:
+    the speed-up any parallel code can reach on this machine for partition-like work
+    (both vCPUs of a shared VM do not always run two processes at full speed)."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    ctx = mp.get_context("spawn")
+    with ProcessPoolExecutor(1, mp_context=ctx) as ex:
+        ex.submit(_read_files, files[:1]).result()  # start-up and imports outside the timing
+        t0 = time.perf_counter()
+        ex.submit(_read_files, files).result()
+        one = time.perf_counter() - t0
+    with ProcessPoolExecutor(2, mp_context=ctx) as ex:
+        list(ex.map(_read_files, [files[:1], files[1:2]]))
+        t0 = time.perf_counter()
+        list(ex.map(_read_files, [files[0::2], files[1::2]]))
+        two = time.perf_counter() - t0
+    return one, two
 
 
 #: Functions whose cumulative time tells where a partition's or corrected day's time goes.
