@@ -244,6 +244,8 @@ def change_points(times_s, residual, *, kind: str = "step", bin_s: float = 3600.
     """
     import ruptures as rpt
 
+    from magcal.discover.costs import CumsumCLinear, CumsumL2
+
     t = np.asarray(times_s, dtype=float)
     r = np.asarray(residual, dtype=float)
     if r.ndim == 1:
@@ -261,8 +263,8 @@ def change_points(times_s, residual, *, kind: str = "step", bin_s: float = 3600.
             continue
         x = np.interp(np.arange(nb), np.flatnonzero(ok), x[ok])
         s2 = _long_run_variance(x, max(int(DAY_S / bin_s), 3))
-        model = "l2" if kind == "step" else "clinear"
-        algo = rpt.Binseg(model=model, min_size=margin, jump=1 if kind == "step" else 2)
+        cost = CumsumL2() if kind == "step" else CumsumCLinear()
+        algo = rpt.Binseg(custom_cost=cost, min_size=margin, jump=1 if kind == "step" else 2)
         found = algo.fit(x[:, None]).predict(pen=penalty * s2 * np.log(nb))[:-1]
         found_c = []
         for k in found:

@@ -89,15 +89,33 @@ def integrated_autocorr_time(x, c: float = 5.0) -> float:
 
 
 def autocorrelation(x, max_lag: int | None = None) -> np.ndarray:
-    """Normalised autocorrelation of a series (NaN treated as zero after centring)."""
+    """Normalised autocorrelation of a series (NaN treated as zero after centring).
+
+    A 2-D ``x`` gives the autocorrelation of each column (lags along axis 0), in one
+    batched FFT.
+
+    Examples
+    --------
+    >>> np.round(autocorrelation(np.array([1.0, -1.0, 1.0, -1.0]), 2), 2)
+    array([ 1.  , -0.75,  0.5 ])
+    """
+    from scipy.fft import irfft, next_fast_len, rfft
+
     v = np.asarray(x, dtype=float)
+    one = v.ndim == 1
+    v = v[:, None] if one else v
     ok = np.isfinite(v)
-    v = np.where(ok, v - (v[ok].mean() if ok.any() else 0.0), 0.0)
-    n = v.size
-    nfft = 1 << int(np.ceil(np.log2(2 * max(n, 1))))
-    f = np.fft.rfft(v, nfft)
-    acf = np.fft.irfft(f * np.conj(f), nfft)[:n if max_lag is None else min(n, max_lag + 1)]
-    return acf / acf[0] if acf[0] > 0 else np.zeros_like(acf)
+    cnt = ok.sum(axis=0)
+    mean = np.where(cnt > 0, np.where(ok, v, 0.0).sum(axis=0) / np.maximum(cnt, 1), 0.0)
+    v = np.where(ok, v - mean, 0.0)
+    n = v.shape[0]
+    nfft = next_fast_len(2 * max(n, 1), real=True)
+    f = rfft(v, nfft, axis=0)
+    acf = irfft((f * np.conj(f)).real, nfft, axis=0)[:n if max_lag is None else min(n, max_lag + 1)]
+    zero = acf[0] <= 0
+    acf = acf / np.where(zero, 1.0, acf[0])
+    acf[:, zero] = 0.0
+    return acf[:, 0] if one else acf
 
 
 def regression_n_eff(residual, signal, window=None) -> float:
@@ -290,12 +308,11 @@ def model_covariance(gram: "BlockedGram", score: CVScore, params, blocks,
             rho[c] = autocorrelation(resid[:, c], int(min(max(5 * tau_e, 10), max_lag)))
         rho_e = rho[c]
         k = rho_e.size
-        tau = {}
-        for i in active:
-            rho_a = autocorrelation(A[i][:, c], k - 1)
-            # below 1 for a regressor that varies faster than the noise (a spin tone in
-            # red noise sees only the noise's fast part); floored against a noisy sum
-            tau[i] = max(TAU_FLOOR, 1.0 + 2.0 * float(np.sum(rho_e[1:k] * rho_a[1:k])))
+        rho_a = autocorrelation(np.column_stack([A[i][:, c] for i in active]), k - 1)
+        # below 1 for a regressor that varies faster than the noise (a spin tone in
+        # red noise sees only the noise's fast part); floored against a noisy sum
+        tau = {i: max(TAU_FLOOR, 1.0 + 2.0 * float(rho_e[1:k] @ rho_a[1:k, q]))
+               for q, i in enumerate(active)}
         for ii, i in enumerate(active):
             for j in active[ii:]:
                 e = np.bincount(blocks, weights=A[i][:, c] * A[j][:, c], minlength=B)
