@@ -95,13 +95,29 @@ def _products(out: Path) -> dict:
             and not any(part in skip for part in p.relative_to(out).parts)}
 
 
+#: The environment before any engine of this module set its workers' BLAS threads: a
+#: ``magcal run`` subprocess gets it, so its driver runs BLAS as this process's does.
+_ENV = dict(os.environ)
+
+
 @pytest.fixture(scope="module")
-def archive(tmp_path_factory):
+def engines():
+    """A pool of one and a pool of two local worker processes shared by the module's
+    runs (``run_chain(engine=...)``): a run on its own pool spends a second or more
+    spawning its workers and importing the library in them."""
+    from magcal.chain.engine import Engine
+
+    with Engine(1) as one, Engine(2) as two:
+        yield {1: one, 2: two}
+
+
+@pytest.fixture(scope="module")
+def archive(tmp_path_factory, engines):
     """One 12-day archive run with two local workers, alignment and discovery included."""
     tmp = tmp_path_factory.mktemp("archive")
     cfg = _archive(tmp, stages=True)
     out = tmp / "out"
-    result = run_chain(cfg, out, workers=2)
+    result = run_chain(cfg, out, engine=engines[2])
     return tmp, cfg, out, result
 
 
@@ -153,10 +169,10 @@ def test_offset_product_follows_the_injected_offsets(archive):
     np.testing.assert_allclose(at[3] - at[1], [3.16, -2.12, 1.58], atol=0.01)
 
 
-def test_rerun_skips_every_partition_and_leaves_identical_products(archive):
+def test_rerun_skips_every_partition_and_leaves_identical_products(archive, engines):
     _, cfg, out, _ = archive
     before = _products(out)
-    again = run_chain(cfg, out, workers=2)
+    again = run_chain(cfg, out, engine=engines[2])
     assert again.partitions.done == () and len(again.partitions.skipped) == 12
     skipped = {r.stage for r in again.records if r.skipped}
     assert {"frames", "ac", "read", "model", "alignment", "discover"} <= skipped
@@ -164,14 +180,14 @@ def test_rerun_skips_every_partition_and_leaves_identical_products(archive):
     assert not (out / "offsets" / "previous").exists()  # OFFSETS.csv unchanged
 
 
-def test_other_worker_counts_give_byte_identical_products(archive, tmp_path):
+def test_other_worker_counts_give_byte_identical_products(archive, engines, tmp_path):
     _, cfg, out, _ = archive
-    one = run_chain(cfg, tmp_path / "one", workers=1)
+    one = run_chain(cfg, tmp_path / "one", engine=engines[1])
     assert not one.failed
     assert _products(tmp_path / "one") == _products(out)
 
 
-def test_added_files_recompute_only_their_partitions(tmp_path):
+def test_added_files_recompute_only_their_partitions(tmp_path, engines):
     cfg = _archive(tmp_path, n_days=12)
     raw = tmp_path / "raw"
     later = sorted(raw.glob("day_*.csv"))[8:]
@@ -180,21 +196,21 @@ def test_added_files_recompute_only_their_partitions(tmp_path):
     for p in later:
         shutil.move(p, hold / p.name)
     out = tmp_path / "out"
-    first = run_chain(cfg, out, workers=2)
+    first = run_chain(cfg, out, engine=engines[2])
     assert len(first.partitions.done) == 8
     early = out / "corrected" / "CORRECTED_20191101.csv"
     stamp = early.stat().st_mtime_ns
     old_offsets = (out / "offsets" / "OFFSETS.csv").read_bytes()
     for p in later:
         shutil.move(hold / p.name, raw / p.name)
-    update = run_chain(cfg, out, workers=2)
+    update = run_chain(cfg, out, engine=engines[2])
     assert sorted(Path(f).name for f in update.partitions.done) == [p.name for p in later]
     assert len(update.partitions.skipped) == 8
     # a day far from the new files keeps its file (its offset windows did not change)
     assert early.stat().st_mtime_ns == stamp
     # the monthly product was replaced, the previous version kept
     assert (out / "offsets" / "previous" / "OFFSETS.1.csv").read_bytes() == old_offsets
-    fresh = run_chain(cfg, tmp_path / "fresh", workers=2)
+    fresh = run_chain(cfg, tmp_path / "fresh", engine=engines[2])
     assert _products(out) == _products(tmp_path / "fresh")
     assert not fresh.failed
 
@@ -272,12 +288,12 @@ def test_an_unreachable_scheduler_is_exit_2_with_one_line(tmp_path, capsys, monk
     assert len(err) == 1 and f"cannot reach the dask scheduler tcp://127.0.0.1:{port}" in err[0]
 
 
-def test_killed_run_resumes_to_the_uninterrupted_products(tmp_path):
+def test_killed_run_resumes_to_the_uninterrupted_products(tmp_path, engines):
     cfg = _archive(tmp_path, n_days=16, cadence_s=10.0)
-    whole = run_chain(cfg, tmp_path / "whole", workers=2)
+    whole = run_chain(cfg, tmp_path / "whole", engine=engines[2])
     assert not whole.failed
     out = tmp_path / "out"
-    env = dict(os.environ, MPLBACKEND="Agg")
+    env = dict(_ENV, MPLBACKEND="Agg")
     cmd = [sys.executable, "-m", "magcal", "run", str(cfg), "-o", str(out), "--quiet",
            "--workers", "2"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
@@ -292,7 +308,7 @@ def test_killed_run_resumes_to_the_uninterrupted_products(tmp_path):
         os.killpg(proc.pid, signal.SIGKILL)
     proc.wait(timeout=30)
     assert killed, "the run ended before it could be killed"
-    resumed = run_chain(cfg, out, workers=2)
+    resumed = run_chain(cfg, out, engine=engines[2])
     assert not resumed.failed and len(resumed.partitions.skipped) >= 3
     assert _products(out) == _products(tmp_path / "whole")
     assert not [p for p in out.rglob(".*") if p.is_file() and ".part" in p.name]
@@ -306,11 +322,11 @@ def test_fit_days_is_checked():
         parse_chain_config(text, "CHAIN.toml")
 
 
-def test_picog_is_fitted_on_the_first_days_and_applied_to_every_partition(tmp_path):
+def test_picog_is_fitted_on_the_first_days_and_applied_to_every_partition(tmp_path, engines):
     cfg = _archive(tmp_path, n_days=6, plan="PLAN.toml")
     (tmp_path / "PLAN.toml").write_text(PLAN)
     out = tmp_path / "out"
-    result = run_chain(cfg, out, workers=1)
+    result = run_chain(cfg, out, engine=engines[2])
     assert not result.failed
     ac = json.loads((out / "ac" / "AC.json").read_text())
     assert ac["delivered"] == "cleaned" and len(ac["fit_files"]) == 3
@@ -339,39 +355,39 @@ def test_distributed_scheduler_gives_the_local_products(archive, tmp_path):
     assert _products(tmp_path / "dist") == _products(out)
 
 
-def test_kp_records_invalidate_only_the_partitions_they_cover(tmp_path):
+def test_kp_records_invalidate_only_the_partitions_they_cover(tmp_path, engines):
     cfg = _archive(tmp_path, n_days=6)
     out = tmp_path / "out"
-    run_chain(cfg, out, workers=1)
+    run_chain(cfg, out, engine=engines[2])
     kp_path = tmp_path / "raw" / "kp.csv"
     lines = kp_path.read_text().splitlines()
     # a month of Kp appended after the archive's end: every partition stays valid
     last = pd.Timestamp(lines[-1].split(",")[0])
     extra = [f"{(last + pd.Timedelta(hours=3 * k)).isoformat()},1.0" for k in range(1, 240)]
     kp_path.write_text("\n".join(lines + extra) + "\n")
-    again = run_chain(cfg, out, workers=1)
+    again = run_chain(cfg, out, engine=engines[2])
     assert again.partitions.done == () and len(again.partitions.skipped) == 6
     # one Kp value changed at noon of 2019-11-04: only that day's partition is redone
     k = next(i for i, line in enumerate(lines) if line.startswith("2019-11-04T12:00:00"))
     lines[k] = "2019-11-04T12:00:00,7.0"
     kp_path.write_text("\n".join(lines + extra) + "\n")
-    changed = run_chain(cfg, out, workers=1)
+    changed = run_chain(cfg, out, engine=engines[2])
     assert [Path(f).name for f in changed.partitions.done] == ["day_20191104.csv"]
-    fresh = run_chain(cfg, tmp_path / "fresh", workers=1)
+    fresh = run_chain(cfg, tmp_path / "fresh", engine=engines[2])
     assert _products(out) == _products(tmp_path / "fresh") and not fresh.failed
 
 
-def test_results_of_changed_or_removed_files_are_pruned(tmp_path):
+def test_results_of_changed_or_removed_files_are_pruned(tmp_path, engines):
     cfg = _archive(tmp_path, n_days=6)
     out = tmp_path / "out"
-    run_chain(cfg, out, workers=1)
+    run_chain(cfg, out, engine=engines[2])
     state = out / ".partitions"
     assert len(list(state.glob("*.npz"))) == 6
     raw = sorted((tmp_path / "raw").glob("day_*.csv"))
     raw[-1].unlink()  # a day leaves the archive
     text = raw[3].read_text().splitlines()  # after the 3 days the fit uses
     raw[3].write_text("\n".join(text[:-1]) + "\n")  # a day changes (its last sample cut)
-    again = run_chain(cfg, out, workers=1)
+    again = run_chain(cfg, out, engine=engines[2])
     assert [Path(f).name for f in again.partitions.done] == [raw[3].name]
     names = sorted(p.name.rsplit("-", 1)[0] for p in state.glob("*.npz"))
     assert names == sorted(p.stem for p in raw[:-1])  # one result per file still there

@@ -214,7 +214,7 @@ class _Run:
 
 def run_chain(config: ChainConfig | str | Path, outdir: str | Path,
               progress: Callable[[str], None] | None = None,
-              workers: int | None = None, scheduler=None) -> ChainResult:
+              workers: int | None = None, scheduler=None, engine=None) -> ChainResult:
     """Run the whole chain of a configuration and write every product into ``outdir``.
 
     A geostationary chain runs partitioned by input file on Dask
@@ -235,6 +235,11 @@ def run_chain(config: ChainConfig | str | Path, outdir: str | Path,
     scheduler : str or distributed.Client, optional
         A ``dask.distributed`` scheduler address (or client) to run the tasks on
         instead; its workers must see the same file system.
+    engine : magcal.chain.engine.Engine, optional
+        An open engine to run the tasks on instead of ``workers`` or ``scheduler``; it
+        is left open, so several runs share one pool of worker processes (e.g. the
+        runs of a test module: spawning and importing a worker costs about a second
+        per run).
 
     Returns
     -------
@@ -255,11 +260,15 @@ def run_chain(config: ChainConfig | str | Path, outdir: str | Path,
     cfg = replace(cfg, outdir=out)
     if workers is not None and workers < 1:
         raise InputError(f"--workers must be at least 1, got {workers}")
+    if engine is not None and (workers is not None or scheduler is not None):
+        raise InputError("give an open engine or workers/scheduler, not both")
     remove_partial_files(out)
     if cfg["input"]["simulate"]:
         extras["simulated"] = _simulate_input(cfg, out, progress)
     files = cfg.input_files()
-    with Engine(workers, scheduler, bars=progress is not None) as engine:
+    own = engine is None
+    engine = Engine(workers, scheduler, bars=progress is not None) if own else engine
+    try:
         if cfg.kind == "spin":
             run = _Run(out, [{"path": str(p), "sha256": file_sha256(p)} for p in files],
                        progress)
@@ -283,6 +292,9 @@ def run_chain(config: ChainConfig | str | Path, outdir: str | Path,
         finally:  # a run stopped by bad input still says what it did and why it stopped
             manifest = run.manifest(cfg, engine.description)
             write_json(out / "MANIFEST.json", manifest)
+    finally:
+        if own:
+            engine.close()
     return ChainResult(out, tuple(run.records), manifest, extras, run.partitions)
 
 
