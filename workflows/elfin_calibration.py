@@ -121,9 +121,14 @@ def _run(argv=None) -> int:
     ap.add_argument("--no-scan", action="store_true", help="skip the timing-offset scan")
     ap.add_argument("--linear-only", action="store_true",
                     help="skip the spin-harmonic correction (the linear calibration only)")
+    ap.add_argument("--no-gain-drift", action="store_true",
+                    help="skip the spin-plane gain drift (the slow part of |B| - |IGRF|; "
+                         "applied after the spin-harmonic correction by default)")
+    ap.add_argument("--joint", action="store_true",
+                    help="also run the joint fit across zones (shared sensor, per-zone "
+                         "offsets and attitude; about 60 s, never delivered on 2022-01-12)")
     ap.add_argument("--no-joint", action="store_true",
-                    help="skip the joint fit across zones (shared sensor, per-zone offsets "
-                         "and attitude; about 60 s)")
+                    help="accepted for older scripts: the joint fit is off unless --joint")
     args = ap.parse_args(argv)
     configure_offline()
     from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
@@ -142,18 +147,35 @@ def _run(argv=None) -> int:
     from magcal.missions.elfin_ripple import ripple_crosscheck
 
     ripple = ripple_crosscheck(cal, fgs)
-    correction, joint = None, None
+    correction, joint, drift, agreement = None, None, None, None
     linear = cal
+    incumbent = "linear"
+    products = {"linear": linear}
     if not args.linear_only:
         from magcal.missions.elfin_correction import correct_elfin_calibration
 
         cal, correction = correct_elfin_calibration(cal)
-    if not args.no_joint:
-        joint = _joint(linear, cal, "linear" if args.linear_only else "harmonic")
+        incumbent = "harmonic"
+        products["harmonic"] = cal
+        if not args.no_gain_drift:
+            from magcal.missions.elfin_drift import correct_gain_drift, drift_agreement_table
+
+            cal, drift = correct_gain_drift(cal)
+            agreement = drift_agreement_table(linear)
+            incumbent = "harmonic + gain drift"
+            products[incumbent] = cal
+    if args.joint and not args.no_joint:
+        joint = _joint(linear, cal, incumbent)
         if joint["delivered"] == "joint":
             cal = joint.pop("product")
         joint.pop("product", None)
 
+    from magcal.missions.elfin_joint import score_field
+
+    medians = {name: score_field(p.field).drop(columns="zone").median().to_dict()
+               for name, p in products.items()}
+    if joint is not None:
+        medians["joint"] = joint["score_medians"]["joint"]
     scan = {}
     if not args.no_scan:
         for s in SHIFTS_S:
@@ -172,6 +194,21 @@ def _run(argv=None) -> int:
         payload["joint_fit"] = joint
     if correction is not None:
         payload["spin_harmonic_correction"] = correction.to_dict(orient="records")
+    if drift is not None:
+        payload["gain_drift"] = {
+            "note": "isotropic spin-plane gain (1 + g(T)), g cubic in time per zone, fitted "
+                    "to |B| - |IGRF| after the spin-harmonic correction (the slow part); "
+                    "evidence that it is the instrument: the 2x-spin harmonic (a gain "
+                    "ratio change no smooth reference error can make) drifts with the same "
+                    "time shape (agreement: correlation and ratio per zone, on the linear "
+                    "calibration), reference errors screened in workflows/"
+                    "elfin_scalar_floor.py --slow",
+            "zones": drift.to_dict(orient="records"),
+            "agreement": agreement.to_dict(orient="records")}
+    payload["scores"] = {"note": "zone medians of magcal.missions.elfin_joint.score_field "
+                                 "(nT) for each product; the last one before 'joint' is "
+                                 "delivered unless joint_fit says otherwise",
+                         "medians": medians}
     payload["timing_scan"] = {"shifts_s": list(SHIFTS_S), "note": "IGRF evaluated at t + "
                               "shift; the per-zone RMS for each shift", "by_shift": scan}
     write_json(args.out / "elfin_calibration.json", payload)
@@ -208,13 +245,24 @@ def _run(argv=None) -> int:
         print(f"  4x non-linearity at |B_perp| = 45000 nT: {amp.mean():.1f} nT mean over zones, "
               f"spread {amp.std(ddof=1):.1f} nT (per-zone standard error "
               f"{np.median(err):.2f} nT)")
+    if drift is not None:
+        med = drift.drop(columns=["zone", "gain_coefficients"]).median()
+        print("  spin-plane gain drift (median over zones): "
+              f"{100 * med['gain_drift_pp']:.2f} % p-p; scalar RMS "
+              f"{med['scalar_rms_before_nT']:.1f} -> {med['scalar_rms_after_nT']:.1f} nT, slow "
+              f"part {med['scalar_slow_before_nT']:.1f} -> {med['scalar_slow_after_nT']:.1f}, "
+              f"fast part {med['scalar_fast_after_nT']:.1f}, vector RMS "
+              f"{med['vector_rms_before_nT']:.1f} -> {med['vector_rms_after_nT']:.1f}")
+        agree = agreement["correlation"].abs()
+        print(f"  2x-harmonic drift vs slow part: |correlation| >= 0.9 in "
+              f"{int((agree >= 0.9).sum())}/{len(agree)} zones (median "
+              f"{agree.median():.2f}), ratio {agreement['ratio'].median():.2f} median")
+    print("  zone medians (nT)      |B|-|IGRF|  fast part  slow part  vector RMS (x, y, z GEI)")
+    for name, m in medians.items():
+        print(f"  {name:22s} {m['scalar_rms_nT']:9.1f}  {m['scalar_fast_nT']:9.1f}  "
+              f"{m['scalar_slow_nT']:9.1f}  {m['vector_rms_nT']:6.1f} ({m['vector_rms_x_nT']:.0f}, "
+              f"{m['vector_rms_y_nT']:.0f}, {m['vector_rms_z_nT']:.0f})")
     if joint is not None:
-        med = joint["score_medians"]
-        print("  zone medians (nT)      |B|-|IGRF|  fast part  slow part  vector RMS (x, y, z GEI)")
-        for name, m in med.items():
-            print(f"  {name:22s} {m['scalar_rms_nT']:9.1f}  {m['scalar_fast_nT']:9.1f}  "
-                  f"{m['scalar_slow_nT']:9.1f}  {m['vector_rms_nT']:6.1f} ({m['vector_rms_x_nT']:.0f}, "
-                  f"{m['vector_rms_y_nT']:.0f}, {m['vector_rms_z_nT']:.0f})")
         sh = joint["shared"]
         print(f"  joint fit: cubic 4x at 45000 nT {sh['cubic_4x_at_45000nT_nT']:.1f} nT "
               f"(eps {sh['cubic_eps'][0]:.2e} +- {sh['cubic_eps'][1]:.1e}); "

@@ -1,0 +1,240 @@
+"""Spin-plane gain drift within an ELFIN pass: the slow part of the scalar residual.
+
+After the linear calibration and the spin-harmonic correction
+(:mod:`magcal.missions.elfin_correction`) the ELFIN-A scalar residual ``|B| - |IGRF|``
+keeps a *slow part* of about 60 nT RMS per science zone (quadratic to cubic in time
+over the ~6 min pass). What the data say about it (2022-01-12, see
+``workflows/elfin_scalar_floor.py --slow``):
+
+* it lives in the magnitude of the spin-plane field (the spin-axis component adds
+  < 3 nT to it), which a constant-gain calibration fixes to ``G |counts_perp|`` whatever
+  the attitude: it is not an attitude error;
+* reference errors do not explain it (:mod:`magcal.missions.elfin_reference`): a time
+  offset, a rotated position frame or the external field would need one coefficient
+  for the day, and the coefficients they need differ in sign from zone to zone or are
+  unphysical;
+* the spin-plane gains are seen to drift within each pass without any reference: the
+  2x-spin harmonic of the scalar residual (a gain ratio/non-orthogonality change, which
+  a smooth reference error cannot make) drifts by 40-80 nT RMS, and the time shape of
+  that drift follows the slow part (:func:`drift_shape_agreement`).
+
+So the slow part is modelled as the isotropic half of the same gain drift: the
+spin-plane components are divided by ``1 + g(T)``, ``g`` a polynomial in ``T``
+(-1..1 over the zone), fitted to the scalar residual through
+``d|B| = g |B_perp|^2 / |B|``. Together with the drifting 2x term of the harmonic
+correction (the traceless half) this is a drifting symmetric 2x2 spin-plane gain matrix.
+Limits: the isotropic drift is only seen against the model field, so a reference error
+that is slow within a pass (IGRF, external field: of order 10 nT) is absorbed into it.
+
+Data: ELFIN SOC (PI V. Angelopoulos, UCLA), "Open Data for Scientific Use".
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pandas as pd
+
+from magcal.missions.elfin_scalar import fast_part, fit_spin_harmonics, rms
+
+
+def _unit_time(t, use):
+    t = np.asarray(t, dtype=float)
+    t0, t1 = t[use][0], t[use][-1]
+    return 2.0 * (t - t0) / max(t1 - t0, 1e-12) - 1.0
+
+
+def fit_gain_drift(t_s, b_body, ref_magnitude_nT, *, degree: int = 3, fit_mask=None,
+                   n_iter: int = 2) -> tuple[np.ndarray, dict]:
+    """Remove a slowly drifting isotropic spin-plane gain from body-frame vectors.
+
+    Model: the measured spin-plane components are ``(1 + g(T))`` times the true ones,
+    ``g(T) = sum_d g_d T^d`` (``d = 0..degree``); to first order the scalar residual is
+    ``g(T) |B_perp|^2 / |B|`` (linear least squares on the fitted samples). The
+    spin-axis component is left alone.
+
+    Parameters
+    ----------
+    t_s : array_like (n,)
+        Times, seconds.
+    b_body : array_like (n, 3)
+        Calibrated field in the spinning frame, ``z`` along the spin axis (nT).
+    ref_magnitude_nT : array_like (n,)
+        Reference magnitude (|IGRF|).
+    degree : int
+        Polynomial degree of the gain drift in time (0: a constant gain change).
+    fit_mask : array_like of bool, optional
+        Samples used in the fit (default all); the correction is applied to all.
+    n_iter : int
+        Refits (the second removes what the first leaves at second order).
+
+    Returns
+    -------
+    corrected : ndarray (n, 3)
+    info : dict
+        ``gain_coefficients`` (``g_d``, first pass plus refits), ``gain_drift_pp``
+        (peak-to-peak of ``g`` over the fitted samples, fraction), ``gain_mid``
+        (``g`` at mid-zone) and the scalar RMS, fast and slow parts before and after.
+
+    Examples
+    --------
+    >>> t = np.arange(0.0, 360.0, 0.1)
+    >>> T = 2 * t / t[-1] - 1
+    >>> psi = 2 * np.pi * t / 2.85
+    >>> true = np.column_stack([45000 * np.cos(psi), 45000 * np.sin(psi), 2000 + 0 * t])
+    >>> bad = true * np.c_[1 + 1e-3 * T ** 2, 1 + 1e-3 * T ** 2, np.ones_like(t)]
+    >>> fixed, info = fit_gain_drift(t, bad, np.linalg.norm(true, axis=1))
+    >>> bool(np.abs(fixed - true).max() < 0.01), round(info["gain_drift_pp"], 6)
+    (True, 0.001)
+    """
+    t = np.asarray(t_s, dtype=float)
+    b = np.array(b_body, dtype=float)
+    ref = np.asarray(ref_magnitude_nT, dtype=float)
+    use = np.ones(t.size, bool) if fit_mask is None else np.asarray(fit_mask, bool)
+    T = _unit_time(t, use)
+    powers = np.column_stack([T ** d for d in range(degree + 1)])
+    r0 = np.linalg.norm(b, axis=1) - ref
+    total = np.ones(t.size)
+    coef = np.zeros(degree + 1)
+    for _ in range(max(1, n_iter)):
+        mag = np.linalg.norm(b, axis=1)
+        design = powers * ((b[:, 0] ** 2 + b[:, 1] ** 2) / mag)[:, None]
+        w = np.linalg.lstsq(design[use], (mag - ref)[use], rcond=None)[0]
+        g = powers @ w
+        b[:, :2] /= (1.0 + g)[:, None]
+        total *= 1.0 + g
+        coef += w
+    r1 = np.linalg.norm(b, axis=1) - ref
+    gain = total - 1.0
+    info = {"gain_coefficients": coef.tolist(),
+            "gain_drift_pp": float(np.ptp(gain[use])),
+            "gain_mid": float(np.interp(0.0, T[use], gain[use])),
+            "scalar_rms_before_nT": rms(r0[use]), "scalar_rms_after_nT": rms(r1[use]),
+            "scalar_fast_before_nT": rms(fast_part(t[use], r0[use])),
+            "scalar_fast_after_nT": rms(fast_part(t[use], r1[use])),
+            "scalar_slow_before_nT": rms(r0[use] - fast_part(t[use], r0[use])),
+            "scalar_slow_after_nT": rms(r1[use] - fast_part(t[use], r1[use]))}
+    return b, info
+
+
+def drift_shape_agreement(t_s, b_body, ref_magnitude_nT, *, fit_mask=None,
+                          drift_degree: int = 3, poly_degree: int = 5) -> dict:
+    """Does the slow scalar residual follow the drift of the 2x-spin harmonic?
+
+    The 2x harmonic of the scalar residual (in the spin-plane angle of the field)
+    measures a change of the spin-plane gain ratio/non-orthogonality, and no smooth
+    reference error can make it. If one driver (e.g. temperature) changes the gains of
+    the spin-plane sensors by ``kappa_j theta(t)``, the traceless (2x) and isotropic
+    (slow) halves share the shape ``theta(t)``. This takes the 2x coefficient's
+    trajectory ``c_2(t)`` (complex, cubic in time) on the residual of a *linear*
+    calibration, its principal direction and the amplitude ``a(t)`` along it, and
+    compares ``a`` with the slow part ``S`` (both with what a constant gain and a
+    constant can absorb, ``1`` and ``|B|``, projected out).
+
+    Parameters
+    ----------
+    t_s, b_body, ref_magnitude_nT, fit_mask :
+        As in :func:`fit_gain_drift`; ``b_body`` from the linear calibration.
+    drift_degree, poly_degree :
+        Passed to :func:`~magcal.missions.elfin_scalar.fit_spin_harmonics` (slow part:
+        the polynomial of ``poly_degree``).
+
+    Returns
+    -------
+    dict
+        ``drift2_rms_nT`` (RMS of ``|c_2 - mean|``), ``drift2_line_fraction`` (share of
+        that drift along its principal direction), ``slow_rms_nT`` and
+        ``slow_unabsorbed_nT`` (``S`` before/after projecting out ``1, |B|``),
+        ``correlation`` (of the projected ``S`` and ``a``; its sign is that of the
+        arbitrary principal direction), ``ratio`` (least-squares ``|S / a|``) and
+        ``slow_left_nT`` (what ``S`` keeps after ``1, |B|, a`` with one ratio).
+    """
+    t = np.asarray(t_s, dtype=float)
+    b = np.asarray(b_body, dtype=float)
+    ref = np.asarray(ref_magnitude_nT, dtype=float)
+    use = np.ones(t.size, bool) if fit_mask is None else np.asarray(fit_mask, bool)
+    t, b, ref = t[use], b[use], ref[use]
+    r = np.linalg.norm(b, axis=1) - ref
+    psi = np.angle(b[:, 0] + 1j * b[:, 1])
+    model = fit_spin_harmonics(t, r, psi, fixed=(4,), drifting=(1, 2),
+                               drift_degree=drift_degree, poly_degree=poly_degree)
+    c2 = model.coefficients[2]
+    xy = np.column_stack([c2.real - c2.real.mean(), c2.imag - c2.imag.mean()])
+    _, sv, vt = np.linalg.svd(xy, full_matrices=False)
+    amp = xy @ vt[0]
+    slow = r - fast_part(t, r, poly_degree)
+    absorb = np.column_stack([np.ones_like(t), ref - ref.mean()])
+
+    def project(v):
+        return v - absorb @ np.linalg.lstsq(absorb, v, rcond=None)[0]
+
+    s_p, a_p = project(slow), project(amp)
+    ratio = float(a_p @ s_p / max(a_p @ a_p, 1e-30))
+    return {"drift2_rms_nT": rms(np.abs(c2 - c2.mean())),
+            "drift2_line_fraction": float(sv[0] ** 2 / max(np.sum(sv ** 2), 1e-30)),
+            "slow_rms_nT": rms(slow), "slow_unabsorbed_nT": rms(s_p),
+            "correlation": float(np.corrcoef(s_p, a_p)[0, 1]),
+            "ratio": abs(ratio), "slow_left_nT": rms(s_p - ratio * a_p)}
+
+
+def _zone_body(z):
+    from magcal.spin.despin import spin
+
+    t = (z.index.asi8 - z.index.asi8[0]) / 1e9
+    desp = z[["bx_despun", "by_despun", "bz_despun"]].to_numpy(float)
+    ref = z[["igrf_x_despun", "igrf_y_despun", "igrf_z_despun"]].to_numpy(float)
+    phase = z["phase"].to_numpy(float)
+    return t, spin(desp, phase), np.linalg.norm(ref, axis=1), phase, desp, ref
+
+
+def correct_gain_drift(cal, **kw):
+    """Apply :func:`fit_gain_drift` zone by zone to an ElfinCalibration.
+
+    Parameters
+    ----------
+    cal : magcal.missions.elfin.ElfinCalibration
+        Usually after :func:`~magcal.missions.elfin_correction.correct_elfin_calibration`.
+    **kw
+        Passed to :func:`fit_gain_drift`.
+
+    Returns
+    -------
+    corrected : ElfinCalibration
+        ``bx_despun ..`` and ``bx_gei ..`` corrected (same despun basis as the input).
+    table : DataFrame
+        Per zone: the gain drift (peak-to-peak, fraction; mid-zone value), scalar RMS,
+        fast and slow parts before/after, vector RMS before/after (despun, nT).
+    """
+    from magcal.missions.elfin_phase import despun_basis
+    from magcal.spin.despin import despin
+
+    f = cal.field.copy()
+    rows = []
+    for k in sorted(f["zone"].unique()):
+        sel = (f["zone"] == k).to_numpy()
+        z = f.loc[sel]
+        used = z["used"].to_numpy() == 1
+        t, body, ref_mag, phase, desp, ref = _zone_body(z)
+        fixed, info = fit_gain_drift(t, body, ref_mag, fit_mask=used, **kw)
+        new_d = despin(fixed, phase)
+        basis = despun_basis(z[["spin_axis_gei_x", "spin_axis_gei_y",
+                                "spin_axis_gei_z"]].to_numpy(float))
+        f.loc[sel, ["bx_despun", "by_despun", "bz_despun"]] = new_d
+        f.loc[sel, ["bx_gei", "by_gei", "bz_gei"]] = np.einsum("nji,nj->ni", basis, new_d)
+        rows.append({"zone": int(k), **info,
+                     "vector_rms_before_nT": rms((desp - ref)[used]),
+                     "vector_rms_after_nT": rms((new_d - ref)[used])})
+    params = {**cal.parameters, "gain_drift": {k: str(v) for k, v in kw.items()} or "defaults"}
+    return replace(cal, field=f, parameters=params), pd.DataFrame(rows)
+
+
+def drift_agreement_table(cal, **kw) -> pd.DataFrame:
+    """:func:`drift_shape_agreement` for every zone of a *linear* ElfinCalibration."""
+    rows = []
+    for k in sorted(cal.field["zone"].unique()):
+        z = cal.field[cal.field["zone"] == k]
+        t, body, ref_mag, *_ = _zone_body(z)
+        rows.append({"zone": int(k), **drift_shape_agreement(
+            t, body, ref_mag, fit_mask=z["used"].to_numpy() == 1, **kw)})
+    return pd.DataFrame(rows)
