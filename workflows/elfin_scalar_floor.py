@@ -2,7 +2,7 @@
 
 Usage::
 
-    python workflows/elfin_scalar_floor.py [--data DIR] [--out FILE.csv]
+    python workflows/elfin_scalar_floor.py [--data DIR] [--out FILE.csv] [--mechanisms] [--slow]
 
 Per science zone of 2022-01-12: the best 9-parameter scalar calibration (the linear
 floor), its residual and fast part (after a 5th-order polynomial), the spin harmonics
@@ -24,6 +24,9 @@ from magcal.offline import configure_offline
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from elfin_calibration import DEFAULT_DATA, FGS_FILE, STATE_FILE  # noqa: E402
+
+#: CelesTrak space-weather file beside the ELFIN folder (Kp for the T89 candidate).
+KP_FILE = "celestrak_SW_2017-2023_subset.txt"
 
 
 def _mechanisms(data: Path, tab) -> None:
@@ -48,6 +51,33 @@ def _mechanisms(data: Path, tab) -> None:
           f"({int(ts.n_jumps.sum())} paired jumps)")
 
 
+def _slow(data: Path) -> None:
+    from magcal.indices.kp import read_kp
+    from magcal.missions.elfin import calibrate_elfin
+    from magcal.missions.elfin_correction import correct_elfin_calibration
+    from magcal.missions.elfin_drift import drift_agreement_table
+    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin_reference import screen_slow_part, zone_slow_parts
+
+    fgs, state = read_elfin_fgs(data / FGS_FILE), read_elfin_state(data / STATE_FILE)
+    linear = calibrate_elfin(fgs, state)
+    harmonic, _ = correct_elfin_calibration(linear)
+    kp_file = data.parent / "indices" / KP_FILE
+    kp = read_kp(kp_file) if kp_file.is_file() else None
+    screen = screen_slow_part(zone_slow_parts(harmonic, state, kp))
+    print("slow part of |B| - |IGRF| after the spin-harmonic correction, screened against "
+          "reference errors (one coefficient for the day; per zone 1 and |B| free):")
+    for row in screen.itertuples():
+        per = " ".join(f"{c:.3g}" for c in row.zone_coefficients)
+        print(f"  {row.candidate:12s} day coefficient {row.day_coefficient:9.3g}  slow part left "
+              f"{row.slow_left_median_nT:5.1f} nT (median)  unit range {row.range_nT:5.1f} nT  "
+              f"zones of the other sign {row.zone_sign_changes:2d}  per zone: {per}")
+    agree = drift_agreement_table(linear)
+    print("2x-spin drift (reference-free) against the slow part, per zone "
+          "(linear calibration):")
+    print(agree.round(3).to_string(index=False))
+
+
 def main(argv=None) -> int:
     """Run; bad or missing input is one line on stderr and exit status 2."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -56,6 +86,10 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=None, help="also write the table as CSV")
     ap.add_argument("--mechanisms", action="store_true",
                     help="also print the mechanism tests (locking, power law, time stamps)")
+    ap.add_argument("--slow", action="store_true",
+                    help="also screen the slow part against reference errors (time offset, "
+                         "frame rotation, orbit, T89, ring current) and compare it with the "
+                         "2x-spin drift")
     ap.add_argument("--drift-degree", type=int, default=3,
                     help="degree of the drifting 1x/2x coefficients (default 3)")
     args = ap.parse_args(argv)
@@ -82,6 +116,8 @@ def main(argv=None) -> int:
     print("median: " + ", ".join(f"{k} {v:.1f}" for k, v in med.items()))
     if args.mechanisms:
         _mechanisms(args.data, tab)
+    if args.slow:
+        _slow(args.data)
     if args.out is not None:
         tab.to_csv(args.out, index=False)
         print(f"wrote {args.out}")

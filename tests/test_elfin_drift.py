@@ -1,0 +1,151 @@
+"""Slow part of the ELFIN scalar residual: spin-plane gain drift and reference screening.
+
+Injected truth on a simulated spinner (magcal.missions.elfin_drift), a closed-form check
+of the reference screening (magcal.missions.elfin_reference), and the real ELFIN-A passes
+of 2022-01-12 (ELFIN SOC, PI V. Angelopoulos, UCLA; Open Data for Scientific Use),
+skipped when ../shared/real-data is absent.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from magcal.missions.elfin_drift import drift_shape_agreement, fit_gain_drift
+from magcal.missions.elfin_reference import screen_slow_part
+from magcal.missions.elfin_scalar import fast_part, rms
+from magcal.spin.despin import spin
+
+SPIN_S = 2.85
+
+
+def _pass():
+    """A 360 s pass at 10 Hz: the field turns 40 deg in inertial space and |B| changes."""
+    t = np.arange(0.0, 360.0, 0.1)
+    T = 2 * t / t[-1] - 1
+    ang = np.radians(-30 - 40 * (T + 1) / 2)
+    perp = 45000 + 2500 * T
+    inertial = np.column_stack([perp * np.cos(ang), perp * np.sin(ang), 2000 - 700 * T])
+    return t, T, spin(inertial, 2 * np.pi * t / SPIN_S)
+
+
+def test_injected_isotropic_gain_drift_is_recovered():
+    rng = np.random.default_rng(5)
+    t, T, truth = _pass()
+    g = 4e-4 + 1.5e-3 * T - 2.5e-3 * T ** 2 + 6e-4 * T ** 3       # 0.45 % p-p, ELFIN-like
+    measured = truth * np.c_[1 + g, 1 + g, np.ones_like(t)]
+    measured += rng.normal(scale=0.3, size=measured.shape)
+    fixed, info = fit_gain_drift(t, measured, np.linalg.norm(truth, axis=1))
+    # the drift is recovered to 1e-5 (0.45 nT at 45000 nT) ...
+    np.testing.assert_allclose(info["gain_coefficients"], [4e-4, 1.5e-3, -2.5e-3, 6e-4],
+                               atol=1e-5)
+    np.testing.assert_allclose(info["gain_drift_pp"], np.ptp(g), rtol=0.01)
+    # ... and the vectors come back to the noise
+    assert info["scalar_slow_before_nT"] > 50.0
+    assert info["scalar_slow_after_nT"] < 0.5
+    assert rms(fixed - truth) < 0.5
+
+
+def test_single_direction_gain_drift_gives_matching_2x_and_isotropic_shapes():
+    """A gain change along one spin-plane direction: 2x and isotropic halves agree."""
+    rng = np.random.default_rng(6)
+    t, T, truth = _pass()
+    theta = 2e-3 * (T ** 2 - 1 / 3) + 1e-3 * T                      # the common driver
+    n = np.array([np.cos(0.4), np.sin(0.4)])                        # drifting direction
+    along = truth[:, :2] @ n
+    measured = truth.copy()
+    measured[:, :2] += (theta * along)[:, None] * n
+    measured += rng.normal(scale=0.3, size=measured.shape)
+    out = drift_shape_agreement(t, measured, np.linalg.norm(truth, axis=1))
+    # |B| changes by theta (n.B)^2/|B| = theta |B_perp|^2/(2|B|) (1 + cos 2(psi - a)):
+    # the isotropic and the 2x halves are equal (ratio 1) with one time shape
+    assert abs(out["correlation"]) > 0.99
+    assert abs(out["ratio"] - 1.0) < 0.05
+    assert out["drift2_line_fraction"] > 0.99
+
+
+def test_slow_reference_error_makes_no_2x_drift():
+    """A smooth error of the reference magnitude is slow part only, never a 2x drift."""
+    rng = np.random.default_rng(7)
+    t, T, truth = _pass()
+    measured = truth + rng.normal(scale=0.3, size=truth.shape)
+    ref_error = 120.0 * T ** 2 - 40.0 * T                           # nT, like the slow part
+    out = drift_shape_agreement(t, measured, np.linalg.norm(truth, axis=1) - ref_error)
+    assert out["slow_rms_nT"] > 40.0
+    assert out["drift2_rms_nT"] < 0.5
+
+
+def test_screen_recovers_an_injected_reference_error_for_the_day():
+    rng = np.random.default_rng(8)
+    zones = []
+    for k in range(5):
+        t = np.arange(0.0, 360.0, 1.0)
+        T = 2 * t / t[-1] - 1
+        ref = 45000 + rng.normal(0, 2000) * T + 300 * T ** 2
+        cand = rng.normal(0, 10) * T + rng.normal(0, 10) * T ** 2 + rng.normal(0, 5) * T ** 3
+        other = rng.normal(0, 10) * T ** 2
+        # slow part = 3.0 x the candidate + what the calibration absorbs (1, |B|)
+        slow = 3.0 * cand + rng.normal(0, 20) + 1e-3 * (ref - ref.mean())
+        zones.append({"zone": k, "t": t, "slow": slow, "ref": ref, "cand": cand,
+                      "other": other})
+    tab = screen_slow_part(zones, names=("cand", "other")).set_index("candidate")
+    np.testing.assert_allclose(tab.loc["cand", "day_coefficient"], 3.0, rtol=1e-9)
+    np.testing.assert_allclose(tab.loc["cand", "zone_coefficients"], 3.0, rtol=1e-9)
+    assert tab.loc["cand", "zone_sign_changes"] == 0
+    assert tab.loc["cand", "slow_left_median_nT"] < 1e-6
+    assert tab.loc["other", "slow_left_median_nT"] > 1.0
+
+
+@pytest.fixture(scope="module")
+def real_zones():
+    from tests.conftest import real_data_path
+
+    folder = real_data_path("elfin")
+    from magcal.missions.elfin import calibrate_elfin
+    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
+
+    fgs = read_elfin_fgs(folder / "ela_l1_fgs_20220112_v01.cdf")
+    state = read_elfin_state(folder / "ela_l1_state_defn_20220112_v01.cdf")
+    return calibrate_elfin(fgs, state, zones=[2, 7])     # one dusk, one dawn pass
+
+
+@pytest.mark.realdata
+def test_real_gain_drift_removes_the_slow_part(real_zones):
+    from magcal.missions.elfin_correction import correct_elfin_calibration
+    from magcal.missions.elfin_drift import correct_gain_drift, drift_agreement_table
+    from magcal.missions.elfin_joint import score_field
+
+    harmonic, _ = correct_elfin_calibration(real_zones)
+    drifted, table = correct_gain_drift(harmonic)
+    before, after = score_field(harmonic.field), score_field(drifted.field)
+    # the slow part (about 60-80 nT in these zones) is at least 80 % gone; the scalar
+    # target of issue 15 (30 nT) is met in both zones and the fast part does not grow
+    assert np.all(before["scalar_slow_nT"] > 50.0)
+    assert np.all(after["scalar_slow_nT"] < 0.2 * before["scalar_slow_nT"])
+    assert np.all(after["scalar_rms_nT"] < 30.0)
+    assert np.all(after["scalar_fast_nT"] < before["scalar_fast_nT"] + 0.5)
+    # the drift is a gain change of a few tenths of a percent, and the vector improves
+    assert np.all((table["gain_drift_pp"] > 1e-3) & (table["gain_drift_pp"] < 1e-2))
+    assert np.all(after["vector_rms_nT"] < before["vector_rms_nT"])
+    # the reference-free 2x drift has the slow part's time shape in both zones
+    agree = drift_agreement_table(real_zones)
+    assert np.all(agree["correlation"].abs() > 0.9)
+
+
+@pytest.mark.realdata
+def test_real_slow_part_is_in_the_spin_plane_magnitude(real_zones):
+    """The spin-axis component adds < 5 nT to the slow part: not an attitude error."""
+    from magcal.missions.elfin_correction import correct_elfin_calibration
+
+    harmonic, _ = correct_elfin_calibration(real_zones)
+    f = harmonic.field
+    for k in sorted(f["zone"].unique()):
+        z = f[(f["zone"] == k) & (f["used"] == 1)]
+        t = (z.index.asi8 - z.index.asi8[0]) / 1e9
+        b = z[["bx_despun", "by_despun", "bz_despun"]].to_numpy()
+        r = z[["igrf_x_despun", "igrf_y_despun", "igrf_z_despun"]].to_numpy()
+        mag = np.linalg.norm(r, axis=1)
+        perp = np.hypot(b[:, 0], b[:, 1]) - np.hypot(r[:, 0], r[:, 1])
+        axial = (b[:, 2] ** 2 - r[:, 2] ** 2) / (2 * mag)
+        slow = [rms(v - fast_part(t, v)) for v in (perp, axial)]
+        assert slow[0] > 50.0 and slow[1] < 5.0
