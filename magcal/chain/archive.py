@@ -134,9 +134,11 @@ def index_digest(tables: dict, start: str, end: str, margin_h: float = 3.0) -> s
     return digest(parts)[:24]
 
 
-def file_span(job) -> dict:
-    """First and last time of one file, ``job = (path, format)``: ``{"span": [first,
-    last]}`` or ``{"error": reason}`` (a task: it never raises)."""
+def read_file(job) -> dict:
+    """One file read on a worker, ``job = (path, format)``: ``{"span": [first, last],
+    "frame": the read_any frame}`` or ``{"error": reason}`` (a task: it never raises).
+    The fit phase takes the spans of the first files and the frames of those it fits on
+    from one read."""
     from magcal.io.formats import read_any
 
     path, fmt = job
@@ -146,18 +148,20 @@ def file_span(job) -> dict:
             raise InputError("no samples", file=path)
     except InputError as exc:
         return {"error": str(exc)}
-    return {"span": [str(frame.index[0]), str(frame.index[-1])]}
+    return {"span": [str(frame.index[0]), str(frame.index[-1])], "frame": frame}
 
 
-def _fit_files(cfg: ChainConfig, files, shas, state: Path, engine) -> list[Path]:
-    """The readable files starting within ``fit_days`` of the first readable one.
+def _fit_files(cfg: ChainConfig, files, shas, state: Path, engine):
+    """The readable files starting within ``fit_days`` of the first readable one, and
+    the frames of those of them read here (``{path: frame}``).
 
-    The files' spans are read on the workers, as many files at a time as there are
-    workers, and cached in ``state/spans.json`` by checksum.
+    The files whose spans are not yet known are read on the workers, as many files at a
+    time as there are workers; their spans are cached in ``state/spans.json`` by
+    checksum, so a rerun finds the fit files (and the cached fit) without reading.
     """
     spans_path = state / "spans.json"
     spans = json.loads(spans_path.read_text()) if spans_path.is_file() else {}
-    chosen, first, errors = [], None, []
+    chosen, first, errors, frames = [], None, [], {}
     limit = pd.Timedelta(days=float(cfg["picog"]["fit_days"]))
     pairs = list(zip(files, shas))
     done = False
@@ -165,11 +169,12 @@ def _fit_files(cfg: ChainConfig, files, shas, state: Path, engine) -> list[Path]
         batch = pairs[k:k + engine.workers]
         todo = [(path, sha) for path, sha in batch if sha not in spans]
         jobs = [(str(path), cfg["input"]["format"]) for path, _ in todo]
-        for (_, sha), res in zip(todo, engine.map(file_span, jobs, "file spans")):
+        for (path, sha), res in zip(todo, engine.map(read_file, jobs, "fit files")):
             if "error" in res:
                 errors.append(InputError(res["error"]))
             else:
                 spans[sha] = res["span"]
+                frames[path] = res["frame"]
         for path, sha in batch:
             if sha not in spans:
                 continue
@@ -185,11 +190,13 @@ def _fit_files(cfg: ChainConfig, files, shas, state: Path, engine) -> list[Path]
         tmp.write_text(json.dumps(spans, sort_keys=True))
     if not chosen:
         raise errors[0] if errors else InputError("no input file", file=cfg.path)
-    return chosen
+    return chosen, {p: f for p, f in frames.items() if p in chosen}
 
 
 def fit_phase(cfg: ChainConfig, files, shas, state: Path, engine):
-    """Frames and PiCoG on the first days: ``(FrameApply, frames product, ac product)``.
+    """Frames and PiCoG on the first days: ``(FrameApply, frames product, ac product,
+    read)``, ``read`` being the frames of the files read here (``{path: frame}``), which
+    their partitions take instead of reading the files again.
 
     Cached in ``state`` under the SHA-256 of the files used and of the configuration
     of frames, PiCoG and input (not of Kp, model or position, which it does not use).
@@ -197,7 +204,7 @@ def fit_phase(cfg: ChainConfig, files, shas, state: Path, engine):
     from magcal.chain import prepare
     from magcal.provenance import file_sha256
 
-    fit_files = _fit_files(cfg, files, shas, state, engine)
+    fit_files, frames_read = _fit_files(cfg, files, shas, state, engine)
     by_path = dict(zip(files, shas))
     plan = cfg["picog"]["plan"]
     plan_path = cfg.resolve(plan) if plan not in ("auto", "none") else None
@@ -209,8 +216,14 @@ def fit_phase(cfg: ChainConfig, files, shas, state: Path, engine):
                   else None})
     path = state / f"fit-{key[:24]}.json"
     if path.is_file():
-        return _fit_from_json(json.loads(path.read_text()))
-    series = prepare.load_series(cfg, fit_files)
+        return (*_fit_from_json(json.loads(path.read_text())), frames_read)
+    todo = [f for f in fit_files if f not in frames_read]  # spans known from a last run
+    for f, res in zip(todo, engine.map(read_file, [(str(f), cfg["input"]["format"])
+                                                   for f in todo], "fit files")):
+        if "error" in res:
+            raise InputError(res["error"])
+        frames_read[f] = res["frame"]
+    series = prepare.series_from_frames(cfg, fit_files, [frames_read[f] for f in fit_files])
     common, frames = prepare.run_frames(series, cfg)
     _, ac = prepare.run_ac(common, cfg)
     params = ac.documents.get("PARAMS.json")
@@ -227,7 +240,7 @@ def fit_phase(cfg: ChainConfig, files, shas, state: Path, engine):
     doc = _fit_to_json(fit, frames, ac)
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(doc, allow_nan=False))
-    return _fit_from_json(doc)  # the same objects a rerun restores
+    return (*_fit_from_json(doc), frames_read)  # the objects a rerun restores
 
 
 def _product_to_json(product: StageProduct) -> dict:
@@ -263,8 +276,11 @@ def _fit_from_json(doc: dict):
 
 
 # ----------------------------------------------------------------------- partitions
-def run_partitions(cfg: ChainConfig, files, shas, fit: FrameApply, state: Path, engine):
-    """Process every file whose result is missing; ``(records in time order, summary)``."""
+def run_partitions(cfg: ChainConfig, files, shas, fit: FrameApply, state: Path, engine,
+                   read: dict | None = None):
+    """Process every file whose result is missing; ``(records in time order, failed,
+    summary)``. ``read`` holds frames the fit phase read (``{path: frame}``): their
+    partitions start from them instead of reading the files again."""
     import time
 
     start = time.perf_counter()
@@ -286,7 +302,8 @@ def run_partitions(cfg: ChainConfig, files, shas, fit: FrameApply, state: Path, 
                 skipped.append(str(path))
                 continue
         tasks.append(PartitionTask(config=cfg, file=str(path), sha256=sha, key=key,
-                                   result=str(result), fit=fit))
+                                   result=str(result), fit=fit, tables=tables,
+                                   frame=(read or {}).get(path)))
     records += engine.map(run_partition, tasks, "partitions")
     for r in records:  # the key downstream stages see names the index records as well
         if r["status"] == "ok":

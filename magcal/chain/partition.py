@@ -75,6 +75,11 @@ class PartitionTask:
     key: str
     result: str
     fit: FrameApply
+    #: The Kp series and driver table (:func:`magcal.chain.archive.read_index_tables`),
+    #: read once by the driver instead of once per partition; None: read them here.
+    tables: dict | None = None
+    #: The file as the fit phase read it (``read_any``), or None: read it here.
+    frame: object = None
 
 
 def run_partition(task: PartitionTask) -> dict:
@@ -98,13 +103,23 @@ def run_partition(task: PartitionTask) -> dict:
 def _process(task: PartitionTask) -> dict:
     import warnings
 
-    from magcal.chain.prepare import CleanedData, apply_frame, load_series, naive_times, run_model
+    from magcal.chain.archive import index_digest, read_index_tables
+    from magcal.chain.prepare import (
+        CleanedData,
+        apply_frame,
+        load_series,
+        naive_times,
+        run_model,
+        series_from_frames,
+    )
 
     cfg = task.config
     fit = task.fit
+    tables = task.tables if task.tables is not None else read_index_tables(cfg)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        series = load_series(cfg, [Path(task.file)])
+        series = (load_series(cfg, [Path(task.file)]) if task.frame is None else
+                  series_from_frames(cfg, [Path(task.file)], [task.frame]))
         vectors = {s: apply_frame(series[s], fit.transforms[s]) for s in fit.sensors}
         raw = vectors[fit.target]
         cleaned = raw
@@ -118,14 +133,12 @@ def _process(task: PartitionTask) -> dict:
         to_hpen = np.asarray(fit.to_hpen, dtype=float)
         data = CleanedData(series.times, cleaned @ to_hpen.T, raw @ to_hpen.T)
         one_job = replace(cfg, sections={**cfg.sections, "model": {**cfg["model"], "jobs": 1}})
-        minute, product = run_model(series, data, one_job)
+        minute, product = run_model(series, data, one_job, tables)
     arrays = {"t_full": naive_times(series.times).astype(np.int64),
               "hpen_full": data.hpen, "raw_full": data.raw_hpen,
               "t_min": minute.times.astype("datetime64[ns]").astype(np.int64),
               "hpen_min": minute.hpen, "model_min": minute.model, "kp": minute.kp,
               "lon_deg": minute.lon_deg, "lat_deg": minute.lat_deg, "r_re": minute.r_re}
-    from magcal.chain.archive import index_digest, read_index_tables
-
     t = series.times
     days = sorted({str(d.date()) for d in t.floor("D").unique()})
     meta = {"n_samples": len(series), "cadence_s": float(series.cadence_s),
@@ -134,7 +147,7 @@ def _process(task: PartitionTask) -> dict:
             "n_model_invalid": int(product.summary.get("n_invalid", 0)),
             "warnings": list(product.warnings),
             # the Kp and driver records this partition used (a rerun compares them)
-            "index_digest": index_digest(read_index_tables(cfg), str(t[0]), str(t[-1]))}
+            "index_digest": index_digest(tables, str(t[0]), str(t[-1]))}
     write_partition(Path(task.result), arrays, meta)
     return meta
 

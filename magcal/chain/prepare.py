@@ -40,11 +40,15 @@ def load_series(config: ChainConfig, files: list[Path]) -> VectorSeries:
     from magcal.io.formats import read_any
 
     fmt = config["input"]["format"]
-    frames, repairs = [], []
-    for path in files:
-        frame = read_any(path, fmt)
+    return series_from_frames(config, files, [read_any(path, fmt) for path in files])
+
+
+def series_from_frames(config: ChainConfig, files: list[Path], frames: list) -> VectorSeries:
+    """:func:`load_series` of frames already read (``read_any`` of each file, in the
+    order of ``files``), e.g. read on the workers of an archive run."""
+    repairs = []
+    for path, frame in zip(files, frames):
         repairs += [dict(r, file=str(path)) for r in frame.attrs.get("repairs", [])]
-        frames.append(frame)
     joined = pd.concat(frames, axis=0, sort=False) if len(frames) > 1 else frames[0]
     joined = joined.sort_index(kind="stable")
     series = VectorSeries.from_frame(joined, frame_name=config["input"]["frame"],
@@ -327,9 +331,14 @@ def _position(series: VectorSeries, config: ChainConfig, times: np.ndarray):
     return tuple(out)
 
 
-def run_model(series: VectorSeries, cleaned: CleanedData, config: ChainConfig
-              ) -> tuple[MinuteData, StageProduct]:
-    """Average the cleaned field to the offsets cadence and evaluate the model there."""
+def run_model(series: VectorSeries, cleaned: CleanedData, config: ChainConfig,
+              tables: dict | None = None) -> tuple[MinuteData, StageProduct]:
+    """Average the cleaned field to the offsets cadence and evaluate the model there.
+
+    ``tables`` may hold the Kp series and driver table already read
+    (:func:`magcal.chain.archive.read_index_tables`), so a partition reads each file
+    once; a file whose table is None there is read here."""
+    tables = tables or {}
     from magcal.indices import drivers_at, kp_at, read_drivers, read_kp
     from magcal.models.field import model_field_hpen
     from magcal.offsets import average_to_cadence
@@ -348,7 +357,8 @@ def run_model(series: VectorSeries, cleaned: CleanedData, config: ChainConfig
     inputs = []
     kp_values = np.full(len(times), np.nan)
     if kp_path is not None:
-        kp_values = kp_at(read_kp(kp_path), times)
+        kp = tables.get("kp")
+        kp_values = kp_at(read_kp(kp_path) if kp is None else kp, times)
         inputs.append(kp_path)
     elif name == "T89":
         raise InputError("[kp] file is needed by T89 and the quiet-time selection",
@@ -356,7 +366,9 @@ def run_model(series: VectorSeries, cleaned: CleanedData, config: ChainConfig
     drivers = None
     drv_path = config.resolve(config["model"]["drivers"])
     if drv_path is not None:
-        drivers = drivers_at(read_drivers(drv_path), pd.DatetimeIndex(times, tz="UTC"))
+        table = tables.get("drivers")
+        drivers = drivers_at(read_drivers(drv_path) if table is None else table,
+                             pd.DatetimeIndex(times, tz="UTC"))
         inputs.append(drv_path)
     elif name in ("T96", "T01", "T04"):
         raise InputError(f"[model] {name} needs drivers = <file>", file=config.path)

@@ -326,7 +326,7 @@ def _geostationary_stages(run: _Run, cfg: ChainConfig, files, shas, extras: dict
                  f"{cfg['picog']['fit_days']:g} days")
     start = time.perf_counter()
     try:
-        fit, frames, ac = archive.fit_phase(cfg, files, shas, state, engine)
+        fit, frames, ac, read = archive.fit_phase(cfg, files, shas, state, engine)
     except InputError as exc:
         run.fail("frames", exc, time.perf_counter() - start)
         raise
@@ -335,7 +335,8 @@ def _geostationary_stages(run: _Run, cfg: ChainConfig, files, shas, extras: dict
     run.stage("ac", lambda: (None, ac), key=fit.key)
     run.progress(f"-> partitions ({engine.description})")
     records, failed, run.partitions = archive.run_partitions(cfg, files, shas, fit, state,
-                                                             engine)
+                                                             engine, read)
+    del read  # the fit files' frames: not held through the later stages
     archive.prune_partitions(state, records, fit.key)
     pkeys = [r["key"] for r in records]
     # discovery needs only the 1-min record: it starts on a worker now and runs while
