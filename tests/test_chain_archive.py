@@ -423,3 +423,31 @@ def test_discovery_is_given_means_of_a_long_record():
     np.testing.assert_allclose(means.model[:2, 1], [4.5, 24.5])
     np.testing.assert_allclose(means.kp[:2], [0.45, 2.45])
     np.testing.assert_allclose(means.r_re, 6.6)
+
+
+@pytest.mark.parametrize("cadence", ["1s", "100ms"])
+def test_corrected_day_writer_writes_the_bytes_of_write_csv_frame(tmp_path, cadence):
+    # the fast writer of the corrected days must not change the product: the reference
+    # is the library's CSV writer on the same frame
+    from magcal.chain.daily_csv import write_day_csv
+    from magcal.io.csv import write_csv_frame
+
+    rng = np.random.default_rng(12)
+    n = 5000
+    times = pd.date_range("2019-11-01", periods=n, freq=cadence, tz="UTC")
+    values = rng.normal(0.0, 100.0, (n, 3)) * rng.choice([1e-9, 1.0, 1e4], (n, 3))
+    values[::7, 0] = -0.0
+    flags = rng.integers(0, 4, n)
+    prov = {"step": "offsets apply", "when": pd.Timestamp("2019-11-01")}
+    frame = pd.DataFrame(values, index=times, columns=["Hp", "He", "Hn"])
+    frame["offset_flag"] = flags
+    for case, vals in (("finite", values), ("nan", np.where(values > 150, np.nan, values)),
+                       ("inf", np.where(values > 150, np.inf, values))):
+        frame[["Hp", "He", "Hn"]] = vals
+        ref = write_csv_frame(tmp_path / f"ref_{case}.csv", frame, float_format="%.6f",
+                              provenance=prov)
+        got = write_day_csv(tmp_path / f"got_{case}.csv", times, vals, ("Hp", "He", "Hn"),
+                            flags, provenance=prov)
+        assert got.read_bytes() == ref.read_bytes(), case
+        assert (Path(f"{got}.provenance.json").read_bytes()
+                == Path(f"{ref}.provenance.json").read_bytes())

@@ -561,7 +561,7 @@ def _bracket_key(table, day: str, partition_keys) -> str:
 
 def write_corrected_day(task: DayTask) -> dict:
     """Apply the interpolated offsets to one day's full-cadence Hpen; write its CSV."""
-    from magcal.io.csv import write_csv_frame
+    from magcal.chain.daily_csv import write_day_csv
     from magcal.offsets import apply_offsets
     from magcal.provenance import file_sha256
 
@@ -575,13 +575,11 @@ def write_corrected_day(task: DayTask) -> dict:
             corr, _, flag = apply_offsets(t, hpen, task.table)
         else:
             corr, flag = hpen.copy(), np.full(len(t), 3, dtype=np.int8)
-        frame = pd.DataFrame(corr, index=times, columns=list(HPEN))
-        frame["offset_flag"] = np.asarray(flag, dtype=int)
-        write_csv_frame(Path(task.path), frame, provenance=task.provenance or None,
-                        float_format="%.6f")
+        write_day_csv(Path(task.path), times, corr, HPEN, np.asarray(flag, dtype=int),
+                      provenance=task.provenance or None)
         counts = np.bincount(np.asarray(flag, dtype=int), minlength=4)[:4]
         return {"day": task.day, "status": "ok", "sha256": file_sha256(task.path),
-                "n": len(frame), "flags": counts.tolist()}
+                "n": len(times), "flags": counts.tolist()}
     except Exception as exc:  # noqa: BLE001 - one day must not stop the others
         return {"day": task.day, "status": "failed", "reason": f"{type(exc).__name__}: {exc}"}
 
