@@ -14,7 +14,7 @@ import pytest
 from magcal.missions.elfin_drift import drift_shape_agreement, fit_gain_drift
 from magcal.missions.elfin_reference import screen_slow_part
 from magcal.missions.elfin_scalar import fast_part, rms
-from magcal.spin.despin import spin
+from magcal.spin.despin import despin, spin
 
 SPIN_S = 2.85
 
@@ -149,3 +149,69 @@ def test_real_slow_part_is_in_the_spin_plane_magnitude(real_zones):
         axial = (b[:, 2] ** 2 - r[:, 2] ** 2) / (2 * mag)
         slow = [rms(v - fast_part(t, v)) for v in (perp, axial)]
         assert slow[0] > 50.0 and slow[1] < 5.0
+
+
+def test_vector_step_removes_body_fixed_terms_and_keeps_natural_fields():
+    """Body-fixed spin harmonics and a tilt go; an inertial (natural) field stays."""
+    from magcal.missions.elfin_vector import correct_vector_zone
+
+    rng = np.random.default_rng(9)
+    t, T, _ = _pass()
+    phase = 2 * np.pi * t / SPIN_S
+    ang = np.radians(-30 - 40 * (T + 1) / 2)
+    ref = np.column_stack([45000 * np.cos(ang), 45000 * np.sin(ang), 2000 - 700 * T])
+    # a natural field IGRF lacks: a 60 nT transverse bump over ~30 s (despun frame)
+    natural = np.zeros_like(ref)
+    natural[:, 0] = 60 * np.exp(-0.5 * ((t - 150) / 15) ** 2) * np.sin(ang)
+    natural[:, 1] = -60 * np.exp(-0.5 * ((t - 150) / 15) ** 2) * np.cos(ang)
+    truth = ref + natural
+    body = spin(truth, phase)
+    beta = body[:, 0] + 1j * body[:, 1]
+    psi = np.angle(beta)
+    wobble = 1j * beta * 1e-3 * np.cos(2 * psi - 0.7)            # 2x angle wobble, 0.06 deg
+    bad = body.copy()
+    bad[:, 0] += wobble.real
+    bad[:, 1] += wobble.imag
+    bad[:, 2] += (40 + 20 * T) * np.cos(psi - 0.3)                # drifting spin-axis tilt
+    bad += rng.normal(scale=0.3, size=bad.shape)
+    fixed, info = correct_vector_zone(t, despin(bad, phase), phase, ref, bound_deg=0.0)
+    # the body-fixed terms are removed (to < 1 nT RMS), the natural field is kept whole
+    assert rms(np.linalg.norm(fixed - truth, axis=1)) < 1.0
+    assert rms(np.linalg.norm(fixed - ref, axis=1)) > 0.9 * rms(np.linalg.norm(natural, axis=1))
+    assert info["vector_rms_before_nT"] > 20.0
+
+
+def test_tilt_is_recovered_inside_the_bound_and_clipped_outside():
+    from magcal.missions.elfin_vector import refine_tilt
+
+    t, T, _ = _pass()
+    ang = np.radians(-30 - 40 * (T + 1) / 2)
+    ref = np.column_stack([45000 * np.cos(ang), 45000 * np.sin(ang), 2000 - 700 * T])
+    w = np.radians([0.12, -0.05, 0.0])
+    _, got, at_bound = refine_tilt(ref + np.cross(w, ref), ref)
+    np.testing.assert_allclose(got, [0.12, -0.05], atol=2e-3)
+    assert not at_bound
+    # beyond the attitude file's 0.2 deg the angle stops on the bound and says so (the
+    # other angle then takes up what it can: over a 40 deg sweep the two are correlated)
+    _, got, at_bound = refine_tilt(ref + np.cross(np.radians([0.35, -0.05, 0.0]), ref), ref)
+    np.testing.assert_allclose(got[0], 0.2, atol=1e-3)
+    assert at_bound
+
+
+@pytest.mark.realdata
+def test_real_vector_step_lowers_the_vector_residual(real_zones):
+    from magcal.missions.elfin_correction import correct_elfin_calibration
+    from magcal.missions.elfin_drift import correct_gain_drift
+    from magcal.missions.elfin_joint import score_field
+    from magcal.missions.elfin_vector import correct_vector
+
+    drifted, _ = correct_gain_drift(correct_elfin_calibration(real_zones)[0])
+    final, table = correct_vector(drifted)
+    before, after = score_field(drifted.field), score_field(final.field)
+    # the body-fixed spin harmonics are 15-50 nT: the vector RMS falls by a fifth at
+    # least; the scalar stays under issue 15's 30 nT and its fast part grows < 1 nT
+    # (zone 7's fast part is 17 nT before and after: the sunlit dawn passes keep it)
+    assert np.all(after["vector_rms_nT"] < 0.8 * before["vector_rms_nT"])
+    assert np.all(after["scalar_rms_nT"] < 30.0)
+    assert np.all(after["scalar_fast_nT"] < before["scalar_fast_nT"] + 1.0)
+    assert np.all(np.abs(np.vstack(table["tilt_deg"])) <= 0.2 + 1e-9)

@@ -124,6 +124,12 @@ def _run(argv=None) -> int:
     ap.add_argument("--no-gain-drift", action="store_true",
                     help="skip the spin-plane gain drift (the slow part of |B| - |IGRF|; "
                          "applied after the spin-harmonic correction by default)")
+    ap.add_argument("--no-vector-correction", action="store_true",
+                    help="skip the vector-only step after the gain drift (body-fixed 2x/3x "
+                         "spin-plane and 1x spin-axis harmonics, spin-axis tilt)")
+    ap.add_argument("--tilt-bound-deg", type=float, default=0.2,
+                    help="bound of the per-zone spin-axis tilt in the vector step (default "
+                         "0.2 deg, the attitude file's uncertainty; 0: no tilt)")
     ap.add_argument("--joint", action="store_true",
                     help="also run the joint fit across zones (shared sensor, per-zone "
                          "offsets and attitude; about 60 s, never delivered on 2022-01-12)")
@@ -147,7 +153,7 @@ def _run(argv=None) -> int:
     from magcal.missions.elfin_ripple import ripple_crosscheck
 
     ripple = ripple_crosscheck(cal, fgs)
-    correction, joint, drift, agreement = None, None, None, None
+    correction, joint, drift, agreement, vector = None, None, None, None, None
     linear = cal
     incumbent = "linear"
     products = {"linear": linear}
@@ -164,6 +170,12 @@ def _run(argv=None) -> int:
             agreement = drift_agreement_table(linear)
             incumbent = "harmonic + gain drift"
             products[incumbent] = cal
+            if not args.no_vector_correction:
+                from magcal.missions.elfin_vector import correct_vector
+
+                cal, vector = correct_vector(cal, bound_deg=args.tilt_bound_deg)
+                incumbent = "+ vector step"
+                products[incumbent] = cal
     if args.joint and not args.no_joint:
         joint = _joint(linear, cal, incumbent)
         if joint["delivered"] == "joint":
@@ -205,6 +217,13 @@ def _run(argv=None) -> int:
                     "elfin_scalar_floor.py --slow",
             "zones": drift.to_dict(orient="records"),
             "agreement": agreement.to_dict(orient="records")}
+    if vector is not None:
+        payload["vector_correction"] = {
+            "note": "in the spinning frame: spin-plane e^{-i psi}, e^{3i psi} and spin-axis "
+                    "1x terms with cubic drifts (body-fixed spin harmonics that no reference, "
+                    "attitude or natural field makes), then a spin-axis tilt per zone within "
+                    f"{args.tilt_bound_deg} deg",
+            "zones": vector.to_dict(orient="records")}
     payload["scores"] = {"note": "zone medians of magcal.missions.elfin_joint.score_field "
                                  "(nT) for each product; the last one before 'joint' is "
                                  "delivered unless joint_fit says otherwise",
@@ -257,6 +276,11 @@ def _run(argv=None) -> int:
         print(f"  2x-harmonic drift vs slow part: |correlation| >= 0.9 in "
               f"{int((agree >= 0.9).sum())}/{len(agree)} zones (median "
               f"{agree.median():.2f}), ratio {agreement['ratio'].median():.2f} median")
+    if vector is not None:
+        med = vector[["vector_rms_before_nT", "vector_rms_after_nT"]].median()
+        print(f"  vector-only step: vector RMS {med.iloc[0]:.1f} -> {med.iloc[1]:.1f} nT (median); "
+              f"spin-axis tilt on the {args.tilt_bound_deg} deg bound in "
+              f"{int(vector['tilt_at_bound'].sum())}/{len(vector)} zones")
     print("  zone medians (nT)      |B|-|IGRF|  fast part  slow part  vector RMS (x, y, z GEI)")
     for name, m in medians.items():
         print(f"  {name:22s} {m['scalar_rms_nT']:9.1f}  {m['scalar_fast_nT']:9.1f}  "

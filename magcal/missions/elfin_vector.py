@@ -1,0 +1,243 @@
+"""Vector-only ELFIN errors: body-fixed spin harmonics the scalar cannot see, and tilt.
+
+After the linear calibration, the spin-harmonic correction and the gain drift
+(:mod:`magcal.missions.elfin_drift`) the ELFIN-A scalar residual is about 8 nT but the
+vector residual against IGRF about 38 nT per component (2022-01-12). Almost all of it is
+perpendicular to the field (6-17 nT along it), and most of that sits *within* the spin
+in the spinning frame (``z`` = spin axis, ``beta = Bx + i By``, ``psi = arg beta``):
+
+* in the spin plane, ``e^{3i psi}`` and ``e^{-i psi}`` terms of equal size (15-20 nT):
+  a wobble of the field's angle at twice the spin frequency (``i beta`` times a real 2x
+  modulation: invisible in ``|B|``);
+* along the spin axis a 1x term (35-55 nT in 8 zones): a spin-axis sensor coupling to
+  the spin-plane field that drifts within the pass.
+
+Neither can come from the reference, the attitude or a natural field: those are fixed
+in inertial space or slow, so in the spinning frame they appear only as ``e^{i psi}``
+(spin plane) and as a slow spin-axis term, which are left out of the fit here on
+purpose. The coefficients drift as polynomials in time. What remains is slow and
+transverse: the spin axis's direction (:func:`refine_tilt`, two angles per zone bounded
+by the attitude file's 0.2 deg) and natural fields that IGRF lacks.
+
+Data: ELFIN SOC (PI V. Angelopoulos, UCLA), "Open Data for Scientific Use".
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pandas as pd
+
+from magcal.missions.elfin_scalar import fast_part, rms
+
+
+def _unit_time(t, use):
+    t0, t1 = t[use][0], t[use][-1]
+    return 2.0 * (t - t0) / max(t1 - t0, 1e-12) - 1.0
+
+
+def vector_harmonic_correction(t_s, b_body, ref_body, *, plane=(-1, 3), axial=(1,),
+                               degree: int = 3, fit_mask=None) -> tuple[np.ndarray, dict]:
+    """Remove body-fixed spin harmonics from the vector residual in the spinning frame.
+
+    Model of the residual ``b - ref``: spin plane ``sum_k c_k(T) e^{i k psi}`` for ``k``
+    in ``plane``, spin axis ``sum_k Re(d_k(T) e^{i k psi})`` for ``k`` in ``axial``, with
+    ``psi`` the angle of the *measured* field in the spin plane and ``c_k, d_k``
+    complex polynomials of ``degree`` in ``T`` (-1..1 over the fitted samples). Linear
+    least squares; ``k = 1`` (plane) and ``k = 0`` (axis) are refused because the
+    reference, attitude and natural fields live there.
+
+    Parameters
+    ----------
+    t_s : array_like (n,)
+        Times, seconds.
+    b_body, ref_body : array_like (n, 3)
+        Calibrated and reference field in the spinning frame (``z`` = spin axis), nT.
+    plane, axial : sequence of int
+        Harmonics fitted in the spin plane and along the spin axis.
+    degree : int
+        Degree of the coefficients' drift in time.
+    fit_mask : array_like of bool, optional
+        Samples used in the fit (default all); the correction is applied to all.
+
+    Returns
+    -------
+    corrected : ndarray (n, 3)
+    info : dict
+        ``plane_rms_nT`` and ``axial_rms_nT`` (``{k: RMS of the removed term}``) and the
+        vector RMS (per component) before and after on the fitted samples.
+
+    Raises
+    ------
+    ValueError
+        If ``plane`` holds 1 or ``axial`` holds 0.
+
+    Examples
+    --------
+    >>> t = np.arange(0.0, 300.0, 0.1)
+    >>> psi = 2 * np.pi * t / 2.85
+    >>> ref = np.column_stack([45000 * np.cos(psi), 45000 * np.sin(psi), 2000 + 0 * t])
+    >>> b = ref.copy()
+    >>> b[:, 2] += 40 * np.cos(psi - 0.3)               # spin-axis sensor tilt, 1x
+    >>> fixed, info = vector_harmonic_correction(t, b, ref)
+    >>> bool(np.abs(fixed - ref).max() < 1e-6), round(info["axial_rms_nT"][1], 1)
+    (True, 28.3)
+    """
+    if 1 in plane or 0 in axial:
+        raise ValueError("plane k = 1 and axial k = 0 hold the reference/attitude error: "
+                         "not fitted")
+    t = np.asarray(t_s, dtype=float)
+    b = np.array(b_body, dtype=float)
+    ref = np.asarray(ref_body, dtype=float)
+    use = np.ones(t.size, bool) if fit_mask is None else np.asarray(fit_mask, bool)
+    powers = np.column_stack([_unit_time(t, use) ** d for d in range(degree + 1)])
+    psi = np.angle(b[:, 0] + 1j * b[:, 1])
+    e = b - ref
+    info = {"plane_rms_nT": {}, "axial_rms_nT": {},
+            "vector_rms_before_nT": rms(e[use])}
+    if plane:
+        cols = [np.exp(1j * k * psi)[:, None] * powers for k in plane]
+        w = np.linalg.lstsq(np.column_stack(cols)[use], (e[:, 0] + 1j * e[:, 1])[use],
+                            rcond=None)[0].reshape(len(plane), -1)
+        model = sum(c @ wk for c, wk in zip(cols, w))
+        b[:, 0] -= model.real
+        b[:, 1] -= model.imag
+        info["plane_rms_nT"] = {int(k): rms(np.abs(c @ wk)[use]) / np.sqrt(2)
+                                for k, c, wk in zip(plane, cols, w)}
+    if axial:
+        cols = [np.column_stack([np.cos(k * psi)[:, None] * powers,
+                                 np.sin(k * psi)[:, None] * powers]) for k in axial]
+        w = np.linalg.lstsq(np.column_stack(cols)[use], e[use, 2], rcond=None)[0]
+        w = w.reshape(len(axial), -1)
+        b[:, 2] -= sum(c @ wk for c, wk in zip(cols, w))
+        info["axial_rms_nT"] = {int(k): rms((c @ wk)[use]) for k, c, wk in zip(axial, cols, w)}
+    info["vector_rms_after_nT"] = rms((b - ref)[use])
+    return b, info
+
+
+def refine_tilt(b_despun, ref_despun, *, bound_deg: float = 0.2, fit_mask=None):
+    """Small rotation about the despun X and Y axes (a spin-axis tilt) within a bound.
+
+    The calibrated vectors are rotated by ``-w`` (``w = (wx, wy, 0)``, radians) with
+    ``b - w x b`` fitted to the reference by bounded linear least squares (a box of
+    ``bound_deg`` on each angle: the attitude file's stated 0.2 deg). The rotation about
+    the spin axis is the spin phase, fitted before.
+
+    Returns
+    -------
+    corrected : ndarray (n, 3)
+    angles_deg : ndarray (2,)
+    at_bound : bool
+        True if an angle sits on the bound (the data want more than the attitude file's
+        uncertainty allows).
+
+    Examples
+    --------
+    >>> th = np.radians(0.1)
+    >>> ref = np.column_stack([45000 * np.cos(np.linspace(0, 1, 50)),
+    ...                        45000 * np.sin(np.linspace(0, 1, 50)), np.full(50, 2000.0)])
+    >>> b = ref + np.cross([th, 0.0, 0.0], ref)
+    >>> fixed, ang, hit = refine_tilt(b, ref)
+    >>> bool(np.allclose(ang, [0.1, 0.0], atol=1e-4)), hit
+    (True, False)
+    """
+    from scipy.optimize import lsq_linear
+
+    b = np.asarray(b_despun, dtype=float)
+    ref = np.asarray(ref_despun, dtype=float)
+    use = np.ones(len(b), bool) if fit_mask is None else np.asarray(fit_mask, bool)
+    cx = np.cross([1.0, 0.0, 0.0], b)
+    cy = np.cross([0.0, 1.0, 0.0], b)
+    design = np.column_stack([cx[use].ravel(), cy[use].ravel()])
+    lim = np.radians(bound_deg)
+    w = lsq_linear(design, (b - ref)[use].ravel(), bounds=(-lim, lim)).x
+    at_bound = bool(np.any(np.abs(w) > 0.999 * lim))      # lsq_linear stops just inside
+    return b - (w[0] * cx + w[1] * cy), np.degrees(w), at_bound
+
+
+def correct_vector_zone(t_s, b_despun, phase, ref_despun, *, bound_deg: float = 0.2,
+                        fit_mask=None, **kw) -> tuple[np.ndarray, dict]:
+    """One zone: :func:`vector_harmonic_correction` in the spinning frame, then the tilt.
+
+    Parameters
+    ----------
+    t_s : array_like (n,)
+        Times, seconds.
+    b_despun, ref_despun : array_like (n, 3)
+        Calibrated and reference field in the despun frame (``Z`` = spin axis), nT.
+    phase : array_like (n,)
+        Spin phase (rad) that relates the despun and spinning frames.
+    bound_deg : float
+        Bound of the spin-axis tilt (0: no tilt fitted).
+    fit_mask : array_like of bool, optional
+        Samples used in the fits.
+    **kw
+        Passed to :func:`vector_harmonic_correction`.
+
+    Returns
+    -------
+    corrected : ndarray (n, 3)
+        Despun frame.
+    info : dict
+        That of :func:`vector_harmonic_correction` plus ``tilt_deg``, ``tilt_at_bound``
+        and ``vector_rms_after_nT`` after the tilt.
+    """
+    from magcal.spin.despin import despin, spin
+
+    t = np.asarray(t_s, dtype=float)
+    ref = np.asarray(ref_despun, dtype=float)
+    use = np.ones(t.size, bool) if fit_mask is None else np.asarray(fit_mask, bool)
+    body, info = vector_harmonic_correction(t, spin(b_despun, phase), spin(ref, phase),
+                                            fit_mask=use, **kw)
+    new_d = despin(body, phase)
+    angles, at_bound = np.zeros(2), False
+    if bound_deg:
+        new_d, angles, at_bound = refine_tilt(new_d, ref, bound_deg=bound_deg, fit_mask=use)
+    info.update({"tilt_deg": angles.tolist(), "tilt_at_bound": at_bound,
+                 "vector_rms_after_nT": rms((new_d - ref)[use])})
+    return new_d, info
+
+
+def correct_vector(cal, *, bound_deg: float = 0.2, **kw):
+    """Apply :func:`correct_vector_zone` zone by zone to an ElfinCalibration.
+
+    Parameters
+    ----------
+    cal : magcal.missions.elfin.ElfinCalibration
+        Usually after the gain drift (:func:`magcal.missions.elfin_drift.correct_gain_drift`).
+    bound_deg : float
+        Bound of the spin-axis tilt (0: no tilt fitted).
+    **kw
+        Passed to :func:`vector_harmonic_correction`.
+
+    Returns
+    -------
+    corrected : ElfinCalibration
+    table : DataFrame
+        Per zone: the removed harmonics (RMS, nT), the tilt (deg) and whether it is on
+        the bound, vector RMS before/after and the scalar RMS and fast part after.
+    """
+    from magcal.missions.elfin_phase import despun_basis
+
+    f = cal.field.copy()
+    rows = []
+    for k in sorted(f["zone"].unique()):
+        sel = (f["zone"] == k).to_numpy()
+        z = f.loc[sel]
+        used = z["used"].to_numpy() == 1
+        t = (z.index.asi8 - z.index.asi8[0]) / 1e9
+        ref = z[["igrf_x_despun", "igrf_y_despun", "igrf_z_despun"]].to_numpy(float)
+        new_d, info = correct_vector_zone(
+            t, z[["bx_despun", "by_despun", "bz_despun"]].to_numpy(float),
+            z["phase"].to_numpy(float), ref, bound_deg=bound_deg, fit_mask=used, **kw)
+        basis = despun_basis(z[["spin_axis_gei_x", "spin_axis_gei_y",
+                                "spin_axis_gei_z"]].to_numpy(float))
+        f.loc[sel, ["bx_despun", "by_despun", "bz_despun"]] = new_d
+        f.loc[sel, ["bx_gei", "by_gei", "bz_gei"]] = np.einsum("nji,nj->ni", basis, new_d)
+        scal = (np.linalg.norm(new_d, axis=1) - np.linalg.norm(ref, axis=1))[used]
+        rows.append({"zone": int(k), **info, "scalar_rms_after_nT": rms(scal),
+                     "scalar_fast_after_nT": rms(fast_part(t[used], scal))})
+    params = {**cal.parameters, "vector_correction": {"bound_deg": bound_deg,
+                                                      **{k: str(v) for k, v in kw.items()}}}
+    return replace(cal, field=f, parameters=params), pd.DataFrame(rows)
