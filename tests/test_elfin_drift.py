@@ -215,3 +215,21 @@ def test_real_vector_step_lowers_the_vector_residual(real_zones):
     assert np.all(after["scalar_rms_nT"] < 30.0)
     assert np.all(after["scalar_fast_nT"] < before["scalar_fast_nT"] + 1.0)
     assert np.all(np.abs(np.vstack(table["tilt_deg"])) <= 0.2 + 1e-9)
+
+
+def test_drift_pair_tells_one_direction_from_isotropic_gain_drift():
+    from magcal.missions.elfin_drift import drift_pair
+
+    rng = np.random.default_rng(10)
+    t, T, truth = _pass()
+    theta = 2e-3 * (T ** 2 - 1 / 3) + 1e-3 * T
+    n = np.array([np.cos(0.4), np.sin(0.4)])
+    one = truth.copy()
+    one[:, :2] += (theta * (truth[:, :2] @ n))[:, None] * n
+    iso = truth * np.c_[1 + theta, 1 + theta, np.ones_like(t)]
+    half = theta * np.hypot(truth[:, 0], truth[:, 1]) / 2             # theta |beta| / 2
+    expected = rms(half - half.mean())
+    for measured, k1, km1 in ((one, expected, expected), (iso, 2 * expected, 0.0)):
+        out = drift_pair(t, measured + rng.normal(scale=0.3, size=truth.shape), truth)
+        np.testing.assert_allclose([out["drift_k1_nT"], out["drift_km1_nT"]], [k1, km1],
+                                   rtol=0.03, atol=0.2)

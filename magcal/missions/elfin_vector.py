@@ -24,17 +24,10 @@ Data: ELFIN SOC (PI V. Angelopoulos, UCLA), "Open Data for Scientific Use".
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
-import pandas as pd
 
+from magcal.missions.elfin_drift import map_zones, unit_time
 from magcal.missions.elfin_scalar import fast_part, rms
-
-
-def _unit_time(t, use):
-    t0, t1 = t[use][0], t[use][-1]
-    return 2.0 * (t - t0) / max(t1 - t0, 1e-12) - 1.0
 
 
 def vector_harmonic_correction(t_s, b_body, ref_body, *, plane=(-1, 3), axial=(1,),
@@ -91,7 +84,7 @@ def vector_harmonic_correction(t_s, b_body, ref_body, *, plane=(-1, 3), axial=(1
     b = np.array(b_body, dtype=float)
     ref = np.asarray(ref_body, dtype=float)
     use = np.ones(t.size, bool) if fit_mask is None else np.asarray(fit_mask, bool)
-    powers = np.column_stack([_unit_time(t, use) ** d for d in range(degree + 1)])
+    powers = np.column_stack([unit_time(t, use) ** d for d in range(degree + 1)])
     psi = np.angle(b[:, 0] + 1j * b[:, 1])
     e = b - ref
     info = {"plane_rms_nT": {}, "axial_rms_nT": {},
@@ -218,26 +211,13 @@ def correct_vector(cal, *, bound_deg: float = 0.2, **kw):
         Per zone: the removed harmonics (RMS, nT), the tilt (deg) and whether it is on
         the bound, vector RMS before/after and the scalar RMS and fast part after.
     """
-    from magcal.missions.elfin_phase import despun_basis
-
-    f = cal.field.copy()
-    rows = []
-    for k in sorted(f["zone"].unique()):
-        sel = (f["zone"] == k).to_numpy()
-        z = f.loc[sel]
-        used = z["used"].to_numpy() == 1
-        t = (z.index.asi8 - z.index.asi8[0]) / 1e9
+    def step(t, z, used):
         ref = z[["igrf_x_despun", "igrf_y_despun", "igrf_z_despun"]].to_numpy(float)
         new_d, info = correct_vector_zone(
             t, z[["bx_despun", "by_despun", "bz_despun"]].to_numpy(float),
             z["phase"].to_numpy(float), ref, bound_deg=bound_deg, fit_mask=used, **kw)
-        basis = despun_basis(z[["spin_axis_gei_x", "spin_axis_gei_y",
-                                "spin_axis_gei_z"]].to_numpy(float))
-        f.loc[sel, ["bx_despun", "by_despun", "bz_despun"]] = new_d
-        f.loc[sel, ["bx_gei", "by_gei", "bz_gei"]] = np.einsum("nji,nj->ni", basis, new_d)
         scal = (np.linalg.norm(new_d, axis=1) - np.linalg.norm(ref, axis=1))[used]
-        rows.append({"zone": int(k), **info, "scalar_rms_after_nT": rms(scal),
-                     "scalar_fast_after_nT": rms(fast_part(t[used], scal))})
-    params = {**cal.parameters, "vector_correction": {"bound_deg": bound_deg,
-                                                      **{k: str(v) for k, v in kw.items()}}}
-    return replace(cal, field=f, parameters=params), pd.DataFrame(rows)
+        return new_d, {**info, "scalar_rms_after_nT": rms(scal),
+                       "scalar_fast_after_nT": rms(fast_part(t[used], scal))}
+
+    return map_zones(cal, step, "vector_correction", {"bound_deg": bound_deg, **kw})
