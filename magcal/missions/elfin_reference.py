@@ -73,9 +73,8 @@ def reference_perturbations(times, pos_gei_km, vel_gei_km_s, kp=None) -> dict:
         ``{name: ndarray (n,)}`` for the names in :data:`CANDIDATES`, plus ``igrf``
         (``|IGRF|`` itself).
     """
-    from magcal.frames.geo import convert_vectors
+    from magcal.frames.geo import EARTH_RADIUS_KM, convert_vectors
     from magcal.models.irbem import field_geo
-    from magcal.frames.geo import EARTH_RADIUS_KM
 
     pos = np.asarray(pos_gei_km, dtype=float)
     vel = np.asarray(vel_gei_km_s, dtype=float)
