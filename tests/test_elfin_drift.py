@@ -233,3 +233,23 @@ def test_drift_pair_tells_one_direction_from_isotropic_gain_drift():
         out = drift_pair(t, measured + rng.normal(scale=0.3, size=truth.shape), truth)
         np.testing.assert_allclose([out["drift_k1_nT"], out["drift_km1_nT"]], [k1, km1],
                                    rtol=0.03, atol=0.2)
+
+
+def test_instrument_candidates_closed_form():
+    import pandas as pd
+
+    from magcal.missions.elfin_reference import instrument_candidates
+
+    idx = pd.date_range("2022-01-12", periods=4000, freq="1s", tz="UTC").as_unit("ns")
+    sun = np.r_[np.zeros(2000), np.ones(2000)]                     # eclipse, then sunlight
+    state = pd.DataFrame({"sun": sun}, index=idx)
+    t = np.arange(0.0, 600.0, 0.1)
+    ref = np.full(t.size, 45000.0)
+    start = idx.asi8[2000]                                          # zone starts at sunrise
+    out = instrument_candidates(t, start, ref, state, sun_tau_s=300.0, warm_tau_s=60.0)
+    # first-order low-pass of a step sampled at 1 s: 1 - exp(-(k + 1)/300) at the k-th
+    # record after sunrise, linear between records, scaled by |B| 1e-3
+    k = np.arange(1000.0)
+    np.testing.assert_allclose(out["sun_lowpass"],
+                               45.0 * np.interp(t, k, 1 - np.exp(-(k + 1) / 300)), rtol=1e-9)
+    np.testing.assert_allclose(out["warm_up"], 45.0 * (1 - np.exp(-t / 60)), rtol=1e-12)

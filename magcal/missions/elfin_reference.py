@@ -12,7 +12,11 @@ a change of ``|B_model|`` along the orbit per unit of the error:
 * ``radial_1km``, ``cross_1km``: position errors (orbit file);
 * ``t89``: the T89 external field at the day's Kp minus IGRF (coefficient 1 is the
   physical size);
-* ``ring_1nT``: a uniform 1 nT field along -Z_GSM (ring current, Dst).
+* ``ring_1nT``: a uniform 1 nT field along -Z_GSM (ring current, Dst);
+
+and, for comparison, two instrument candidates with one shape for the day
+(:func:`instrument_candidates`): a gain following the Sun flag (eclipse/sunlight) and a
+warm-up after the instrument is switched on.
 
 A real reference error has one coefficient for the day. :func:`screen_slow_part` fits
 each candidate to the slow parts of all zones at once (per zone only a constant and a
@@ -32,7 +36,7 @@ import pandas as pd
 from magcal.missions.elfin_scalar import fast_part, rms
 
 CANDIDATES = ("along_1s", "rot_x_1mrad", "rot_y_1mrad", "rot_z_1mrad", "radial_1km",
-              "cross_1km", "t89", "ring_1nT")
+              "cross_1km", "t89", "ring_1nT", "sun_lowpass", "warm_up")
 
 
 def _rotation(axis: int, angle: float) -> np.ndarray:
@@ -133,9 +137,39 @@ def zone_slow_parts(cal, state: pd.DataFrame, kp=None, *, poly_degree: int = 5,
         eff = reference_perturbations(rec.index, pos, vel, kp_rec)
         ts = (rec.index.asi8 - z.index.asi8[0]) / 1e9
         keep = slice(None, None, step)
+        thermal = instrument_candidates(t, z.index.asi8[0], ref, state)
         zones.append({"zone": int(k), "t": t[keep], "slow": slow[keep], "ref": ref[keep],
-                      **{n: np.interp(t[keep], ts, v) for n, v in eff.items() if n != "igrf"}})
+                      **{n: np.interp(t[keep], ts, v) for n, v in eff.items() if n != "igrf"},
+                      **{n: v[keep] for n, v in thermal.items()}})
     return zones
+
+
+def instrument_candidates(t_s, start_ns: int, ref_nT, state: pd.DataFrame, *,
+                          sun_tau_s: float = 300.0, warm_tau_s: float = 60.0) -> dict:
+    """Thermal-like gain changes (relative 1e-3, times ``|B|``) for the same screen.
+
+    * ``sun_lowpass``: the state file's Sun flag through a first-order low-pass of
+      ``sun_tau_s`` (a temperature following sunlight and eclipse over the whole day);
+    * ``warm_up``: ``1 - exp(-t / warm_tau_s)`` from the zone start (the instrument is
+      switched on for each science zone).
+
+    Returns
+    -------
+    dict
+        ``{name: ndarray (n,)}``, nT per 1e-3 of gain change.
+    """
+    from scipy.signal import lfilter
+
+    t = np.asarray(t_s, dtype=float)
+    ref = np.asarray(ref_nT, dtype=float)
+    sun = state["sun"].to_numpy(float)
+    sun = np.where(np.isfinite(sun), sun, 0.0)
+    day_s = (state.index.asi8 - state.index.asi8[0]) / 1e9
+    a = np.exp(-np.median(np.diff(day_s)) / sun_tau_s)
+    low = lfilter([1 - a], [1, -a], sun, zi=[sun[0] * a])[0]
+    at = (start_ns - state.index.asi8[0]) / 1e9 + t
+    return {"sun_lowpass": np.interp(at, day_s, low) * ref * 1e-3,
+            "warm_up": (1.0 - np.exp(-(t - t[0]) / warm_tau_s)) * ref * 1e-3}
 
 
 def _absorb(z) -> np.ndarray:
