@@ -144,8 +144,9 @@ def refine_tilt(b_despun, ref_despun, *, bound_deg: float = 0.2, fit_mask=None):
     cy = np.cross([0.0, 1.0, 0.0], b)
     design = np.column_stack([cx[use].ravel(), cy[use].ravel()])
     lim = np.radians(bound_deg)
-    w = lsq_linear(design, (b - ref)[use].ravel(), bounds=(-lim, lim)).x
-    at_bound = bool(np.any(np.abs(w) > 0.999 * lim))      # lsq_linear stops just inside
+    sol = lsq_linear(design, (b - ref)[use].ravel(), bounds=(-lim, lim))
+    w = sol.x
+    at_bound = bool(np.any(sol.active_mask != 0))        # the solver's own verdict
     return b - (w[0] * cx + w[1] * cy), np.degrees(w), at_bound
 
 
