@@ -129,7 +129,8 @@ def _run(argv=None) -> int:
                     help="skip the spin-harmonic correction (the linear calibration only)")
     ap.add_argument("--no-gain-drift", action="store_true",
                     help="skip the spin-plane gain drift (the slow part of |B| - |IGRF|; "
-                         "applied after the spin-harmonic correction by default)")
+                         "applied after the spin-harmonic correction by default) and the "
+                         "vector step that follows it")
     ap.add_argument("--no-vector-correction", action="store_true",
                     help="skip the vector-only step after the gain drift (body-fixed 2x/3x "
                          "spin-plane and 1x spin-axis harmonics, spin-axis tilt)")
