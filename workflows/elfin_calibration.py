@@ -132,8 +132,9 @@ def _run(argv=None) -> int:
                          "applied after the spin-harmonic correction by default) and the "
                          "vector step that follows it")
     ap.add_argument("--no-vector-correction", action="store_true",
-                    help="skip the vector-only step after the gain drift (body-fixed 2x/3x "
-                         "spin-plane and 1x spin-axis harmonics, spin-axis tilt)")
+                    help="skip the vector-only step after the gain drift (body-fixed spin "
+                         "harmonics: a 2x wobble of the spin-plane angle, a drifting 1x "
+                         "spin-axis coupling; spin-axis tilt)")
     ap.add_argument("--tilt-bound-deg", type=float, default=0.2,
                     help="bound of the per-zone spin-axis tilt in the vector step (default "
                          "0.2 deg, the attitude file's uncertainty; 0: no tilt)")
