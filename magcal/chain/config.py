@@ -44,7 +44,8 @@ SCHEMA: dict[str, dict[str, tuple]] = {
     "report": {"enabled": (bool, True), "pdf": (bool, False)},
     "truth": {"file": (str, None)},
     "spin": {"spin_period_s": ((int, float), None), "flipper": (bool, True),
-             "units": (str, "nT")},
+             "units": (str, "nT"), "reference": (str, None), "state": (str, None),
+             "pipeline": (dict, {})},
 }
 #: Sections a spinning-spacecraft chain may hold.
 SPIN_SECTIONS = ("input", "spin", "report", "truth")
@@ -186,6 +187,7 @@ def _check_values(s: dict, path: Path, kind: str) -> None:
         raise InputError(f"[input] format {s['input']['format']!r}: use auto or one of "
                          f"{', '.join(FORMATS)}", file=path)
     if kind == "spin":
+        _check_spin(s["spin"], path)
         return
     pos = s["position"]
     if pos["longitude_deg"] is None and not pos["columns"]:
@@ -218,6 +220,33 @@ def _check_values(s: dict, path: Path, kind: str) -> None:
     if hp is not None and not (hp in ("estimate", "identity") or _is_matrix(hp)):
         raise InputError("[frames] to_hpen must be \"estimate\", \"identity\" or a 3x3 "
                          "matrix", file=path)
+
+
+def _check_spin(sp: dict, path: Path) -> None:
+    """``[spin]``: nT data run the spin-ripple chain; ``units = "counts"`` (ELFIN) needs
+    ``reference = "igrf"`` and the ``state`` file, and takes ``pipeline`` switches."""
+    if sp["units"] not in ("nT", "counts"):
+        raise InputError(f"[spin] units {sp['units']!r}: use nT (spin-ripple calibration) or "
+                         "counts (ELFIN FGS counts calibrated against a model field)",
+                         file=path, column="spin.units")
+    if sp["units"] == "nT":
+        given = [k for k in ("reference", "state") if sp[k] is not None]
+        given += ["pipeline"] if sp["pipeline"] else []
+        if given:
+            raise InputError(f"[spin] {given[0]} applies only to units = \"counts\" (the "
+                             "ELFIN chain)", file=path, column=f"spin.{given[0]}")
+        return
+    if sp["reference"] is None or sp["reference"].lower() != "igrf":
+        raise InputError("[spin] units = \"counts\" needs reference = \"igrf\" (the model "
+                         "field the counts are calibrated against)", file=path,
+                         column="spin.reference")
+    if not sp["state"]:
+        raise InputError("[spin] units = \"counts\" needs state = <ELFIN state file> (orbit "
+                         "and attitude)", file=path, column="spin.state")
+    if sp["spin_period_s"] is not None:
+        raise InputError("[spin] spin_period_s does not apply to units = \"counts\": the "
+                         "spin phase is derived from the counts", file=path,
+                         column="spin.spin_period_s")
 
 
 def _is_matrix(spec) -> bool:
