@@ -153,7 +153,8 @@ def read_file(job) -> dict:
 
 def _fit_files(cfg: ChainConfig, files, shas, state: Path, engine):
     """The readable files starting within ``fit_days`` of the first readable one, and
-    the frames of those of them read here (``{path: frame}``).
+    the frames of the files read here (``{path: frame}``: those and the few after them
+    read to find where the fit days end, which their partitions take).
 
     The files whose spans are not yet known are read on the workers, as many files at a
     time as there are workers; their spans are cached in ``state/spans.json`` by
@@ -190,7 +191,50 @@ def _fit_files(cfg: ChainConfig, files, shas, state: Path, engine):
         tmp.write_text(json.dumps(spans, sort_keys=True))
     if not chosen:
         raise errors[0] if errors else InputError("no input file", file=cfg.path)
-    return chosen, {p: f for p, f in frames.items() if p in chosen}
+    return chosen, frames
+
+
+#: Files per worker read ahead while a worker fits (one 1 s day is read in about a
+#: second, the fit of 3 such days takes 2-3 s): they are held in the driver until
+#: their partitions start, so a few days at most.
+READ_AHEAD_ROUNDS = 2
+
+
+@dataclass(frozen=True)
+class FitTask:
+    """The fit phase's work for a worker: the fit files' frames (as read) and the key."""
+
+    config: ChainConfig
+    files: tuple
+    frames: tuple
+    key: str
+
+
+def fit_on_worker(task: FitTask) -> dict:
+    """Frames and PiCoG on the fit files: the fit artefact as JSON, or ``{"error":
+    reason}`` (a task: it never raises). It runs on a worker, whose BLAS uses one
+    thread whatever the number of workers (the driver's would use every core and, with
+    the workers busy, spin for them), while the other workers read ahead."""
+    from magcal.chain import prepare
+
+    cfg = task.config
+    try:
+        series = prepare.series_from_frames(cfg, list(task.files), list(task.frames))
+        common, frames = prepare.run_frames(series, cfg)
+        _, ac = prepare.run_ac(common, cfg)
+    except InputError as exc:
+        return {"error": str(exc)}
+    params = ac.documents.get("PARAMS.json")
+    upload = ({"M": params["M"], "G": params["G"]}
+              if ac.summary.get("delivered") == "cleaned" else None)
+    fit = FrameApply(key=task.key, sensors=common.sensors, target=common.target,
+                     transforms=common.transforms, to_hpen=np.asarray(common.to_hpen),
+                     upload=upload)
+    names = [str(f) for f in task.files]
+    note = f"fitted on {len(names)} file(s): the first {cfg['picog']['fit_days']:g} days"
+    frames = replace(frames, summary={**frames.summary, "fit_files": names})
+    ac = replace(ac, summary={**ac.summary, "fit_files": names}, lines=ac.lines + (note,))
+    return _fit_to_json(fit, frames, ac)
 
 
 def fit_phase(cfg: ChainConfig, files, shas, state: Path, engine):
@@ -201,9 +245,9 @@ def fit_phase(cfg: ChainConfig, files, shas, state: Path, engine):
     Cached in ``state`` under the SHA-256 of the files used and of the configuration
     of frames, PiCoG and input (not of Kp, model or position, which it does not use).
     """
-    from magcal.chain import prepare
     from magcal.provenance import file_sha256
 
+    fmt = cfg["input"]["format"]
     fit_files, frames_read = _fit_files(cfg, files, shas, state, engine)
     by_path = dict(zip(files, shas))
     plan = cfg["picog"]["plan"]
@@ -218,28 +262,26 @@ def fit_phase(cfg: ChainConfig, files, shas, state: Path, engine):
     if path.is_file():
         return (*_fit_from_json(json.loads(path.read_text())), frames_read)
     todo = [f for f in fit_files if f not in frames_read]  # spans known from a last run
-    for f, res in zip(todo, engine.map(read_file, [(str(f), cfg["input"]["format"])
-                                                   for f in todo], "fit files")):
+    for f, res in zip(todo, engine.map(read_file, [(str(f), fmt) for f in todo],
+                                       "fit files")):
         if "error" in res:
             raise InputError(res["error"])
         frames_read[f] = res["frame"]
-    series = prepare.series_from_frames(cfg, fit_files, [frames_read[f] for f in fit_files])
-    common, frames = prepare.run_frames(series, cfg)
-    _, ac = prepare.run_ac(common, cfg)
-    params = ac.documents.get("PARAMS.json")
-    upload = ({"M": params["M"], "G": params["G"]}
-              if ac.summary.get("delivered") == "cleaned" else None)
-    fit = FrameApply(key=key, sensors=common.sensors, target=common.target,
-                     transforms=common.transforms, to_hpen=np.asarray(common.to_hpen),
-                     upload=upload)
-    note = f"fitted on {len(fit_files)} file(s): the first {cfg['picog']['fit_days']:g} days"
-    frames = replace(frames, summary={**frames.summary, "fit_files": [str(f) for f in
-                                                                      fit_files]})
-    ac = replace(ac, summary={**ac.summary, "fit_files": [str(f) for f in fit_files]},
-                 lines=ac.lines + (note,))
-    doc = _fit_to_json(fit, frames, ac)
+    fitting = engine.submit(fit_on_worker, FitTask(cfg, tuple(fit_files), tuple(
+        frames_read[f] for f in fit_files), key))
+    # meanwhile the other workers read the next files for their partitions (every
+    # partition is redone when the fit is: its key names the fit)
+    ahead = [f for f in files if f not in frames_read][:READ_AHEAD_ROUNDS * engine.workers]
+    reading = [(f, engine.submit(read_file, (str(f), fmt))) for f in ahead]
+    doc = fitting.result()
+    if "error" in doc:
+        raise InputError(doc["error"])
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(doc, allow_nan=False))
+    for f, pending in reading:
+        res = pending.result()
+        if "frame" in res:  # an unreadable file fails later, in its own partition
+            frames_read[f] = res["frame"]
     return (*_fit_from_json(doc), frames_read)  # the objects a rerun restores
 
 
