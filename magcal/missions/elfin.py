@@ -39,6 +39,7 @@ from magcal.missions.elfin_phase import (
     split_zones,
     wrap,
 )
+from magcal.missions.elfin_timing import check_timing
 from magcal.spin.despin import despin, spin
 
 CREDIT = "ELFIN SOC (PI V. Angelopoulos, UCLA); data: Open Data for Scientific Use"
@@ -92,7 +93,11 @@ class ZoneCalibration:
     rms_by_sense_nT : list of float
         Overall vector RMS with the phase sense +1 and -1 (the smaller one is kept).
     timestamp_anomalies : list of dict
-        From :func:`~magcal.missions.elfin_phase.repair_timestamps`.
+        From :func:`~magcal.missions.elfin_phase.repair_timestamps` and
+        :func:`~magcal.missions.elfin_timing.check_timing` (repaired and flagged blocks).
+    n_timing_repaired, n_timing_flagged : int
+        Samples moved next to an unpaired time-stamp jump, and samples left out
+        (``used = 0``) because the counts do not fit the spin where they are stamped.
     """
 
     start: str
@@ -118,6 +123,8 @@ class ZoneCalibration:
     attitude_correction_deg: np.ndarray
     rms_by_sense_nT: list
     timestamp_anomalies: list = field(default_factory=list)
+    n_timing_repaired: int = 0
+    n_timing_flagged: int = 0
 
     def as_dict(self) -> dict:
         """Plain dictionary (JSON-ready after :func:`magcal.io.jsonio.to_jsonable`)."""
@@ -205,7 +212,8 @@ def _phase_jumps(t, resid_angle, used, period_s, min_gap_s=1.0) -> list:
 
 def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: int = 2,
              axis_degree: int = 2, phase_knot_s: float | None = 30.0, n_iter: int = 8,
-             fit_attitude: bool = False, times_iso=("", ""), timestamp_anomalies=()) -> _ZoneFit:
+             fit_attitude: bool = False, times_iso=("", ""), timestamp_anomalies=(),
+             exclude=None) -> _ZoneFit:
     """Calibrate one zone of raw counts against a reference field in the despun frame.
 
     Parameters
@@ -228,6 +236,9 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
         Alternations of the calibration and phase steps.
     fit_attitude : bool
         Also fit a constant tilt of the attitude file's spin axis (two angles).
+    exclude : array_like of bool, optional
+        Samples never used (e.g. flagged by
+        :func:`~magcal.missions.elfin_timing.check_timing`); they stay in the output.
 
     Returns
     -------
@@ -239,6 +250,8 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
     c = np.asarray(counts, dtype=float)
     ref = np.asarray(b_despun_nT, dtype=float)
     used = (t >= t[0] + skip_s) & np.all(np.isfinite(c), axis=1) & np.all(np.isfinite(ref), axis=1)
+    if exclude is not None:
+        used &= ~np.asarray(exclude, bool)
     if used.sum() < 200:
         raise InputError(f"zone {times_iso[0]}: only {int(used.sum())} usable samples")
     c_mean = c[used].mean(axis=0)
@@ -315,7 +328,10 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
         rms_scalar_constant_nT=float(np.sqrt(np.mean(cscal ** 2))),
         spin_sense=int(np.sign(total)), det_coupling_sign=int(np.sign(np.linalg.det(a_mid))),
         attitude_correction_deg=np.degrees(w[2][-2:]), rms_by_sense_nT=tried,
-        timestamp_anomalies=list(timestamp_anomalies))
+        timestamp_anomalies=list(timestamp_anomalies),
+        n_timing_repaired=sum(a["n_samples"] for a in timestamp_anomalies
+                              if a["kind"] == "unpaired_repaired"),
+        n_timing_flagged=int(np.sum(exclude)) if exclude is not None else 0)
     return _ZoneFit(b_despun=fitted, phase=phase, used=used, summary=summary)
 
 
@@ -371,7 +387,10 @@ class ElfinCalibration:
                 "spin_period_s": z.spin_period_s, "spin_axis_turn_deg": z.spin_axis_turn_deg,
                 "phase_wander_rad": z.phase_wander_rad,
                 "max_phase_jump_rad": max([abs(j) for j in z.phase_jumps_rad], default=0.0),
-                "n_timestamp_jumps": len(z.timestamp_anomalies),
+                "n_timestamp_jumps": sum(a["kind"] in ("paired", "unpaired")
+                                         for a in z.timestamp_anomalies),
+                "n_timing_repaired": z.n_timing_repaired,
+                "n_timing_flagged": z.n_timing_flagged,
             })
         return pd.DataFrame(rows)
 
@@ -394,6 +413,8 @@ class ElfinCalibration:
                 "gain_spread_percent": 100 * gains.std(axis=0) / gains.mean(axis=0),
                 "spin_period_s": [float(tab["spin_period_s"].min()),
                                   float(tab["spin_period_s"].max())],
+                "n_timing_repaired": int(tab["n_timing_repaired"].sum()),
+                "n_timing_flagged": int(tab["n_timing_flagged"].sum()),
             },
             "provenance": self.provenance,
         })
@@ -401,7 +422,8 @@ class ElfinCalibration:
 
 def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float = 60.0,
                     time_shift_s: float = 0.0, repair_times: bool = True,
-                    zones=None, provenance=None, **fit_kw) -> ElfinCalibration:
+                    check_times: bool = True, zones=None, provenance=None,
+                    **fit_kw) -> ElfinCalibration:
     """Calibrate ELFIN FGS counts zone by zone against IGRF at the spacecraft.
 
     Parameters
@@ -417,6 +439,11 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
         offset between the counts and the orbit).
     repair_times : bool
         Undo paired time-stamp jumps (:func:`~magcal.missions.elfin_phase.repair_timestamps`).
+    check_times : bool
+        Then check the stamps against the spin in the counts
+        (:func:`~magcal.missions.elfin_timing.check_timing`): repair blocks next to
+        unpaired jumps, mark what still does not fit ``used = 0`` (counted in
+        ``n_timing_flagged``).
     zones : sequence of int, optional
         Only these zone numbers (0-based).
     **fit_kw
@@ -441,9 +468,14 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
     for k in chosen:
         a, b = ranges[k]
         t = t_all[a:b]
-        anomalies = []
+        anomalies, bad = [], None
         if repair_times:
             t, anomalies = repair_timestamps(t)
+        if check_times:
+            check = check_timing(t, fgs[["b1", "b2", "b3"]].to_numpy()[a:b], anomalies,
+                                 mask=t >= t[0] + fit_kw.get("skip_s", 2.0))
+            t, bad = check.t_s, check.bad
+            anomalies = anomalies + check.events
         sel = (ts >= t[0] - 5) & (ts <= t[-1] + 5) & np.all(np.isfinite(axis), axis=1)
         if sel.sum() < 10:
             raise InputError(f"no orbit/attitude records for zone {k} ({fgs.index[a]})")
@@ -455,7 +487,7 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
         ref = np.einsum("nij,nj->ni", basis, ref_gei)
         iso = (str(fgs.index[a].tz_convert(None)), str(fgs.index[b - 1].tz_convert(None)))
         fit = fit_zone(t, fgs[["b1", "b2", "b3"]].to_numpy()[a:b], ref, times_iso=iso,
-                       timestamp_anomalies=anomalies, **fit_kw)
+                       timestamp_anomalies=anomalies, exclude=bad, **fit_kw)
         results.append(fit.summary)
         cal_gei = np.einsum("nji,nj->ni", basis, fit.b_despun)
         idx = t_ref + pd.to_timedelta(np.round(t * 1e9).astype("int64"), unit="ns")
@@ -473,6 +505,6 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
             data[f"spin_axis_gei_{c}"] = ax[:, j]
         frames.append(pd.DataFrame(data, index=pd.DatetimeIndex(idx, name="time")))
     params = {"min_gap_s": min_gap_s, "time_shift_s": time_shift_s,
-              "repair_times": repair_times, **{k: v for k, v in fit_kw.items()}}
+              "repair_times": repair_times, "check_times": check_times, **{k: v for k, v in fit_kw.items()}}
     return ElfinCalibration(zones=tuple(results), field=pd.concat(frames),
                             parameters=params, provenance=provenance or {})
