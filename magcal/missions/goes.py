@@ -138,18 +138,68 @@ def _times_ns(var, path: Path, name: str) -> tuple[np.ndarray, np.ndarray]:
     return (t_ns + 500) // 1000 * 1000, ok
 
 
+#: Variables the reader uses (plus every ``time*`` variable: the orbit has its own).
+_NEEDED = frozenset([v for v, *_ in _VECTORS] + [v for v, *_ in _SCALARS] + ["orbit_llr_geo"])
+
+
 def _open(path: Path):
-    """The file as an xarray Dataset (h5netcdf engine, CF decoding of fills and times)."""
+    """The variables the reader uses, as an xarray Dataset with CF decoding of fills,
+    scale factors and times.
+
+    h5py reads only those variables and ``xarray.decode_cf`` decodes them. Opening the
+    whole file with ``xarray.open_dataset(engine="h5netcdf")`` resolves the length of
+    the unlimited ``time`` dimension through every variable that uses it, once per
+    variable: 2 s per one-minute GOES file of 33 variables.
+    """
+    import h5py
     import xarray as xr
 
     try:
-        return xr.open_dataset(path, engine="h5netcdf", mask_and_scale=True,
-                               decode_times=True, decode_timedelta=False)
-    except (OSError, ValueError, TypeError) as exc:
+        with h5py.File(path, "r") as f:
+            data = {name: xr.Variable(_dimension_names(f[name]), f[name][()],
+                                      _cf_attrs(f[name].attrs))
+                    for name in f if isinstance(f[name], h5py.Dataset)
+                    and (name in _NEEDED or name.startswith("time"))}
+            attrs = _cf_attrs(f.attrs)
+        return xr.decode_cf(xr.Dataset(data, attrs=attrs), mask_and_scale=True,
+                            decode_times=True, decode_timedelta=False)
+    except (OSError, ValueError, TypeError, KeyError) as exc:
         if "time" in str(exc) and "unable to decode" in str(exc).lower():
             raise InputError(f"time units are not 'seconds since <date> <time>' ({exc})",
                              file=path, column="time") from None
         raise InputError(f"not a readable netCDF4/HDF5 file ({exc})", file=path) from None
+
+
+#: HDF5 dimension-scale bookkeeping that netCDF4 keeps in attributes.
+_HDF5_ATTRS = frozenset({"DIMENSION_LIST", "REFERENCE_LIST", "CLASS", "NAME",
+                         "_Netcdf4Dimid", "_Netcdf4Coordinates", "_nc3_strict"})
+
+
+def _cf_attrs(attrs) -> dict:
+    """netCDF attributes of an HDF5 object as netCDF4 gives them: byte strings decoded,
+    one-element arrays as scalars."""
+    out = {}
+    for key, value in attrs.items():
+        if key in _HDF5_ATTRS:
+            continue
+        if isinstance(value, np.ndarray) and value.size == 1:
+            value = value.reshape(-1)[0]  # netCDF: a one-element attribute is a scalar
+        if isinstance(value, bytes):
+            value = value.decode("utf-8", "replace")
+        out[key] = value
+    return out
+
+
+def _dimension_names(dset) -> tuple[str, ...]:
+    """netCDF dimension names of an HDF5 dataset: its attached dimension scales (a
+    scale such as ``time`` is its own dimension)."""
+    import h5py
+
+    own = dset.name.rsplit("/", 1)[-1]
+    if dset.ndim == 1 and h5py.h5ds.is_scale(dset.id):
+        return (own,)
+    return tuple(dim[0].name.rsplit("/", 1)[-1] if len(dim) else f"{own}_dim_{k}"
+                 for k, dim in enumerate(dset.dims))
 
 
 def _read_file(path: Path) -> tuple[dict, dict, np.ndarray, dict]:
