@@ -246,7 +246,7 @@ def parallel_floor(files) -> tuple[float, float]:
 #: Functions whose cumulative time tells where a partition's or corrected day's time goes.
 PROFILE_PARTS = {"read": "read_any", "frames and PiCoG upload": "apply_upload",
                  "1-min averages": "average_to_cadence", "model field": "model_field_hpen",
-                 "write partition": "write_partition", "write corrected CSV": "write_csv_frame",
+                 "write partition": "write_partition", "write corrected CSV": "write_day_csv",
                  "apply offsets": "apply_offsets"}
 
 
