@@ -3,12 +3,16 @@
 Usage::
 
     python workflows/elfin_scalar_floor.py [--data DIR] [--out FILE.csv] [--mechanisms] [--slow]
+                                           [--vector-evidence [--knot-s S]]
 
 Per science zone of 2022-01-12: the best 9-parameter scalar calibration (the linear
 floor), its residual and fast part (after a 5th-order polynomial), the spin harmonics
 left in it (angle of the field in the sensor's spin plane), and what the harmonic model
-(constant 4x + drifting 1x, 2x) leaves. The measuring code is
-:mod:`magcal.missions.elfin_scalar`; this script only reads, calls and prints.
+(constant 4x + drifting 1x, 2x) leaves. ``--vector-evidence`` splits the delivered
+vector residual (along/across B, spin-averaged/within-spin, inside/outside auroral
+current-sheet signatures) and tests attitude beyond the 0.2 deg bound
+(:mod:`magcal.missions.elfin_evidence`). The measuring code is in the library; this
+script only reads, calls and prints.
 
 Data: ELFIN SOC (PI V. Angelopoulos, UCLA), "Open Data for Scientific Use".
 """
@@ -78,6 +82,44 @@ def _slow(data: Path) -> None:
     print(agree.round(3).to_string(index=False))
 
 
+def _product(data: Path, knot_s: float | None):
+    """The default calibration chain, with the vector step's drift on ``knot_s`` splines."""
+    from magcal.missions.elfin import calibrate_elfin
+    from magcal.missions.elfin_correction import correct_elfin_calibration
+    from magcal.missions.elfin_drift import correct_gain_drift
+    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin_vector import correct_vector
+
+    fgs, state = read_elfin_fgs(data / FGS_FILE), read_elfin_state(data / STATE_FILE)
+    cal, _ = correct_gain_drift(correct_elfin_calibration(calibrate_elfin(fgs, state))[0])
+    return correct_vector(cal, knot_s=knot_s)[0], state
+
+
+def _vector_evidence(data: Path, knot_s: float | None) -> None:
+    from magcal.missions.elfin_evidence import evidence_verdict, field_latitude, vector_evidence
+
+    cal, state = _product(data, knot_s)
+    ev = vector_evidence(cal, field_latitude(cal, state))
+    drift = "polynomial (cubic)" if knot_s is None else f"{knot_s:g} s splines"
+    print(f"vector residual against IGRF split per zone (nT per component; vector step drift: "
+          f"{drift}); flags: auroral current-sheet signatures (spin-averaged across-B "
+          "structure > 10 nT over 20 s at |centred-dipole mlat| >= 60 deg)")
+    cols = ["zone", "flagged_fraction", "scalar", "vector", "along", "across", "across_slow",
+            "across_fast", "ratio", "ratio_out", "scalar_fast", "vector_fast", "ratio_fast",
+            "ratio_out_tilt_free", "ratio_out_tilt_drift", "across_slow_sub",
+            "across_slow_auroral", "ratio_sub_tilt_drift", "ratio_auroral_tilt_predicted",
+            "transverse_predicted_scalar_nT", "axial1x_rms_nT", "axial1x_line_fraction"]
+    print(ev[cols].round(2).to_string(index=False))
+    v = evidence_verdict(ev)
+    print(f"vector / scalar, zone median (max; zones within {v['target']}x):")
+    for name in ("ratio", "ratio_out", "ratio_fast", "ratio_out_tilt_free",
+                 "ratio_out_tilt_drift", "ratio_sub_tilt_drift", "ratio_auroral_tilt_predicted"):
+        r = v[name]
+        print(f"  {name:30s} {r['median']:5.2f} ({r['max']:5.2f}; {r['zones_within']}/{r['zones']})")
+    print(f"  the drifting tilt reaches {v['tilt_drift_max_deg']:.2f} deg and exceeds 0.2 deg in "
+          f"{v['zones_beyond_attitude']}/{len(ev)} zones")
+
+
 def main(argv=None) -> int:
     """Run; bad or missing input is one line on stderr and exit status 2."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -90,6 +132,13 @@ def main(argv=None) -> int:
                     help="also screen the slow part against reference errors (time offset, "
                          "frame rotation, orbit, T89, ring current) and compare it with the "
                          "2x-spin drift")
+    ap.add_argument("--vector-evidence", action="store_true",
+                    help="also split the delivered vector residual (along/across B, "
+                         "spin-averaged/within-spin, in/outside auroral current sheets) and "
+                         "test attitude beyond 0.2 deg")
+    ap.add_argument("--knot-s", type=float, default=30.0,
+                    help="knot spacing (s) of the vector step's drifting harmonics for "
+                         "--vector-evidence (default 30; 0: the cubic polynomial)")
     ap.add_argument("--drift-degree", type=int, default=3,
                     help="degree of the drifting 1x/2x coefficients (default 3)")
     args = ap.parse_args(argv)
@@ -118,6 +167,8 @@ def main(argv=None) -> int:
         _mechanisms(args.data, tab)
     if args.slow:
         _slow(args.data)
+    if args.vector_evidence:
+        _vector_evidence(args.data, args.knot_s or None)
     if args.out is not None:
         tab.to_csv(args.out, index=False)
         print(f"wrote {args.out}")

@@ -30,8 +30,38 @@ from magcal.missions.elfin_drift import map_zones, unit_time
 from magcal.missions.elfin_scalar import fast_part, rms
 
 
+def drift_basis(t_s, use, *, degree: int = 3, knot_s: float | None = None) -> np.ndarray:
+    """Columns for a coefficient that drifts in time: powers of ``T`` or cubic B-splines.
+
+    ``T`` runs from -1 to 1 over the samples selected by ``use``. With ``knot_s`` the
+    columns are cubic B-splines with knots every ``knot_s`` seconds over the same span
+    (each column is zero outside its four knot intervals; times outside the span are
+    clipped to it), otherwise ``1, T, .., T^degree``.
+
+    Examples
+    --------
+    >>> t = np.arange(0.0, 100.0, 0.5)
+    >>> drift_basis(t, t >= 0, degree=2).shape, drift_basis(t, t >= 0, knot_s=30.0).shape
+    ((200, 3), (200, 6))
+    >>> bool(np.allclose(drift_basis(t, t >= 0, knot_s=30.0).sum(axis=1), 1.0))
+    True
+    """
+    t = np.asarray(t_s, dtype=float)
+    if knot_s is None:
+        return np.column_stack([unit_time(t, use) ** d for d in range(degree + 1)])
+    from scipy.interpolate import BSpline
+
+    t0, t1 = t[use][0], t[use][-1]
+    inner = np.arange(t0, t1, float(knot_s))[1:]
+    if inner.size and t1 - inner[-1] < 0.5 * knot_s:
+        inner = inner[:-1]                       # no sliver of an interval at the end
+    knots = np.r_[[t0] * 4, inner, [t1] * 4]
+    return BSpline.design_matrix(np.clip(t, t0, t1), knots, 3).toarray()
+
+
 def vector_harmonic_correction(t_s, b_body, ref_body, *, plane=(-1, 3), axial=(1,),
-                               degree: int = 3, fit_mask=None) -> tuple[np.ndarray, dict]:
+                               degree: int = 3, knot_s: float | None = None,
+                               fit_mask=None) -> tuple[np.ndarray, dict]:
     """Remove body-fixed spin harmonics from the vector residual in the spinning frame.
 
     Model of the residual ``b - ref``: spin plane ``sum_k c_k(T) e^{i k psi}`` for ``k``
@@ -51,6 +81,13 @@ def vector_harmonic_correction(t_s, b_body, ref_body, *, plane=(-1, 3), axial=(1
         Harmonics fitted in the spin plane and along the spin axis.
     degree : int
         Degree of the coefficients' drift in time.
+    knot_s : float, optional
+        Drift as cubic B-splines with knots every ``knot_s`` seconds instead of the
+        polynomial (:func:`drift_basis`). On ELFIN-A the spin-axis 1x coefficient moves
+        along one body direction and changes sign every ~100 s in the eclipse zones
+        (:func:`magcal.missions.elfin_evidence.axial_coupling_line`), faster than a cubic
+        follows; 30 s knots keep it far (> 10x) from the slow band where reference,
+        attitude and natural fields live.
     fit_mask : array_like of bool, optional
         Samples used in the fit (default all); the correction is applied to all.
 
@@ -84,7 +121,7 @@ def vector_harmonic_correction(t_s, b_body, ref_body, *, plane=(-1, 3), axial=(1
     b = np.array(b_body, dtype=float)
     ref = np.asarray(ref_body, dtype=float)
     use = np.ones(t.size, bool) if fit_mask is None else np.asarray(fit_mask, bool)
-    powers = np.column_stack([unit_time(t, use) ** d for d in range(degree + 1)])
+    powers = drift_basis(t, use, degree=degree, knot_s=knot_s)
     psi = np.angle(b[:, 0] + 1j * b[:, 1])
     e = b - ref
     info = {"plane_rms_nT": {}, "axial_rms_nT": {},
