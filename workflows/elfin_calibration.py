@@ -23,6 +23,11 @@ across zones (about 60 s; scored, delivered only if no worse). It writes
 * ``elfin_calibrated.csv``: ``time,zone,used,bx_gei,by_gei,bz_gei,...`` (nT);
 * ``elfin_residuals.png``: calibrated minus IGRF per zone.
 
+The steps, the scores and the JSON document are
+:func:`magcal.missions.elfin_pipeline.calibrate_elfin_day`; this script parses, prints
+and writes. ``magcal run data_samples/chain/ELFIN.toml -o OUT`` runs the same pipeline
+through the chain (``[spin] units = "counts"``).
+
 Data: ELFIN SOC (PI V. Angelopoulos, UCLA), "Open Data for Scientific Use".
 """
 
@@ -38,7 +43,8 @@ from magcal.errors import InputError
 from magcal.io.jsonio import write_json
 from magcal.offline import configure_offline
 from magcal.provenance import make_provenance
-from magcal.missions.elfin import CREDIT, calibrate_elfin
+from magcal.missions.elfin import CREDIT
+from magcal.missions.elfin_pipeline import ElfinSettings, calibrate_elfin_day, plot_residuals
 
 #: The repository holding this script (as called, and with symbolic links resolved).
 REPO_ROOTS = (Path(__file__).absolute().parents[1], Path(__file__).resolve().parents[1])
@@ -53,59 +59,6 @@ def default_data_dir() -> Path:
 
 
 DEFAULT_DATA = default_data_dir()
-SHIFTS_S = (-0.4, -0.2, -0.1, 0.0, 0.1, 0.2, 0.4)
-
-
-def _plot(path, cal) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    f = cal.field
-    zones = sorted(f["zone"].unique())
-    fig, axes = plt.subplots(len(zones), 1, figsize=(10, 1.6 * len(zones)), sharey=True)
-    for ax, k in zip(np.atleast_1d(axes), zones):
-        z = f[(f["zone"] == k) & (f["used"] == 1)]
-        ts = (z.index - z.index[0]).total_seconds()
-        for c, col in zip("xyz", ("C0", "C1", "C2")):
-            ax.plot(ts, z[f"b{c}_despun"] - z[f"igrf_{c}_despun"], lw=0.4, color=col,
-                    label=f"d{c.upper()}")
-        ax.set_ylim(-400, 400)
-        ax.text(0.01, 0.8, str(z.index[0])[:19], transform=ax.transAxes, fontsize=7)
-    np.atleast_1d(axes)[0].legend(loc="upper right", fontsize=7, ncol=3)
-    np.atleast_1d(axes)[-1].set_xlabel("s from zone start")
-    fig.suptitle("ELFIN-A 2022-01-12: calibrated minus IGRF (despun frame, nT)\n" + CREDIT,
-                 fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-
-
-def _joint(linear, incumbent, incumbent_name: str) -> dict:
-    """Joint fit across zones, scored against the linear and incumbent products."""
-    from magcal.missions.elfin_joint import calibrate_joint, choose_product, score_field
-
-    product, fit = calibrate_joint(linear)
-    scores = {"linear": score_field(linear.field)}
-    if incumbent_name != "linear":
-        scores[incumbent_name] = score_field(incumbent.field)
-    scores["joint"] = score_field(product.field)
-    chosen, reason = choose_product(scores, incumbent=incumbent_name)
-    return {
-        "note": "one fit across zones: shared coupling, sensor tilt and cubic non-linearity; "
-                "per zone relative gains, drifting offsets and spin-plane anisotropy, "
-                "attitude within 0.2 deg, spline spin phase; std from the Jacobian sandwich "
-                "over 30 s blocks (std_naive ignores the autocorrelation), conditional on "
-                "the phases",
-        "delivered": chosen, "reason": reason,
-        "shared": fit.shared(), "per_zone": fit.per_zone().to_dict(orient="records"),
-        "spread_over_zones": fit.spread(), "attitude_at_bound": fit.at_bound,
-        "cost_history_nT": fit.cost_history,
-        "scores": {k: v.to_dict(orient="records") for k, v in scores.items()},
-        "score_medians": {k: v.drop(columns="zone").median().to_dict()
-                          for k, v in scores.items()},
-        "product": product}
 
 
 def main(argv=None) -> int:
@@ -156,93 +109,22 @@ def _run(argv=None) -> int:
     fgs, state = read_elfin_fgs(fgs_path), read_elfin_state(state_path)
     prov = make_provenance("elfin calibration against IGRF", {"model": "IGRF (IRBEM)"},
                            inputs=[fgs_path, state_path])
-    cal = calibrate_elfin(fgs, state, provenance=prov)
-    tab = cal.table()
-    from magcal.missions.elfin_ripple import ripple_crosscheck
-
-    ripple = ripple_crosscheck(cal, fgs)
-    correction, joint, drift, agreement, vector = None, None, None, None, None
-    linear = cal
-    incumbent = "linear"
-    products = {"linear": linear}
-    if not args.linear_only:
-        from magcal.missions.elfin_correction import correct_elfin_calibration
-
-        cal, correction = correct_elfin_calibration(cal)
-        incumbent = "harmonic"
-        products["harmonic"] = cal
-        if not args.no_gain_drift:
-            from magcal.missions.elfin_drift import correct_gain_drift, drift_agreement_table
-
-            cal, drift = correct_gain_drift(cal)
-            agreement = drift_agreement_table(linear)
-            incumbent = "harmonic + gain drift"
-            products[incumbent] = cal
-            if not args.no_vector_correction:
-                from magcal.missions.elfin_vector import correct_vector
-
-                cal, vector = correct_vector(cal, bound_deg=args.tilt_bound_deg)
-                incumbent = "+ vector step"
-                products[incumbent] = cal
-    if args.joint and not args.no_joint:
-        joint = _joint(linear, cal, incumbent)
-        if joint["delivered"] == "joint":
-            cal = joint.pop("product")
-        joint.pop("product", None)
-
-    from magcal.missions.elfin_joint import score_field
-
-    medians = {name: score_field(p.field).drop(columns="zone").median().to_dict()
-               for name, p in products.items()}
-    if joint is not None:
-        medians["joint"] = joint["score_medians"]["joint"]
-    scan = {}
-    if not args.no_scan:
-        for s in SHIFTS_S:
-            t = calibrate_elfin(fgs, state, time_shift_s=s).table()
-            scan[f"{s:+.1f}"] = {"rms_vector_nT": t["rms_vector_nT"].tolist(),
-                                 "rms_scalar_nT": t["rms_scalar_nT"].tolist()}
+    settings = ElfinSettings(harmonic=not args.linear_only, gain_drift=not args.no_gain_drift,
+                             vector_step=not args.no_vector_correction,
+                             tilt_bound_deg=args.tilt_bound_deg,
+                             joint=args.joint and not args.no_joint, scan=not args.no_scan)
+    day = calibrate_elfin_day(fgs, state, settings, provenance=prov)
+    cal, tab, ripple, joint, scan = (day.calibration, day.linear.table(), day.ripple,
+                                     day.joint, day.scan)
+    correction = day.steps.get("spin_harmonic_correction")
+    drift, agreement = day.steps.get("gain_drift"), day.steps.get("drift_agreement")
+    vector = day.steps.get("vector_correction")
+    medians = day.medians()
     args.out.mkdir(parents=True, exist_ok=True)
-    payload = cal.to_json()
-    payload["table"] = tab.to_dict(orient="records")
-    payload["ripple_crosscheck"] = {
-        "note": "spin-ripple calibration (Kivelson et al. 1992, no model field) on the same "
-                "zones vs the IGRF one: spin-plane anisotropy a = (G11-G22)/(G11+G22), "
-                "b = 2 G12/(G11+G22) and the effective spin-plane offset (nT)",
-        "zones": ripple.to_dict(orient="records")}
-    if joint is not None:
-        payload["joint_fit"] = joint
-    if correction is not None:
-        payload["spin_harmonic_correction"] = correction.to_dict(orient="records")
-    if drift is not None:
-        payload["gain_drift"] = {
-            "note": "isotropic spin-plane gain (1 + g(T)), g cubic in time per zone, fitted "
-                    "to |B| - |IGRF| after the spin-harmonic correction (the slow part); "
-                    "evidence that it is the instrument: the 2x-spin harmonic (a gain "
-                    "ratio change no smooth reference error can make) drifts with the same "
-                    "time shape (agreement: correlation and ratio per zone, on the linear "
-                    "calibration), reference errors screened in workflows/"
-                    "elfin_scalar_floor.py --slow",
-            "zones": drift.to_dict(orient="records"),
-            "agreement": agreement.to_dict(orient="records")}
-    if vector is not None:
-        payload["vector_correction"] = {
-            "note": "in the spinning frame: spin-plane e^{-i psi}, e^{3i psi} and spin-axis "
-                    "1x terms with cubic drifts (body-fixed spin harmonics that no reference, "
-                    "attitude or natural field makes), then a spin-axis tilt per zone within "
-                    f"{args.tilt_bound_deg} deg",
-            "zones": vector.to_dict(orient="records")}
-    payload["scores"] = {"note": "zone medians of magcal.missions.elfin_joint.score_field "
-                                 "(nT) for each product; the last one before 'joint' is "
-                                 "delivered unless joint_fit says otherwise",
-                         "medians": medians}
-    payload["timing_scan"] = {"shifts_s": list(SHIFTS_S), "note": "IGRF evaluated at t + "
-                              "shift; the per-zone RMS for each shift", "by_shift": scan}
-    write_json(args.out / "elfin_calibration.json", payload)
-    cols = ["zone", "used", "bx_gei", "by_gei", "bz_gei", "bx_despun", "by_despun",
-            "bz_despun", "igrf_x_gei", "igrf_y_gei", "igrf_z_gei", "phase"]
-    write_csv_frame(args.out / "elfin_calibrated.csv", cal.field[cols].astype(float))
-    _plot(args.out / "elfin_residuals.png", cal)
+    write_json(args.out / "elfin_calibration.json", day.to_json())
+    write_csv_frame(args.out / "elfin_calibrated.csv", day.calibrated_table())
+    plot_residuals(args.out / "elfin_residuals.png", cal,
+                   "ELFIN-A 2022-01-12: calibrated minus IGRF")
 
     print(f"ELFIN-A 2022-01-12, {len(cal.zones)} science zones, calibrated against IGRF")
     print(f"  {CREDIT}")

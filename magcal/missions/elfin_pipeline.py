@@ -1,0 +1,358 @@
+"""One ELFIN day calibrated from counts through every step: which step runs, the scores.
+
+The steps live in their own modules; this one orchestrates them for one day of FGS
+counts and its state file (``workflows/elfin_calibration.py`` and ``magcal run`` with
+``[spin] units = "counts"`` both call :func:`calibrate_elfin_day`)::
+
+    linear per-zone fit against IGRF (magcal.missions.elfin)
+    -> spin-ripple cross-check, no model field (elfin_ripple)
+    -> spin-harmonic correction of |B| (elfin_correction)        "harmonic"
+    -> spin-plane gain drift within each pass (elfin_drift)      "harmonic + gain drift"
+    -> vector-only body-fixed harmonics and tilt (elfin_vector)  "+ vector step"
+    -> optional joint fit across zones, delivered only if no worse (elfin_joint)
+
+Every product is scored with :func:`magcal.missions.elfin_joint.score_field`; the last
+step run is delivered (or the joint fit when it wins), and a step that makes a zone
+median worse than the step before is named in :meth:`ElfinDay.worse_steps` so that a
+caller can warn rather than stay silent.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from magcal.errors import InputError
+
+#: Reference time shifts (s) of the optional timing-offset scan.
+SHIFTS_S = (-0.4, -0.2, -0.1, 0.0, 0.1, 0.2, 0.4)
+#: Columns of the calibrated table (the first five after ``time`` are the issue's contract).
+CALIBRATED_COLUMNS = ("zone", "used", "bx_gei", "by_gei", "bz_gei", "bx_despun", "by_despun",
+                      "bz_despun", "igrf_x_gei", "igrf_y_gei", "igrf_z_gei", "phase")
+#: Zone medians compared from one step to the next (:meth:`ElfinDay.worse_steps`).
+SCORED = ("scalar_rms_nT", "scalar_fast_nT", "scalar_slow_nT", "vector_rms_nT")
+
+
+@dataclass(frozen=True)
+class ElfinSettings:
+    """Which steps of the ELFIN calibration run.
+
+    Attributes
+    ----------
+    harmonic : bool
+        The spin-harmonic correction of ``|B|`` after the linear fit (False: the linear
+        calibration only, and no later step).
+    gain_drift : bool
+        The spin-plane gain drift after the harmonic correction (False also skips the
+        vector step, which corrects what the drift leaves).
+    vector_step : bool
+        The vector-only step: body-fixed spin harmonics and a spin-axis tilt.
+    tilt_bound_deg : float
+        Bound of the per-zone spin-axis tilt in the vector step (the attitude file's
+        stated uncertainty, 0.2 deg; 0 fits no tilt).
+    joint : bool
+        Also the joint fit across zones (about 60 s); delivered only if no worse.
+    scan : bool
+        Also the timing-offset scan (the linear calibration with IGRF at ``t + shift``
+        for each of :data:`SHIFTS_S`; diagnostic, 7 more linear fits).
+    """
+
+    harmonic: bool = True
+    gain_drift: bool = True
+    vector_step: bool = True
+    tilt_bound_deg: float = 0.2
+    joint: bool = False
+    scan: bool = False
+
+    @classmethod
+    def from_mapping(cls, given: dict, where: str = "settings") -> ElfinSettings:
+        """Settings from a mapping (e.g. a TOML table), checked key by key.
+
+        Raises
+        ------
+        InputError
+            An unknown key, a wrong type or a negative tilt bound, naming ``where``.
+
+        Examples
+        --------
+        >>> ElfinSettings.from_mapping({"vector_step": False}).vector_step
+        False
+        >>> ElfinSettings.from_mapping({"tilt": 1})
+        Traceback (most recent call last):
+        ...
+        magcal.errors.InputError: settings: unknown key 'tilt' (known: harmonic, gain_drift, vector_step, tilt_bound_deg, joint, scan)
+        """
+        known = {f.name: f for f in fields(cls)}
+        out = {}
+        for key, value in given.items():
+            if key not in known:
+                raise InputError(f"{where}: unknown key {key!r} (known: {', '.join(known)})")
+            default = known[key].default
+            if isinstance(default, bool):
+                ok = isinstance(value, bool)
+            else:
+                ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+            if not ok:
+                kind = "true or false" if isinstance(default, bool) else "a number"
+                raise InputError(f"{where}: {key} must be {kind}, got {value!r}")
+            out[key] = float(value) if isinstance(default, float) else value
+        settings = cls(**out)
+        if settings.tilt_bound_deg < 0:
+            raise InputError(f"{where}: tilt_bound_deg must not be negative")
+        return settings
+
+    def steps(self) -> tuple:
+        """Names of the products made, in order (the last is delivered unless joint wins)."""
+        names = ["linear"]
+        if self.harmonic:
+            names.append("harmonic")
+            if self.gain_drift:
+                names.append("harmonic + gain drift")
+                if self.vector_step:
+                    names.append("+ vector step")
+        return tuple(names)
+
+
+@dataclass(frozen=True)
+class ElfinDay:
+    """One day calibrated by :func:`calibrate_elfin_day`.
+
+    Attributes
+    ----------
+    calibration : ElfinCalibration
+        The delivered product (its ``field`` holds the calibrated series).
+    linear : ElfinCalibration
+        The linear per-zone calibration every later step starts from.
+    settings : ElfinSettings
+    ripple : DataFrame
+        The spin-ripple cross-check per zone.
+    steps : dict
+        Step name -> its per-zone table (``spin_harmonic_correction``, ``gain_drift``,
+        ``drift_agreement``, ``vector_correction``) for the steps that ran.
+    scores : dict
+        Product name -> :func:`~magcal.missions.elfin_joint.score_field` table, in step
+        order (``joint`` last when it ran).
+    joint : dict or None
+        The joint fit's record (without its product) when it ran.
+    scan : dict
+        Shift (``"+0.1"``) -> per-zone RMS of the linear calibration, when scanned.
+    """
+
+    calibration: object
+    linear: object
+    settings: ElfinSettings
+    ripple: pd.DataFrame
+    steps: dict = field(default_factory=dict)
+    scores: dict = field(default_factory=dict)
+    joint: dict | None = None
+    scan: dict = field(default_factory=dict)
+
+    @property
+    def delivered(self) -> str:
+        """Name of the delivered product."""
+        if self.joint is not None and self.joint["delivered"] == "joint":
+            return "joint"
+        return self.settings.steps()[-1]
+
+    def medians(self) -> dict:
+        """Product name -> zone medians of its scores (nT)."""
+        return {name: s.drop(columns="zone").median().to_dict() for name, s in
+                self.scores.items()}
+
+    def _pairs(self) -> list[tuple]:
+        """(step before, step) for each step after the linear one; the joint fit is
+        compared with the product it competes with."""
+        steps = self.settings.steps()
+        pairs = list(zip(steps[:-1], steps[1:]))
+        return pairs + ([(steps[-1], "joint")] if "joint" in self.scores else [])
+
+    def worse_measures(self) -> dict:
+        """Step -> the measures of :data:`SCORED` whose zone median it makes worse than
+        the step before (steps that make none worse are left out)."""
+        med = self.medians()
+        out = {}
+        for before, after in self._pairs():
+            worse = tuple(m for m in SCORED if med[after][m] > med[before][m])
+            if worse:
+                out[after] = worse
+        return out
+
+    def worse_steps(self) -> list[str]:
+        """One line per step that makes a zone median of :data:`SCORED` worse than the
+        step before, with both medians."""
+        med, worse = self.medians(), self.worse_measures()
+        return [f"{after!r} is worse than {before!r} (zone medians): " + "; ".join(
+                    f"{m.removesuffix('_nT').replace('_', ' ')} {med[before][m]:.2f} -> "
+                    f"{med[after][m]:.2f} nT" for m in worse[after])
+                for before, after in self._pairs() if after in worse]
+
+    def calibrated_table(self) -> pd.DataFrame:
+        """The delivered series: ``time`` index, :data:`CALIBRATED_COLUMNS` (nT, rad)."""
+        return self.calibration.field[list(CALIBRATED_COLUMNS)].astype(float)
+
+    def to_json(self) -> dict:
+        """The calibration document (the keys of ``elfin_calibration.json``)."""
+        s = self.settings
+        payload = self.calibration.to_json()
+        payload["table"] = self.linear.table().to_dict(orient="records")
+        payload["ripple_crosscheck"] = {
+            "note": "spin-ripple calibration (Kivelson et al. 1992, no model field) on the "
+                    "same zones vs the IGRF one: spin-plane anisotropy a = (G11-G22)/"
+                    "(G11+G22), b = 2 G12/(G11+G22) and the effective spin-plane offset (nT)",
+            "zones": self.ripple.to_dict(orient="records")}
+        if self.joint is not None:
+            payload["joint_fit"] = self.joint
+        if "spin_harmonic_correction" in self.steps:
+            payload["spin_harmonic_correction"] = self.steps[
+                "spin_harmonic_correction"].to_dict(orient="records")
+        if "gain_drift" in self.steps:
+            payload["gain_drift"] = {
+                "note": "isotropic spin-plane gain (1 + g(T)), g cubic in time per zone, "
+                        "fitted to |B| - |IGRF| after the spin-harmonic correction (the slow "
+                        "part); evidence that it is the instrument: the 2x-spin harmonic (a "
+                        "gain ratio change no smooth reference error can make) drifts with "
+                        "the same time shape (agreement: correlation and ratio per zone, on "
+                        "the linear calibration), reference errors screened in workflows/"
+                        "elfin_scalar_floor.py --slow",
+                "zones": self.steps["gain_drift"].to_dict(orient="records"),
+                "agreement": self.steps["drift_agreement"].to_dict(orient="records")}
+        if "vector_correction" in self.steps:
+            payload["vector_correction"] = {
+                "note": "in the spinning frame: spin-plane e^{-i psi}, e^{3i psi} and "
+                        "spin-axis 1x terms with cubic drifts (body-fixed spin harmonics that "
+                        "no reference, attitude or natural field makes), then a spin-axis "
+                        f"tilt per zone within {s.tilt_bound_deg} deg",
+                "zones": self.steps["vector_correction"].to_dict(orient="records")}
+        payload["scores"] = {"note": "zone medians of magcal.missions.elfin_joint.score_field "
+                                     "(nT) for each product; the last one before 'joint' is "
+                                     "delivered unless joint_fit says otherwise",
+                             "medians": self.medians()}
+        payload["timing_scan"] = {"shifts_s": list(SHIFTS_S), "note": "IGRF evaluated at t + "
+                                  "shift; the per-zone RMS for each shift", "by_shift": self.scan}
+        return payload
+
+
+def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
+                        settings: ElfinSettings | None = None, *,
+                        provenance: dict | None = None) -> ElfinDay:
+    """Calibrate one day of ELFIN FGS counts against IGRF through the configured steps.
+
+    Parameters
+    ----------
+    fgs, state : DataFrame
+        From :func:`~magcal.missions.elfin_files.read_elfin_fgs` and
+        :func:`~magcal.missions.elfin_files.read_elfin_state`.
+    settings : ElfinSettings, optional
+        Which steps run (default: every step except the joint fit and the scan).
+    provenance : dict, optional
+        Carried by the delivered calibration (and so by :meth:`ElfinDay.to_json`).
+
+    Returns
+    -------
+    ElfinDay
+
+    Raises
+    ------
+    InputError
+        Frames without the ELFIN columns, or a zone without orbit and attitude.
+    """
+    from magcal.missions.elfin import calibrate_elfin
+    from magcal.missions.elfin_joint import score_field
+    from magcal.missions.elfin_ripple import ripple_crosscheck
+
+    s = settings or ElfinSettings()
+    linear = calibrate_elfin(fgs, state, provenance=provenance)
+    ripple = ripple_crosscheck(linear, fgs)
+    products, steps = {"linear": linear}, {}
+    cal = linear
+    if s.harmonic:
+        from magcal.missions.elfin_correction import correct_elfin_calibration
+
+        cal, steps["spin_harmonic_correction"] = correct_elfin_calibration(cal)
+        products["harmonic"] = cal
+        if s.gain_drift:
+            from magcal.missions.elfin_drift import correct_gain_drift, drift_agreement_table
+
+            cal, steps["gain_drift"] = correct_gain_drift(cal)
+            steps["drift_agreement"] = drift_agreement_table(linear)
+            products["harmonic + gain drift"] = cal
+            if s.vector_step:
+                from magcal.missions.elfin_vector import correct_vector
+
+                cal, steps["vector_correction"] = correct_vector(cal, bound_deg=s.tilt_bound_deg)
+                products["+ vector step"] = cal
+    scores = {name: score_field(p.field) for name, p in products.items()}
+    joint = None
+    if s.joint:
+        cal, joint, scores["joint"] = _joint(linear, cal, scores)
+    scan = {}
+    if s.scan:
+        for shift in SHIFTS_S:
+            t = calibrate_elfin(fgs, state, time_shift_s=shift).table()
+            scan[f"{shift:+.1f}"] = {"rms_vector_nT": t["rms_vector_nT"].tolist(),
+                                     "rms_scalar_nT": t["rms_scalar_nT"].tolist()}
+    return ElfinDay(calibration=cal, linear=linear, settings=s, ripple=ripple, steps=steps,
+                    scores=scores, joint=joint, scan=scan)
+
+
+def _joint(linear, incumbent, scores: dict) -> tuple:
+    """Joint fit across zones, scored against the linear and incumbent products; returns
+    the delivered calibration, the fit's record and the joint product's scores."""
+    from magcal.missions.elfin_joint import calibrate_joint, choose_product, score_field
+
+    product, fit = calibrate_joint(linear)
+    names = list(scores)
+    compared = {"linear": scores["linear"]}
+    if names[-1] != "linear":
+        compared[names[-1]] = scores[names[-1]]
+    compared["joint"] = score_field(product.field)
+    chosen, reason = choose_product(compared, incumbent=names[-1])
+    record = {
+        "note": "one fit across zones: shared coupling, sensor tilt and cubic non-linearity; "
+                "per zone relative gains, drifting offsets and spin-plane anisotropy, "
+                "attitude within 0.2 deg, spline spin phase; std from the Jacobian sandwich "
+                "over 30 s blocks (std_naive ignores the autocorrelation), conditional on "
+                "the phases",
+        "delivered": chosen, "reason": reason,
+        "shared": fit.shared(), "per_zone": fit.per_zone().to_dict(orient="records"),
+        "spread_over_zones": fit.spread(), "attitude_at_bound": fit.at_bound,
+        "cost_history_nT": fit.cost_history,
+        "scores": {k: v.to_dict(orient="records") for k, v in compared.items()},
+        "score_medians": {k: v.drop(columns="zone").median().to_dict()
+                          for k, v in compared.items()}}
+    return (product if chosen == "joint" else incumbent), record, compared["joint"]
+
+
+def plot_residuals(path: str | Path, cal, title: str = "ELFIN: calibrated minus IGRF") -> Path:
+    """Calibrated minus IGRF per zone in the despun frame (one panel a zone), as PNG.
+
+    ``title`` heads the figure, followed by "(despun frame, nT)" and the data credit.
+    """
+    import matplotlib
+
+    from magcal.missions.elfin import CREDIT
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    f = cal.field
+    zones = sorted(f["zone"].unique())
+    fig, axes = plt.subplots(len(zones), 1, figsize=(10, 1.6 * len(zones)), sharey=True)
+    for ax, k in zip(np.atleast_1d(axes), zones):
+        z = f[(f["zone"] == k) & (f["used"] == 1)]
+        ts = (z.index - z.index[0]).total_seconds()
+        for c, col in zip("xyz", ("C0", "C1", "C2")):
+            ax.plot(ts, z[f"b{c}_despun"] - z[f"igrf_{c}_despun"], lw=0.4, color=col,
+                    label=f"d{c.upper()}")
+        ax.set_ylim(-400, 400)
+        ax.text(0.01, 0.8, str(z.index[0])[:19], transform=ax.transAxes, fontsize=7)
+    np.atleast_1d(axes)[0].legend(loc="upper right", fontsize=7, ncol=3)
+    np.atleast_1d(axes)[-1].set_xlabel("s from zone start")
+    fig.suptitle(f"{title} (despun frame, nT)\n{CREDIT}", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return Path(path)
