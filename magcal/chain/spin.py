@@ -6,6 +6,9 @@ A configuration with a ``[spin]`` section runs, on one CONTRACTS §4 file
     read -> spincal (8 determinable parameters, Galileo style) -> flipper (spin-axis
     offset O3, when the file has flip states) -> despun (calibrated, despun BX,BY,BZ)
 
+With ``units = "counts"`` (ELFIN FGS counts against IGRF) the stages are those of
+:mod:`magcal.chain.spin_elfin` instead.
+
 Products: ``spin/CAL.json``, ``spin/FLIP.json``, ``spin/CAL_full.json`` (the
 calibration completed with O3), ``despun/DESPUN.csv``, and, with ``[truth] file``
 (a JSON with the true ``coupling`` and ``offsets``), ``truth/TRUTH.json``.
@@ -28,12 +31,7 @@ def _load(cfg: ChainConfig, files):
     if len(files) != 1:
         raise InputError(f"the spinning chain takes one file; [input] files matches "
                          f"{len(files)}", file=cfg.path, column="input.files")
-    sp = cfg["spin"]
-    scale = 1.0
-    if sp["units"] != "nT":
-        raise InputError(f"[spin] units {sp['units']!r}: give the data in nT (convert counts "
-                         "with the instrument's scale first)", file=cfg.path)
-    data = load_spin_data(files[0], sp["spin_period_s"], scale=scale)
+    data = load_spin_data(files[0], cfg["spin"]["spin_period_s"], scale=1.0)
     summary = {"n_samples": int(len(data.t_s)), "span_s": float(data.t_s[-1] - data.t_s[0]),
                "has_flip": data.flip is not None, "spin_phase": data.phase_record()}
     line = (f"{len(data.t_s)} samples over {summary['span_s'] / 3600:.2f} h; phase from "
@@ -109,8 +107,15 @@ def _truth(cal: dict, cfg: ChainConfig):
 
 
 def spin_stages(run, cfg: ChainConfig, files, extras: dict) -> None:
-    """Run the spinning-spacecraft stages through the runner's book-keeping."""
+    """Run the spinning-spacecraft stages through the runner's book-keeping
+    (``units = "counts"``: the ELFIN stages of :mod:`magcal.chain.spin_elfin`)."""
     from magcal.io.formats import read_any
+
+    if cfg["spin"]["units"] == "counts":
+        from magcal.chain.spin_elfin import elfin_stages
+
+        elfin_stages(run, cfg, files, extras)
+        return
 
     data = run.stage("read", _load, cfg, files)
     cal = run.stage("spincal", _spincal, data, cfg, files)

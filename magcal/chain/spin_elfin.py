@@ -1,0 +1,135 @@
+"""The spinning chain on ELFIN counts: ``[spin] units = "counts"``, ``reference = "igrf"``.
+
+A configuration such as::
+
+    [input]
+    files = ["ela_l1_fgs_20220112_v01.cdf"]
+    [spin]
+    units = "counts"
+    reference = "igrf"
+    state = "ela_l1_state_defn_20220112_v01.cdf"
+    [spin.pipeline]          # optional: magcal.missions.elfin_pipeline.ElfinSettings
+    vector_step = true
+
+runs :func:`magcal.missions.elfin_pipeline.calibrate_elfin_day` in three stages::
+
+    read (FGS counts + state file) -> calibrate (spin/ELFIN_CAL.json: the workflow's
+    calibration document; spin/SPIN.json: zone medians per product) -> calibrated
+    (calibrated/elfin_calibrated.csv: time,zone,used,bx_gei,by_gei,bz_gei,... nT;
+    calibrated/elfin_residuals.png)
+
+A step that makes a zone median worse than the step before is a warning of the
+``calibrate`` stage (in the manifest and on stderr), never silent.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+
+from magcal.chain.config import ChainConfig
+from magcal.chain.product import StageProduct
+from magcal.errors import InputError
+from magcal.provenance import file_sha256, make_provenance
+
+#: Score columns printed per product, with their labels.
+_LABELS = (("scalar_rms_nT", "|B|-|IGRF|"), ("scalar_fast_nT", "fast part"),
+           ("scalar_slow_nT", "slow part"), ("vector_rms_nT", "vector"))
+
+
+def elfin_inputs(cfg: ChainConfig, files) -> tuple:
+    """The FGS file, the state file and the pipeline settings of a counts configuration.
+
+    Raises
+    ------
+    InputError
+        Not exactly one input file, a missing state file, a ``[truth]`` file (no truth
+        is known for real counts) or a bad ``[spin.pipeline]`` table.
+    """
+    from magcal.missions.elfin_pipeline import ElfinSettings
+
+    if len(files) != 1:
+        raise InputError(f"the ELFIN chain takes one FGS file; [input] files matches "
+                         f"{len(files)}", file=cfg.path, column="input.files")
+    if cfg["truth"]["file"]:
+        raise InputError("[truth] does not apply to units = \"counts\" (real counts are "
+                         "scored against the reference)", file=cfg.path, column="truth.file")
+    state = cfg.resolve(cfg["spin"]["state"])
+    if not state.is_file():
+        raise InputError("[spin] state: ELFIN state file not found", file=state)
+    settings = ElfinSettings.from_mapping(cfg["spin"]["pipeline"], where="[spin] pipeline")
+    return files[0], state, settings
+
+
+def _read(fgs_path, state_path):
+    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
+
+    fgs, state = read_elfin_fgs(fgs_path), read_elfin_state(state_path)
+    if fgs.attrs.get("probe") != state.attrs.get("probe"):
+        raise InputError(f"state file of {state.attrs.get('probe')!r}, FGS file of "
+                         f"{fgs.attrs.get('probe')!r}", file=state_path)
+    span = (fgs.index[-1] - fgs.index[0]).total_seconds()
+    summary = {"probe": fgs.attrs["probe"], "n_samples": int(len(fgs)), "span_s": span,
+               "first": str(fgs.index[0]), "last": str(fgs.index[-1]),
+               "n_state_records": int(len(state))}
+    line = (f"{fgs.attrs['probe']} FGS counts: {len(fgs)} samples from "
+            f"{fgs.index[0]:%Y-%m-%d %H:%M:%S} over {span / 3600:.2f} h; {len(state)} state "
+            "records")
+    return (fgs, state), StageProduct(stage="read", summary=summary, lines=(line,),
+                                      provenance=make_provenance(
+                                          "read", {}, inputs=[fgs_path, state_path]))
+
+
+def _calibrate(data, settings, inputs):
+    from magcal.missions.elfin_pipeline import calibrate_elfin_day
+
+    fgs, state = data
+    prov = make_provenance("elfin calibration against IGRF",
+                           {"model": "IGRF (IRBEM)", "settings": asdict(settings)},
+                           inputs=inputs)
+    day = calibrate_elfin_day(fgs, state, settings, provenance=prov)
+    medians = day.medians()
+    n = len(day.calibration.zones)
+    worse = day.worse_measures()
+    lines = [f"{n} science zones calibrated against IGRF (zone medians, nT)",
+             f"{'product':22s} " + " ".join(f"{label:>10s}" for _, label in _LABELS)]
+    for name, m in medians.items():
+        flag = ", ".join(label for col, label in _LABELS if col in worse.get(name, ()))
+        lines.append(f"{name:22s} " + " ".join(f"{m[col]:10.1f}" for col, _ in _LABELS)
+                     + (f"   WORSE than the step before: {flag}" if flag else ""))
+    lines.append(f"delivered: {day.delivered}")
+    summary = {"n_zones": n, "delivered": day.delivered, "zone_medians_nT": medians,
+               "settings": asdict(settings)}
+    return day, StageProduct(stage="spin", summary=summary, lines=tuple(lines),
+                             documents={"ELFIN_CAL.json": day.to_json()},
+                             provenance=prov, warnings=tuple(day.worse_steps()))
+
+
+def _calibrated(day, probe: str):
+    from magcal.missions.elfin_pipeline import plot_residuals
+
+    table = day.calibrated_table()
+    date = f"{table.index[0]:%Y-%m-%d}"
+    title = f"ELFIN-{probe[-1:].upper()} {date}: calibrated minus IGRF"
+    n_used = int(table["used"].sum())
+    line = (f"{len(table)} samples ({n_used} used in the fit) in "
+            f"{table['zone'].nunique()} zones: time,zone,used,bx_gei,by_gei,bz_gei (nT)")
+    return table, StageProduct(
+        stage="calibrated", summary={"n_samples": len(table), "n_used": n_used,
+                                     "zones": sorted(int(z) for z in table["zone"].unique())},
+        lines=(line,), tables={"elfin_calibrated.csv": table},
+        writers={"elfin_residuals.png": lambda path: plot_residuals(path, day.calibration,
+                                                                   title)},
+        provenance=make_provenance("calibrated series", {"product": day.delivered}))
+
+
+def elfin_stages(run, cfg: ChainConfig, files, extras: dict) -> None:
+    """Run the ELFIN counts stages through the runner's book-keeping.
+
+    The state file joins the run's inputs (its SHA-256 is recorded with every product).
+    """
+    fgs_path, state_path, settings = elfin_inputs(cfg, files)
+    run.inputs.append({"path": str(state_path), "sha256": file_sha256(state_path)})
+    data = run.stage("read", _read, fgs_path, state_path)
+    day = run.stage("calibrate", _calibrate, data, settings, [fgs_path, state_path])
+    extras["calibrated"] = run.stage("calibrated", _calibrated, day, data[0].attrs["probe"])
+    extras["elfin"] = day
