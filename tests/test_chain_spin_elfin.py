@@ -196,8 +196,8 @@ def test_worse_steps_name_every_median_that_grows():
     # medians: scalar 8 -> 8.5, fast 6 -> 7 grow in the vector step; nothing else grows
     assert day.worse_measures() == {"+ vector step": ("scalar_rms_nT", "scalar_fast_nT")}
     assert day.worse_steps() == ["'+ vector step' is worse than 'harmonic + gain drift' (zone "
-                                 "medians): scalar rms 8.00 -> 8.50 nT; scalar fast 6.00 -> "
-                                 "7.00 nT"]
+                                 "medians): scalar rms 8.00 -> 8.50 nT (+0.5); scalar fast "
+                                 "6.00 -> 7.00 nT (+1)"]
     # a joint fit is compared with the product it competes with
     joint = dict(scores, joint=_scores([7, 8.5, 9], [6, 7, 8], [3, 4, 5], [21, 25, 31]))
     day = ElfinDay(calibration=None, linear=None, settings=ElfinSettings(joint=True),

@@ -182,11 +182,12 @@ class ElfinDay:
 
     def worse_steps(self) -> list[str]:
         """One line per step that makes a zone median of :data:`SCORED` worse than the
-        step before, with both medians."""
+        step before, with both medians and the increase (however small: never silent)."""
         med, worse = self.medians(), self.worse_measures()
         return [f"{after!r} is worse than {before!r} (zone medians): " + "; ".join(
                     f"{m.removesuffix('_nT').replace('_', ' ')} {med[before][m]:.2f} -> "
-                    f"{med[after][m]:.2f} nT" for m in worse[after])
+                    f"{med[after][m]:.2f} nT (+{med[after][m] - med[before][m]:.2g})"
+                    for m in worse[after])
                 for before, after in self._pairs() if after in worse]
 
     def calibrated_table(self) -> pd.DataFrame:
