@@ -221,12 +221,16 @@ def test_settings_steps_and_checks():
 
 
 @pytest.mark.realdata
-def test_a_cdf_that_is_not_elfin_fgs_is_one_line_exit_2(tmp_path):
-    state = real_data_path("elfin", STATE)
+@pytest.mark.parametrize("fgs, state, message", [
+    (STATE, STATE, f"{STATE}: not an ELFIN FGS file"),
+    (FGS, FGS, f"{FGS}: not an ELFIN state file"),
+])
+def test_a_cdf_of_the_wrong_kind_is_one_line_exit_2(tmp_path, fgs, state, message):
+    fgs, state = real_data_path("elfin", fgs), real_data_path("elfin", state)
     path = tmp_path / "CHAIN.toml"
-    path.write_text(f'[input]\nfiles = ["{state.as_posix()}"]\n[spin]\nunits = "counts"\n'
+    path.write_text(f'[input]\nfiles = ["{fgs.as_posix()}"]\n[spin]\nunits = "counts"\n'
                     f'reference = "igrf"\nstate = "{state.as_posix()}"\n')
     code, _, stderr = _cli(["run", path, "-o", tmp_path / "out", "--quiet"])
     lines = stderr.strip().splitlines()
     assert code == 2 and len(lines) == 1
-    assert f"{STATE}: not an ELFIN FGS file" in lines[0]
+    assert message in lines[0]
