@@ -320,6 +320,22 @@ def test_fit_days_is_checked():
     text = CHAIN.format(plan="none").replace("fit_days = 3", "fit_days = 0")
     with pytest.raises(InputError, match="fit_days must be positive"):
         parse_chain_config(text, "CHAIN.toml")
+    text = CHAIN.format(plan="none").replace("fit_days = 3", "fit_days = 3\nfit_max_samples = 0")
+    with pytest.raises(InputError, match="fit_max_samples must be at least 1"):
+        parse_chain_config(text, "CHAIN.toml")
+
+
+def test_the_fit_stops_at_fit_max_samples_and_says_so(tmp_path, engines):
+    # 1440 samples a day: 3000 samples hold two whole days of the three fit_days allow
+    cfg = _archive(tmp_path, n_days=4)
+    cfg.write_text(cfg.read_text().replace("fit_days = 3", "fit_days = 3\nfit_max_samples = 3000"))
+    out = tmp_path / "out"
+    assert not run_chain(cfg, out, engine=engines[2]).failed
+    ac = json.loads((out / "ac" / "AC.json").read_text())
+    assert [Path(f).name for f in ac["fit_files"]] == ["day_20191101.csv", "day_20191102.csv"]
+    assert ac["fit_samples"] == 2 * 1440 and ac["fit_capped_by_samples"] is True
+    manifest = json.loads((out / "MANIFEST.json").read_text())
+    assert len(manifest["partitions"]["done"]) == 4  # every day is still calibrated
 
 
 def test_picog_is_fitted_on_the_first_days_and_applied_to_every_partition(tmp_path, engines):

@@ -135,7 +135,8 @@ def index_digest(tables: dict, start: str, end: str, margin_h: float = 3.0) -> s
 
 
 def read_file(job) -> dict:
-    """One file read on a worker, ``job = (path, format)``: ``{"span": [first, last],
+    """One file read on a worker, ``job = (path, format)``: ``{"span": [first, last,
+    samples],
     "frame": the read_any frame}`` or ``{"error": reason}`` (a task: it never raises).
     The fit phase takes the spans of the first files and the frames of those it fits on
     from one read."""
@@ -148,13 +149,15 @@ def read_file(job) -> dict:
             raise InputError("no samples", file=path)
     except InputError as exc:
         return {"error": str(exc)}
-    return {"span": [str(frame.index[0]), str(frame.index[-1])], "frame": frame}
+    return {"span": [str(frame.index[0]), str(frame.index[-1]), len(frame)], "frame": frame}
 
 
 def _fit_files(cfg: ChainConfig, files, shas, state: Path, engine):
-    """The readable files starting within ``fit_days`` of the first readable one, and
-    the frames of the files read here (``{path: frame}``: those and the few after them
-    read to find where the fit days end, which their partitions take).
+    """The readable files starting within ``fit_days`` of the first readable one (as
+    many as keep the samples within ``[picog] fit_max_samples``, at least one), the
+    frames of the files read here (``{path: frame}``: those and the few after them
+    read to find where the fit days end, which their partitions take) and whether the
+    sample limit ended the fit files before ``fit_days``.
 
     The files whose spans are not yet known are read on the workers, as many files at a
     time as there are workers; their spans are cached in ``state/spans.json`` by
@@ -164,11 +167,12 @@ def _fit_files(cfg: ChainConfig, files, shas, state: Path, engine):
     spans = json.loads(spans_path.read_text()) if spans_path.is_file() else {}
     chosen, first, errors, frames = [], None, [], {}
     limit = pd.Timedelta(days=float(cfg["picog"]["fit_days"]))
+    cap, samples, capped = cfg["picog"]["fit_max_samples"], 0, False
     pairs = list(zip(files, shas))
     done = False
     for k in range(0, len(pairs), engine.workers):
         batch = pairs[k:k + engine.workers]
-        todo = [(path, sha) for path, sha in batch if sha not in spans]
+        todo = [(path, sha) for path, sha in batch if len(spans.get(sha, ())) < 3]
         jobs = [(str(path), cfg["input"]["format"]) for path, _ in todo]
         for (path, sha), res in zip(todo, engine.map(read_file, jobs, "fit files")):
             if "error" in res:
@@ -181,17 +185,19 @@ def _fit_files(cfg: ChainConfig, files, shas, state: Path, engine):
                 continue
             start = pd.Timestamp(spans[sha][0])
             first = start if first is None else first
-            if start - first >= limit:
+            capped = bool(chosen) and samples + spans[sha][2] > cap
+            if start - first >= limit or capped:
                 done = True
                 break
             chosen.append(path)
+            samples += spans[sha][2]
         if done:
             break
     with atomic_path(spans_path) as tmp:
         tmp.write_text(json.dumps(spans, sort_keys=True))
     if not chosen:
         raise errors[0] if errors else InputError("no input file", file=cfg.path)
-    return chosen, frames
+    return chosen, frames, capped
 
 
 #: Files per worker read ahead while a worker fits (one 1 s day is read in about a
@@ -208,6 +214,7 @@ class FitTask:
     files: tuple
     frames: tuple
     key: str
+    capped: bool = False  # the sample limit, not fit_days, ended the fit files
 
 
 def fit_on_worker(task: FitTask) -> dict:
@@ -231,9 +238,18 @@ def fit_on_worker(task: FitTask) -> dict:
                      transforms=common.transforms, to_hpen=np.asarray(common.to_hpen),
                      upload=upload)
     names = [str(f) for f in task.files]
-    note = f"fitted on {len(names)} file(s): the first {cfg['picog']['fit_days']:g} days"
+    picog = cfg["picog"]
+    note = f"fitted on {len(names)} file(s): the first {picog['fit_days']:g} days"
+    if task.capped:
+        note = (f"fitted on {len(names)} file(s), {len(series)} samples: the first "
+                f"of the first {picog['fit_days']:g} days within [picog] fit_max_samples = "
+                f"{picog['fit_max_samples']} (the fit's memory grows with its samples)")
+    sample = {"fit_files": names, "fit_samples": len(series),
+              "fit_max_samples": picog["fit_max_samples"],
+              "fit_capped_by_samples": task.capped}
     frames = replace(frames, summary={**frames.summary, "fit_files": names})
-    ac = replace(ac, summary={**ac.summary, "fit_files": names}, lines=ac.lines + (note,))
+    ac = replace(ac, summary={**ac.summary, **sample}, lines=ac.lines + (note,),
+                 provenance={**(ac.provenance or {}), "fit_sample": sample})
     return _fit_to_json(fit, frames, ac)
 
 
@@ -248,7 +264,7 @@ def fit_phase(cfg: ChainConfig, files, shas, state: Path, engine):
     from magcal.provenance import file_sha256
 
     fmt = cfg["input"]["format"]
-    fit_files, frames_read = _fit_files(cfg, files, shas, state, engine)
+    fit_files, frames_read, capped = _fit_files(cfg, files, shas, state, engine)
     by_path = dict(zip(files, shas))
     plan = cfg["picog"]["plan"]
     plan_path = cfg.resolve(plan) if plan not in ("auto", "none") else None
@@ -268,7 +284,7 @@ def fit_phase(cfg: ChainConfig, files, shas, state: Path, engine):
             raise InputError(res["error"])
         frames_read[f] = res["frame"]
     fitting = engine.submit(fit_on_worker, FitTask(cfg, tuple(fit_files), tuple(
-        frames_read[f] for f in fit_files), key))
+        frames_read[f] for f in fit_files), key, capped))
     # meanwhile the other workers read the next files for their partitions (every
     # partition is redone when the fit is: its key names the fit)
     ahead = [f for f in files if f not in frames_read][:READ_AHEAD_ROUNDS * engine.workers]

@@ -32,7 +32,7 @@ SCHEMA: dict[str, dict[str, tuple]] = {
     "model": {"name": (str, "T89"), "drivers": (str, None), "cache_dir": (str, None),
               "cadence_s": ((int, float), 60.0), "jobs": (int, None)},
     "picog": {"plan": (str, "auto"), "on_worse": (str, "raw"),
-              "fit_days": ((int, float), 3.0)},
+              "fit_days": ((int, float), 3.0), "fit_max_samples": (int, 1_000_000)},
     "offsets": {"kp_max": ((int, float), 1.0), "window_days": ((int, float), 28.0),
                 "step_days": ((int, float), 7.0), "method": (str, "median"),
                 "min_used": (int, 720), "cadence_s": ((int, float), 60.0)},
@@ -200,6 +200,10 @@ def _check_values(s: dict, path: Path, kind: str) -> None:
     if s["picog"]["fit_days"] <= 0:
         raise InputError("[picog] fit_days must be positive (days of data the frames and "
                          "PiCoG are fitted on)", file=path, column="picog.fit_days")
+    if s["picog"]["fit_max_samples"] < 1:
+        raise InputError("[picog] fit_max_samples must be at least 1 (the fit's memory grows "
+                         "with its samples: about 1.3 kB per two-sensor sample)", file=path,
+                         column="picog.fit_max_samples")
     if s["offsets"]["method"] not in ("median", "lt_balanced"):
         raise InputError(f"[offsets] method {s['offsets']['method']!r}: use median or "
                          "lt_balanced", file=path)
