@@ -83,16 +83,30 @@ def _slow(data: Path) -> None:
 
 
 def _product(data: Path, knot_s: float | None):
-    """The default calibration chain, with the vector step's drift on ``knot_s`` splines."""
+    """The calibration chain; with ``knot_s`` the vector step drifts on splines and the
+    fast drift (spin harmonics of |B| on ``knot_s`` splines) follows it."""
     from magcal.missions.elfin import calibrate_elfin
-    from magcal.missions.elfin_correction import correct_elfin_calibration
+    from magcal.missions.elfin_correction import correct_elfin_calibration, correct_fast_drift
     from magcal.missions.elfin_drift import correct_gain_drift
     from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
     from magcal.missions.elfin_vector import correct_vector
 
     fgs, state = read_elfin_fgs(data / FGS_FILE), read_elfin_state(data / STATE_FILE)
     cal, _ = correct_gain_drift(correct_elfin_calibration(calibrate_elfin(fgs, state))[0])
-    return correct_vector(cal, knot_s=knot_s)[0], state
+    cal = correct_vector(cal, knot_s=knot_s)[0]
+    if knot_s is not None:
+        cal = correct_fast_drift(cal, knot_s=knot_s)[0]
+    return cal, state
+
+
+def _sun(data: Path) -> None:
+    from magcal.missions.elfin_sun import sun_locked_test
+
+    cal, state = _product(data, None)
+    print("fast part of |B| - |IGRF| (nT) left by: Sun-locked harmonics (1x, 2x of the Sun's "
+          "angle in the body), a control angle drifting the other way, field-locked "
+          "harmonics, field-locked 1x/2x drifting on 60 s splines (product: cubic drifts)")
+    print(sun_locked_test(cal, state).round(2).to_string(index=False))
 
 
 def _vector_evidence(data: Path, knot_s: float | None) -> None:
@@ -100,7 +114,7 @@ def _vector_evidence(data: Path, knot_s: float | None) -> None:
 
     cal, state = _product(data, knot_s)
     ev = vector_evidence(cal, field_latitude(cal, state))
-    drift = "polynomial (cubic)" if knot_s is None else f"{knot_s:g} s splines"
+    drift = "polynomial (cubic)" if knot_s is None else f"{knot_s:g} s splines, + fast drift"
     print(f"vector residual against IGRF split per zone (nT per component; vector step drift: "
           f"{drift}); flags: auroral current-sheet signatures (spin-averaged across-B "
           "structure > 10 nT over 20 s at |centred-dipole mlat| >= 60 deg)")
@@ -137,8 +151,12 @@ def main(argv=None) -> int:
                          "spin-averaged/within-spin, in/outside auroral current sheets) and "
                          "test attitude beyond 0.2 deg")
     ap.add_argument("--knot-s", type=float, default=30.0,
-                    help="knot spacing (s) of the vector step's drifting harmonics for "
-                         "--vector-evidence (default 30; 0: the cubic polynomial)")
+                    help="knot spacing (s) of the vector step's drifting harmonics and of the "
+                         "fast drift after it, for --vector-evidence (default 30; 0: the "
+                         "cubic polynomial and no fast drift)")
+    ap.add_argument("--sun", action="store_true",
+                    help="also test a Sun-locked term (solar-array currents) against a control "
+                         "angle and a field-locked drift")
     ap.add_argument("--drift-degree", type=int, default=3,
                     help="degree of the drifting 1x/2x coefficients (default 3)")
     args = ap.parse_args(argv)
@@ -169,6 +187,8 @@ def main(argv=None) -> int:
         _slow(args.data)
     if args.vector_evidence:
         _vector_evidence(args.data, args.knot_s or None)
+    if args.sun:
+        _sun(args.data)
     if args.out is not None:
         tab.to_csv(args.out, index=False)
         print(f"wrote {args.out}")
