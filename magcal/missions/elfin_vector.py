@@ -15,7 +15,10 @@ in the spinning frame (``z`` = spin axis, ``beta = Bx + i By``, ``psi = arg beta
 Neither can come from the reference, the attitude or a natural field: those are fixed
 in inertial space or slow, so in the spinning frame they appear only as ``e^{i psi}``
 (spin plane) and as a slow spin-axis term, which are left out of the fit here on
-purpose. The coefficients drift as polynomials in time. What remains is slow and
+purpose. The coefficients drift as polynomials in time, or on cubic B-splines
+(``knot_s``: the spin-axis 1x coupling moves along one body direction and changes sign
+every ~100 s in the eclipse passes, faster than a cubic; 30 s knots take the day's
+vector median from 21.7 to 17.7 nT). What remains is slow and
 transverse: the spin axis's direction (:func:`refine_tilt`, two angles per zone bounded
 by the attitude file's 0.2 deg) and natural fields that IGRF lacks.
 
