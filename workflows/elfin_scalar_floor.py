@@ -83,19 +83,20 @@ def _slow(data: Path) -> None:
 
 
 def _product(data: Path, knot_s: float | None):
-    """The calibration chain; with ``knot_s`` the vector step drifts on splines and the
-    fast drift (spin harmonics of |B| on ``knot_s`` splines) follows it."""
+    """The calibration chain; with ``knot_s`` the vector step drifts on splines, the fast
+    drift (spin harmonics of |B| on ``knot_s`` splines) follows it, and the spin phase is
+    refitted last (60 s knots)."""
     from magcal.missions.elfin import calibrate_elfin
     from magcal.missions.elfin_correction import correct_elfin_calibration, correct_fast_drift
     from magcal.missions.elfin_drift import correct_gain_drift
     from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
-    from magcal.missions.elfin_vector import correct_vector
+    from magcal.missions.elfin_vector import correct_phase, correct_vector
 
     fgs, state = read_elfin_fgs(data / FGS_FILE), read_elfin_state(data / STATE_FILE)
     cal, _ = correct_gain_drift(correct_elfin_calibration(calibrate_elfin(fgs, state))[0])
     cal = correct_vector(cal, knot_s=knot_s)[0]
     if knot_s is not None:
-        cal = correct_fast_drift(cal, knot_s=knot_s)[0]
+        cal = correct_phase(correct_fast_drift(cal, knot_s=knot_s)[0])[0]
     return cal, state
 
 
@@ -114,19 +115,20 @@ def _vector_evidence(data: Path, knot_s: float | None) -> None:
 
     cal, state = _product(data, knot_s)
     ev = vector_evidence(cal, field_latitude(cal, state))
-    drift = "polynomial (cubic)" if knot_s is None else f"{knot_s:g} s splines, + fast drift"
+    drift = "polynomial (cubic)" if knot_s is None else f"{knot_s:g} s splines, + fast drift + phase refit"
     print(f"vector residual against IGRF split per zone (nT per component; vector step drift: "
           f"{drift}); flags: auroral current-sheet signatures (spin-averaged across-B "
           "structure > 10 nT over 20 s at |centred-dipole mlat| >= 60 deg)")
     cols = ["zone", "flagged_fraction", "scalar", "vector", "along", "across", "across_slow",
             "across_fast", "ratio", "ratio_out", "scalar_fast", "vector_fast", "ratio_fast",
+            "plane", "axis_slow", "ratio_plane", "bz_fraction",
             "ratio_out_tilt_free", "ratio_out_tilt_drift", "across_slow_sub",
             "across_slow_auroral", "ratio_sub_tilt_drift", "ratio_auroral_tilt_predicted",
             "transverse_predicted_scalar_nT", "axial1x_rms_nT", "axial1x_line_fraction"]
     print(ev[cols].round(2).to_string(index=False))
     v = evidence_verdict(ev)
     print(f"vector / scalar, zone median (max; zones within {v['target']}x):")
-    for name in ("ratio", "ratio_out", "ratio_fast", "ratio_out_tilt_free",
+    for name in ("ratio", "ratio_out", "ratio_fast", "ratio_plane", "ratio_out_tilt_free",
                  "ratio_out_tilt_drift", "ratio_sub_tilt_drift", "ratio_auroral_tilt_predicted"):
         r = v[name]
         print(f"  {name:30s} {r['median']:5.2f} ({r['max']:5.2f}; {r['zones_within']}/{r['zones']})")
@@ -153,7 +155,7 @@ def main(argv=None) -> int:
     ap.add_argument("--knot-s", type=float, default=30.0,
                     help="knot spacing (s) of the vector step's drifting harmonics and of the "
                          "fast drift after it, for --vector-evidence (default 30; 0: the "
-                         "cubic polynomial and no fast drift)")
+                         "cubic polynomial, no fast drift and no phase refit)")
     ap.add_argument("--sun", action="store_true",
                     help="also test a Sun-locked term (solar-array currents) against a control "
                          "angle and a field-locked drift")

@@ -285,7 +285,10 @@ def vector_evidence(cal, mlat_deg, *, spin_s: float | None = None, knot_s: float
     -------
     DataFrame
         One row per zone: ``zone``, ``spin_s``, ``mlat_max``, the :func:`residual_split`
-        numbers, :func:`transverse_test` (prefixed ``transverse_``),
+        numbers; in the despun frame ``plane`` (spin-plane RMS per component), ``axis``
+        and ``axis_slow`` (spin axis, all and spin-averaged), ``ratio_plane`` (plane /
+        scalar) and ``bz_fraction`` (median ``|B_Z| / |B|``: how much of a spin-axis error
+        the scalar sees); :func:`transverse_test` (prefixed ``transverse_``),
         :func:`axial_coupling_line` (prefixed ``axial1x_``), and, outside the flags,
         ``tilt_free_deg`` (constant tilt without the bound, on top of the product's) with
         ``ratio_out_tilt_free``, and ``tilt_drift_deg`` (constant and linear-in-time
@@ -321,6 +324,10 @@ def vector_evidence(cal, mlat_deg, *, spin_s: float | None = None, knot_s: float
         b_free, ang_free = _tilt(b, ref, out)
         b_drift, ang_drift = _tilt(b, ref, out, T)
         scal_out = split["scalar_out"]
+        axis_slow = spin_average(t, e[:, 2], period)
+        frame = {"plane": rms(e[:, :2]), "axis": rms(e[:, 2]), "axis_slow": rms(axis_slow),
+                 "ratio_plane": rms(e[:, :2]) / split["scalar"],
+                 "bz_fraction": float(np.median(np.abs(ref[:, 2]) / np.linalg.norm(ref, axis=1)))}
         sub = np.abs(lat[sel]) < min_lat_deg
         scal = np.linalg.norm(b, axis=1) - np.linalg.norm(ref, axis=1)
         sub_rows = {"across_slow_sub": float("nan"), "across_slow_auroral": float("nan"),
@@ -336,7 +343,7 @@ def vector_evidence(cal, mlat_deg, *, spin_s: float | None = None, knot_s: float
                 "ratio_auroral_tilt_predicted": rms((b_sub - ref)[~sub]) / rms(scal[~sub])}
         rows.append({
             "zone": int(k), "spin_s": period, "mlat_max": float(np.abs(lat[sel]).max()),
-            **split,
+            **split, **frame,
             **{f"transverse_{n}": v for n, v in
                transverse_test(t, e, ref, flags, spin_s=period).items()},
             **{f"axial1x_{n}": v for n, v in
@@ -351,8 +358,8 @@ def vector_evidence(cal, mlat_deg, *, spin_s: float | None = None, knot_s: float
 
 
 #: Ratios of :func:`vector_evidence`, in the order the verdict reads them.
-RATIOS = ("ratio", "ratio_out", "ratio_fast", "ratio_out_tilt_free", "ratio_out_tilt_drift",
-          "ratio_sub_tilt_drift", "ratio_auroral_tilt_predicted")
+RATIOS = ("ratio", "ratio_out", "ratio_fast", "ratio_plane", "ratio_out_tilt_free",
+          "ratio_out_tilt_drift", "ratio_sub_tilt_drift", "ratio_auroral_tilt_predicted")
 
 
 def evidence_verdict(table: pd.DataFrame, *, target: float = 1.5,

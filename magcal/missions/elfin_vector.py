@@ -262,3 +262,82 @@ def correct_vector(cal, *, bound_deg: float = 0.2, **kw):
                        "scalar_fast_after_nT": rms(fast_part(t[used], scal))}
 
     return map_zones(cal, step, "vector_correction", {"bound_deg": bound_deg, **kw})
+
+
+def refine_phase(t_s, b_despun, ref_despun, *, knot_s: float = 60.0,
+                 fit_mask=None) -> tuple[np.ndarray, np.ndarray]:
+    """Refit the spin phase at the end: a smooth turn about the spin axis.
+
+    The phase of :func:`~magcal.missions.elfin.fit_zone` is fitted (a spline, 30 s knots)
+    against IGRF's spin-plane angle on the *linear* calibration, while the spin-plane
+    field is still off by the 60 nT that the later steps remove; the in-plane angle then
+    moves by a few hundredths of a degree. Here the angle between the calibrated and the
+    reference spin-plane field is fitted again by a cubic B-spline with knots every
+    ``knot_s`` seconds (no finer than the first phase fit: nothing the calibration did not
+    already absorb) and the vectors are turned by it about despun ``Z``; the spin phase
+    grows by the same angle (``despin(b_body, phase + c)``).
+
+    Returns
+    -------
+    corrected : ndarray (n, 3)
+    correction_rad : ndarray (n,)
+        Added to the spin phase.
+
+    Examples
+    --------
+    >>> t = np.arange(0.0, 300.0, 0.1)
+    >>> ref = np.column_stack([45000 * np.cos(t / 400), 45000 * np.sin(t / 400), 0 * t + 2000])
+    >>> err = 1e-3 * (t / 150 - 1) ** 3                    # 0.11 deg p-p phase wander
+    >>> b = np.column_stack([np.cos(err) * ref[:, 0] - np.sin(err) * ref[:, 1],
+    ...                      np.sin(err) * ref[:, 0] + np.cos(err) * ref[:, 1], ref[:, 2]])
+    >>> fixed, corr = refine_phase(t, b, ref)
+    >>> bool(np.abs(fixed - ref).max() < 1e-6), bool(np.allclose(corr, -err, atol=1e-12))
+    (True, True)
+    """
+    from magcal.missions.elfin_phase import wrap
+
+    t = np.asarray(t_s, dtype=float)
+    b = np.asarray(b_despun, dtype=float)
+    ref = np.asarray(ref_despun, dtype=float)
+    use = np.ones(t.size, bool) if fit_mask is None else np.asarray(fit_mask, bool)
+    basis = drift_basis(t, use, knot_s=knot_s)
+    angle = wrap(np.arctan2(ref[:, 1], ref[:, 0]) - np.arctan2(b[:, 1], b[:, 0]))
+    corr = basis @ np.linalg.lstsq(basis[use], angle[use], rcond=None)[0]
+    c, s = np.cos(corr), np.sin(corr)
+    out = b.copy()
+    out[:, 0] = c * b[:, 0] - s * b[:, 1]
+    out[:, 1] = s * b[:, 0] + c * b[:, 1]
+    return out, corr
+
+
+def correct_phase(cal, *, knot_s: float = 60.0):
+    """Apply :func:`refine_phase` zone by zone to an ElfinCalibration (the last step).
+
+    Returns
+    -------
+    corrected : ElfinCalibration
+        Despun and GEI vectors turned, ``phase`` updated.
+    table : DataFrame
+        Per zone: ``phase_pp_deg`` (peak-to-peak of the correction), vector RMS before and
+        after, and the spin-plane RMS per component after (despun X, Y; nT).
+    """
+    from dataclasses import replace
+
+    corrections = {}
+
+    def step(t, z, used):
+        ref = z[["igrf_x_despun", "igrf_y_despun", "igrf_z_despun"]].to_numpy(float)
+        desp = z[["bx_despun", "by_despun", "bz_despun"]].to_numpy(float)
+        new_d, corr = refine_phase(t, desp, ref, knot_s=knot_s, fit_mask=used)
+        corrections[int(z["zone"].iloc[0])] = corr
+        return new_d, {"phase_pp_deg": float(np.degrees(np.ptp(corr[used]))),
+                       "vector_rms_before_nT": rms((desp - ref)[used]),
+                       "vector_rms_after_nT": rms((new_d - ref)[used]),
+                       "plane_rms_after_nT": rms((new_d - ref)[used, :2])}
+
+    out, table = map_zones(cal, step, "phase_refit", {"knot_s": knot_s})
+    f = out.field.copy()
+    for k, corr in corrections.items():
+        sel = (f["zone"] == k).to_numpy()
+        f.loc[sel, "phase"] = f.loc[sel, "phase"].to_numpy(float) + corr
+    return replace(out, field=f), table
