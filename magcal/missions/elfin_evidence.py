@@ -23,6 +23,21 @@ faster than a cubic (:func:`axial_coupling_line`; removed by
 :func:`~magcal.missions.elfin_vector.correct_vector` with ``knot_s``), a tilt of the
 spin axis free of the 0.2 deg bound, and a tilt drifting linearly within the pass.
 
+What it measured on 2022-01-12 (zone medians; product: the default chain with the vector
+step on 30 s splines, the fast drift and the phase refit; ``workflows/elfin_scalar_floor.py
+--vector-evidence``): vector / scalar 2.08 overall (2/12 zones within 1.5x), 1.87 outside
+the current-sheet flags (4/12), but 1.26 within the spin (12/12, max 1.42) and 1.24 in the
+spin plane (11/12). The excess is the spin-averaged spin-axis component (8-43 nT) that
+``|B|`` hardly sees (``|B_Z| / |B|`` 1-9 %): the spin axis lies within 2 deg of the orbit
+normal, i.e. east-west, the direction of the fields of auroral field-aligned currents.
+A constant tilt free of the bound leaves 1.57 (5/12); a tilt drifting within the pass
+1.30 (10/12) but needs up to 0.56 deg against an attitude file that moves by 0.012 deg
+per pass, and fitted on the sub-auroral third it predicts 3.7x in the auroral part. A
+drifting spin-axis offset would look the same as a natural east-west field: the scalar
+cannot tell them apart (the transverse test predicts 0.4-2 nT in ``|B|``). So against
+IGRF the 1.5x target is met where the scalar has information (within the spin, in the
+spin plane) and is not decidable along the spin axis.
+
 Data: ELFIN SOC (PI V. Angelopoulos, UCLA), "Open Data for Scientific Use".
 """
 
