@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -90,7 +91,8 @@ def test_csv_has_the_contract_columns_and_every_zone(chain):
 @pytest.mark.slow
 def test_scores_meet_the_issue_targets(chain):
     doc = json.loads((chain[3] / "spin" / "ELFIN_CAL.json").read_text())
-    delivered = doc["scores"]["medians"]["+ vector step"]
+    name = json.loads((chain[3] / "spin" / "SPIN.json").read_text())["delivered"]
+    delivered = doc["scores"]["medians"][name]
     assert delivered["scalar_rms_nT"] <= 30.0
     assert delivered["scalar_fast_nT"] <= 10.0
     assert len(doc["zones"]) == N_ZONES
@@ -114,7 +116,7 @@ def test_chain_writes_what_the_library_computes(chain, library, tmp_path):
     # the CSV holds six decimals
     assert_allclose(table.to_numpy(), expected.to_numpy(), rtol=0, atol=5.01e-7)
     summary = json.loads((out / "spin" / "SPIN.json").read_text())
-    assert summary["delivered"] == library.delivered == "+ vector step"
+    assert summary["delivered"] == library.delivered == "+ phase refit"
     for name, med in library.medians().items():
         assert summary["zone_medians_nT"][name] == pytest.approx(med, rel=1e-12)
 
@@ -191,16 +193,23 @@ def test_worse_steps_name_every_median_that_grows():
               "harmonic": _scores([60, 63, 70], [5, 6, 7], [60, 62, 64], [50, 53, 55]),
               "harmonic + gain drift": _scores([7, 8, 9], [5, 6, 7], [3, 4, 5], [35, 38, 40]),
               "+ vector step": _scores([7, 8.5, 9], [6, 7, 8], [3, 4, 5], [20, 24, 30])}
-    day = ElfinDay(calibration=None, linear=None, settings=ElfinSettings(), ripple=None,
+    four = ElfinSettings(fast_drift=False, phase_refit=False)  # the four products above
+    day = ElfinDay(calibration=None, linear=None, settings=four, ripple=None,
                    scores=scores)
     # medians: scalar 8 -> 8.5, fast 6 -> 7 grow in the vector step; nothing else grows
     assert day.worse_measures() == {"+ vector step": ("scalar_rms_nT", "scalar_fast_nT")}
     assert day.worse_steps() == ["'+ vector step' is worse than 'harmonic + gain drift' (zone "
                                  "medians): scalar rms 8.00 -> 8.50 nT (+0.5); scalar fast "
                                  "6.00 -> 7.00 nT (+1)"]
+    # rounding is not a change: a turn about the spin axis leaves |B| as it was to 1e-14
+    turned = dict(scores)
+    turned["+ vector step"] = scores["harmonic + gain drift"] + 1e-13
+    turned["+ vector step"]["zone"] = [0, 1, 2]
+    same = ElfinDay(calibration=None, linear=None, settings=four, ripple=None, scores=turned)
+    assert same.worse_measures() == {}
     # a joint fit is compared with the product it competes with
     joint = dict(scores, joint=_scores([7, 8.5, 9], [6, 7, 8], [3, 4, 5], [21, 25, 31]))
-    day = ElfinDay(calibration=None, linear=None, settings=ElfinSettings(joint=True),
+    day = ElfinDay(calibration=None, linear=None, settings=replace(four, joint=True),
                    ripple=None, scores=joint, joint={"delivered": "+ vector step"})
     assert day.worse_measures()["joint"] == ("vector_rms_nT",)
     assert day.delivered == "+ vector step"
@@ -208,7 +217,9 @@ def test_worse_steps_name_every_median_that_grows():
 
 def test_settings_steps_and_checks():
     assert ElfinSettings().steps() == ("linear", "harmonic", "harmonic + gain drift",
-                                       "+ vector step")
+                                       "+ vector step", "+ fast drift", "+ phase refit")
+    assert ElfinSettings(fast_drift=False).steps()[-2:] == ("+ vector step", "+ phase refit")
+    assert ElfinSettings(vector_step=False).steps()[-1] == "harmonic + gain drift"
     assert ElfinSettings(gain_drift=False).steps() == ("linear", "harmonic")
     assert ElfinSettings(harmonic=False).steps() == ("linear",)
     assert ElfinSettings.from_mapping({"tilt_bound_deg": 0}).tilt_bound_deg == 0.0
@@ -218,6 +229,8 @@ def test_settings_steps_and_checks():
         ElfinSettings.from_mapping({"tilt_bound_deg": True})
     with pytest.raises(InputError, match="must not be negative"):
         ElfinSettings.from_mapping({"tilt_bound_deg": -0.1})
+    with pytest.raises(InputError, match="vector_knot_s must not be negative"):
+        ElfinSettings.from_mapping({"vector_knot_s": -30})
 
 
 @pytest.mark.realdata

@@ -91,6 +91,14 @@ def _run(argv=None) -> int:
     ap.add_argument("--tilt-bound-deg", type=float, default=0.2,
                     help="bound of the per-zone spin-axis tilt in the vector step (default "
                          "0.2 deg, the attitude file's uncertainty; 0: no tilt)")
+    ap.add_argument("--vector-knot-s", type=float, default=30.0,
+                    help="knot spacing (s) of the vector step's spline drifts (default 30; "
+                         "0: a cubic in time over the zone)")
+    ap.add_argument("--no-fast-drift", action="store_true",
+                    help="skip the 1x/2x harmonics of |B| drifting on 30 s splines (after "
+                         "the vector step)")
+    ap.add_argument("--no-phase-refit", action="store_true",
+                    help="skip the final spin-phase refit (60 s knots)")
     ap.add_argument("--joint", action="store_true",
                     help="also run the joint fit across zones (shared sensor, per-zone "
                          "offsets and attitude; about 60 s, never delivered on 2022-01-12)")
@@ -112,6 +120,9 @@ def _run(argv=None) -> int:
     settings = ElfinSettings(harmonic=not args.linear_only, gain_drift=not args.no_gain_drift,
                              vector_step=not args.no_vector_correction,
                              tilt_bound_deg=args.tilt_bound_deg,
+                             vector_knot_s=args.vector_knot_s,
+                             fast_drift=not args.no_fast_drift,
+                             phase_refit=not args.no_phase_refit,
                              joint=args.joint and not args.no_joint, scan=not args.no_scan)
     day = calibrate_elfin_day(fgs, state, settings, provenance=prov)
     cal, tab, ripple, joint, scan = (day.calibration, day.linear.table(), day.ripple,

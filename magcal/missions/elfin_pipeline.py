@@ -9,6 +9,8 @@ counts and its state file (``workflows/elfin_calibration.py`` and ``magcal run``
     -> spin-harmonic correction of |B| (elfin_correction)        "harmonic"
     -> spin-plane gain drift within each pass (elfin_drift)      "harmonic + gain drift"
     -> vector-only body-fixed harmonics and tilt (elfin_vector)  "+ vector step"
+    -> 1x/2x terms of |B| drifting within a minute (elfin_correction) "+ fast drift"
+    -> spin phase refitted on the calibrated field (elfin_vector) "+ phase refit"
     -> optional joint fit across zones, delivered only if no worse (elfin_joint)
 
 Every product is scored with :func:`magcal.missions.elfin_joint.score_field`; the last
@@ -34,6 +36,8 @@ CALIBRATED_COLUMNS = ("zone", "used", "bx_gei", "by_gei", "bz_gei", "bx_despun",
                       "bz_despun", "igrf_x_gei", "igrf_y_gei", "igrf_z_gei", "phase")
 #: Zone medians compared from one step to the next (:meth:`ElfinDay.worse_steps`).
 SCORED = ("scalar_rms_nT", "scalar_fast_nT", "scalar_slow_nT", "vector_rms_nT")
+#: Relative (and absolute, nT) growth of a zone median below which it is rounding.
+ROUNDING = 1e-9
 
 
 @dataclass(frozen=True)
@@ -53,6 +57,18 @@ class ElfinSettings:
     tilt_bound_deg : float
         Bound of the per-zone spin-axis tilt in the vector step (the attitude file's
         stated uncertainty, 0.2 deg; 0 fits no tilt).
+    vector_knot_s : float
+        Knot spacing (s) of the B-spline drift of the vector step's body-fixed harmonics
+        (the spin-axis 1x coupling changes sign about every 100 s, faster than a cubic
+        over the zone can follow); 0: a cubic in time over the zone.
+    fast_drift : bool
+        After the vector step, the 1x/2x spin harmonics of ``|B|`` with coefficients
+        drifting on 30 s B-splines (the sunlit zones' 1x/2x terms change within a
+        minute). Harmonics of ``|B|`` are instrumental: a natural field changes ``|B|``
+        at the spin frequency only to second order.
+    phase_refit : bool
+        Last, the spin phase refitted on the calibrated field (60 s knots, no finer than
+        the first phase fit, which was made on the linear calibration).
     joint : bool
         Also the joint fit across zones (about 60 s); delivered only if no worse.
     scan : bool
@@ -64,6 +80,9 @@ class ElfinSettings:
     gain_drift: bool = True
     vector_step: bool = True
     tilt_bound_deg: float = 0.2
+    vector_knot_s: float = 30.0
+    fast_drift: bool = True
+    phase_refit: bool = True
     joint: bool = False
     scan: bool = False
 
@@ -83,7 +102,7 @@ class ElfinSettings:
         >>> ElfinSettings.from_mapping({"tilt": 1})
         Traceback (most recent call last):
         ...
-        magcal.errors.InputError: settings: unknown key 'tilt' (known: harmonic, gain_drift, vector_step, tilt_bound_deg, joint, scan)
+        magcal.errors.InputError: settings: unknown key 'tilt' (known: harmonic, gain_drift, vector_step, tilt_bound_deg, vector_knot_s, fast_drift, phase_refit, joint, scan)
         """
         known = {f.name: f for f in fields(cls)}
         out = {}
@@ -102,6 +121,8 @@ class ElfinSettings:
         settings = cls(**out)
         if settings.tilt_bound_deg < 0:
             raise InputError(f"{where}: tilt_bound_deg must not be negative")
+        if settings.vector_knot_s < 0:
+            raise InputError(f"{where}: vector_knot_s must not be negative")
         return settings
 
     def steps(self) -> tuple:
@@ -113,6 +134,10 @@ class ElfinSettings:
                 names.append("harmonic + gain drift")
                 if self.vector_step:
                     names.append("+ vector step")
+                    if self.fast_drift:
+                        names.append("+ fast drift")
+                    if self.phase_refit:
+                        names.append("+ phase refit")
         return tuple(names)
 
 
@@ -171,11 +196,17 @@ class ElfinDay:
 
     def worse_measures(self) -> dict:
         """Step -> the measures of :data:`SCORED` whose zone median it makes worse than
-        the step before (steps that make none worse are left out)."""
+        the step before (steps that make none worse are left out).
+
+        Worse means larger by more than rounding (:data:`ROUNDING`, relative): a step
+        that turns the field about the spin axis leaves ``|B|`` unchanged but for
+        1e-14 nT, which is not a change to warn about; any real growth is named.
+        """
         med = self.medians()
         out = {}
         for before, after in self._pairs():
-            worse = tuple(m for m in SCORED if med[after][m] > med[before][m])
+            worse = tuple(m for m in SCORED
+                          if med[after][m] > med[before][m] * (1.0 + ROUNDING) + ROUNDING)
             if worse:
                 out[after] = worse
         return out
@@ -223,10 +254,25 @@ class ElfinDay:
         if "vector_correction" in self.steps:
             payload["vector_correction"] = {
                 "note": "in the spinning frame: spin-plane e^{-i psi}, e^{3i psi} and "
-                        "spin-axis 1x terms with cubic drifts (body-fixed spin harmonics that "
+                        "spin-axis 1x terms with drifts ("
+                        + (f"B-splines, knots every {s.vector_knot_s:g} s" if s.vector_knot_s
+                           else "cubic in time") + "; body-fixed spin harmonics that "
                         "no reference, attitude or natural field makes), then a spin-axis "
                         f"tilt per zone within {s.tilt_bound_deg} deg",
                 "zones": self.steps["vector_correction"].to_dict(orient="records")}
+        if "fast_drift" in self.steps:
+            payload["fast_drift"] = {
+                "note": "1x/2x spin harmonics of |B| with coefficients on 30 s B-splines, "
+                        "removed as vectors (the sunlit zones' terms change within a minute; "
+                        "a Sun-locked term is not what the data support: workflows/"
+                        "elfin_scalar_floor.py --sun)",
+                "zones": self.steps["fast_drift"].to_dict(orient="records")}
+        if "phase_refit" in self.steps:
+            payload["phase_refit"] = {
+                "note": "spin phase refitted last against IGRF's spin-plane angle on the "
+                        "calibrated field (cubic B-spline, 60 s knots; the first phase fit, "
+                        "30 s knots, was made on the linear calibration)",
+                "zones": self.steps["phase_refit"].to_dict(orient="records")}
         payload["scores"] = {"note": "zone medians of magcal.missions.elfin_joint.score_field "
                                      "(nT) for each product; the last one before 'joint' is "
                                      "delivered unless joint_fit says otherwise",
@@ -283,8 +329,20 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
             if s.vector_step:
                 from magcal.missions.elfin_vector import correct_vector
 
-                cal, steps["vector_correction"] = correct_vector(cal, bound_deg=s.tilt_bound_deg)
+                knot = s.vector_knot_s or None
+                cal, steps["vector_correction"] = correct_vector(cal, bound_deg=s.tilt_bound_deg,
+                                                                 knot_s=knot)
                 products["+ vector step"] = cal
+                if s.fast_drift:
+                    from magcal.missions.elfin_correction import correct_fast_drift
+
+                    cal, steps["fast_drift"] = correct_fast_drift(cal, knot_s=30.0)
+                    products["+ fast drift"] = cal
+                if s.phase_refit:
+                    from magcal.missions.elfin_vector import correct_phase
+
+                    cal, steps["phase_refit"] = correct_phase(cal, knot_s=60.0)
+                    products["+ phase refit"] = cal
     scores = {name: score_field(p.field) for name, p in products.items()}
     joint = None
     if s.joint:
