@@ -22,6 +22,7 @@ are unchanged since the last run into the same OUTDIR is skipped (its marker in
 from __future__ import annotations
 
 import json
+import threading
 import time
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
@@ -34,7 +35,7 @@ from magcal.chain.product import StageProduct, without_wall_clock
 from magcal.errors import InputError
 from magcal.io.atomic import atomic_path
 from magcal.io.jsonio import write_json
-from magcal.provenance import file_sha256, make_provenance
+from magcal.provenance import file_sha256, files_sha256, make_provenance
 
 
 @dataclass(frozen=True)
@@ -113,6 +114,7 @@ class _Run:
         self.inputs = inputs
         self.progress = progress or (lambda text: None)
         self.partitions = None
+        self._checked: dict = {}  # (stage, key) -> its intact marker or None
 
     def add_entry(self, path: Path, stage: str, inputs: list[str], sha: str | None = None):
         self.entries.append({"path": Path(path).relative_to(self.outdir).as_posix(),
@@ -129,14 +131,22 @@ class _Run:
         return self.outdir / STATE_DIR / f"stage-{name}.json"
 
     def _finished(self, name: str, key: str) -> dict | None:
-        """The marker of a stage whose last run had ``key`` and left its files intact."""
+        """The marker of a stage whose last run had ``key`` and left its files intact
+        (checked once per run: the corrected stage's files are hundreds of MB)."""
+        if (name, key) not in self._checked:
+            self._checked[name, key] = self._check_marker(name, key)
+        return self._checked[name, key]
+
+    def _check_marker(self, name: str, key: str) -> dict | None:
         marker = self._marker(name)
         if not marker.is_file():
             return None
         done = json.loads(marker.read_text())
-        if done.get("key") != key or not all(
-                (self.outdir / e["path"]).is_file()
-                and file_sha256(self.outdir / e["path"]) == e["sha256"] for e in done["entries"]):
+        if done.get("key") != key:
+            return None
+        paths = [self.outdir / e["path"] for e in done["entries"]]
+        if not all(p.is_file() for p in paths) or files_sha256(paths) != [
+                e["sha256"] for e in done["entries"]]:
             return None
         return done
 
@@ -160,16 +170,17 @@ class _Run:
         return True
 
     def stage(self, name: str, func: Callable, *args, required: bool = True,
-              key: str | None = None):
+              key: str | None = None, reuse: bool = True):
         """Run one stage; write its product; on failure record it (and re-raise if the
         later stages need its output). With ``key``, a stage whose last run had the same
-        key and left its files intact is not run again (its value is then None).
+        key and left its files intact is not run again (its value is then None), unless
+        ``reuse`` is False (its value is needed): it runs and its marker is written.
 
         ``func`` returns ``(value, product)``, or ``(value, product, seconds)`` when
         the work ran on a worker (:func:`magcal.chain.archive.timed`): the record then
         holds the worker's seconds, not the driver's wait.
         """
-        if key is not None and self._reuse(name, key):
+        if key is not None and reuse and self._reuse(name, key):
             return None
         self.progress(f"-> {name}")
         start = time.perf_counter()
@@ -334,6 +345,8 @@ def _geostationary_stages(run: _Run, cfg: ChainConfig, files, shas, extras: dict
     run.stage("frames", lambda: (None, frames), key=fit.key)
     run.stage("ac", lambda: (None, ac), key=fit.key)
     run.progress(f"-> partitions ({engine.description})")
+    # the driver imports the offsets' libraries while the workers run the partitions
+    threading.Thread(target=archive.import_later_libraries, daemon=True).start()
     records, failed, run.partitions = archive.run_partitions(cfg, files, shas, fit, state,
                                                              engine, read)
     del read  # the fit files' frames: not held through the later stages
@@ -359,37 +372,62 @@ def _geostationary_stages(run: _Run, cfg: ChainConfig, files, shas, extras: dict
             tuple(records), cfg, folder=str(run.outdir / "model"))))
     run.stage("read", archive.read_product, cfg, files, shas, records, run.partitions,
               key=digest({"shas": shas, "partitions": pkeys, "failed": failed}))
-    minute = archive.gather_minutes(records)
-    table = run.stage("offsets", archive.offsets_stage, minute, cfg, failed, records)
-    offsets_sha = file_sha256(run.outdir / "offsets" / "OFFSETS.csv")
-    align_key = pending_align = None
-    if cfg["alignment"]["enabled"]:  # on a worker too, while the corrected days are written
-        ref = cfg["alignment"]["reference"]
-        ref_path = cfg.resolve(ref) if ref != "model" else None
-        align_key = digest({"partitions": pkeys, "offsets": offsets_sha,
-                            "cfg": cfg["alignment"], "cadence_s": cfg["offsets"]["cadence_s"],
-                            "ref": file_sha256(ref_path) if ref_path and ref_path.is_file()
-                            else None})
-        if not run.unchanged("alignment", align_key):
-            pending_align = engine.submit(archive.timed, (
-                archive.alignment_on_minutes, archive.MinuteTask(tuple(records), cfg, table)))
-    run.stage("corrected", archive.corrected_stage, run, table, records, cfg, engine)
+    offsets_path = run.outdir / "offsets" / "OFFSETS.csv"
+    offsets_key = digest({"partitions": pkeys, "files": [r["file"] for r in records],
+                          "failed": failed, "offsets": cfg["offsets"],
+                          "model": cfg["model"]["name"]})
+    truth_path = cfg.resolve(cfg["truth"]["file"]) if cfg["truth"]["file"] else None
+    ref = cfg["alignment"]["reference"]
+    ref_path = cfg.resolve(ref) if ref != "model" else None
+
+    def keys(offsets_sha: str) -> dict:
+        """The keys of the stages made from the offset product with this checksum."""
+        out = {"corrected": digest({"partitions": pkeys, "offsets": offsets_sha,
+                                    "written": "daily_csv v1"})}
+        if cfg["alignment"]["enabled"]:
+            out["alignment"] = digest({
+                "partitions": pkeys, "offsets": offsets_sha, "cfg": cfg["alignment"],
+                "cadence_s": cfg["offsets"]["cadence_s"],
+                "ref": file_sha256(ref_path) if ref_path and ref_path.is_file() else None})
+        if truth_path is not None:
+            out["truth"] = digest({"partitions": pkeys, "offsets": offsets_sha,
+                                   "truth": file_sha256(truth_path) if truth_path.is_file()
+                                   else None})
+        return out
+
+    # a rerun whose offsets and every stage made from them are unchanged skips them all
+    # without computing the offsets (whose libraries alone take 1.5 s to import)
+    unchanged = (run.unchanged("offsets", offsets_key) and offsets_path.is_file()
+                 and all(run.unchanged(n, k) for n, k in keys(file_sha256(offsets_path)
+                                                              ).items()))
+    minute = table = None
+    if unchanged:
+        run.stage("offsets", None, key=offsets_key)
+    else:
+        minute = archive.gather_minutes(records)
+        table = run.stage("offsets", archive.offsets_stage, minute, cfg, failed, records,
+                          key=offsets_key, reuse=False)
+    stage_keys = keys(file_sha256(offsets_path))
+    pending_align = None
+    if "alignment" in stage_keys and not run.unchanged("alignment", stage_keys["alignment"]):
+        # on a worker too, while the corrected days are written
+        pending_align = engine.submit(archive.timed, (
+            archive.alignment_on_minutes, archive.MinuteTask(tuple(records), cfg, table)))
+    run.stage("corrected", archive.corrected_stage, run, table, records, cfg, engine,
+              key=stage_keys["corrected"])
     run.stage("model", pending_model.result if pending_model else None, key=model_key)
     extras.update(minute=minute, table=table)
-    if cfg["truth"]["file"]:
+    if "truth" in stage_keys:
         from magcal.chain.truth import run_truth
 
-        truth_path = cfg.resolve(cfg["truth"]["file"])
-        key = digest({"partitions": pkeys, "offsets": offsets_sha,
-                      "truth": file_sha256(truth_path) if truth_path.is_file() else None})
         def truth():
             full = archive.gather_full(records)
             return run_truth(full, table, full.raw_hpen, cfg)
 
-        extras["truth"] = run.stage("truth", truth, required=False, key=key)
-    if align_key is not None:
+        extras["truth"] = run.stage("truth", truth, required=False, key=stage_keys["truth"])
+    if "alignment" in stage_keys:
         extras["align"] = run.stage("alignment", pending_align.result if pending_align
-                                    else None, required=False, key=align_key)
+                                    else None, required=False, key=stage_keys["alignment"])
     if discover_key is not None:
         extras["discover"] = run.stage("discover", pending_discover.result if pending_discover
                                        else None, required=False, key=discover_key)
