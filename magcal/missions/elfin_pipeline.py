@@ -164,6 +164,9 @@ class ElfinDay:
         The joint fit's record (without its product) when it ran.
     scan : dict
         Shift (``"+0.1"``) -> per-zone RMS of the linear calibration, when scanned.
+    stability : dict
+        Which parameters are stable across zones, with block-sandwich errors
+        (:func:`magcal.missions.elfin_stability.parameter_stability`).
     """
 
     calibration: object
@@ -174,6 +177,7 @@ class ElfinDay:
     scores: dict = field(default_factory=dict)
     joint: dict | None = None
     scan: dict = field(default_factory=dict)
+    stability: dict = field(default_factory=dict)
 
     @property
     def delivered(self) -> str:
@@ -277,6 +281,8 @@ class ElfinDay:
                                      "(nT) for each product; the last one before 'joint' is "
                                      "delivered unless joint_fit says otherwise",
                              "medians": self.medians()}
+        if self.stability:
+            payload["parameter_stability"] = self.stability
         payload["timing_scan"] = {"shifts_s": list(SHIFTS_S), "note": "IGRF evaluated at t + "
                                   "shift; the per-zone RMS for each shift", "by_shift": self.scan}
         return payload
@@ -344,6 +350,9 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
                     cal, steps["phase_refit"] = correct_phase(cal, knot_s=60.0)
                     products["+ phase refit"] = cal
     scores = {name: score_field(p.field) for name, p in products.items()}
+    from magcal.missions.elfin_stability import parameter_stability
+
+    stability = parameter_stability(linear, products, steps)
     joint = None
     if s.joint:
         cal, joint, scores["joint"] = _joint(linear, cal, scores)
@@ -354,7 +363,7 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
             scan[f"{shift:+.1f}"] = {"rms_vector_nT": t["rms_vector_nT"].tolist(),
                                      "rms_scalar_nT": t["rms_scalar_nT"].tolist()}
     return ElfinDay(calibration=cal, linear=linear, settings=s, ripple=ripple, steps=steps,
-                    scores=scores, joint=joint, scan=scan)
+                    scores=scores, joint=joint, scan=scan, stability=stability)
 
 
 def _joint(linear, incumbent, scores: dict) -> tuple:
