@@ -186,6 +186,10 @@ def _run(argv=None) -> int:
         print(f"  vector-only step: vector RMS {med.iloc[0]:.1f} -> {med.iloc[1]:.1f} nT (median); "
               f"spin-axis tilt on the {args.tilt_bound_deg} deg bound in "
               f"{int(vector['tilt_at_bound'].sum())}/{len(vector)} zones")
+    st = day.stability
+    print(f"  stable across zones (chi2/dof < {st['spread']['gain1_nT_per_count']['threshold']:.2f}, "
+          f"{st['block_s']:g} s block errors): {', '.join(st['stable']) or 'none'}; "
+          f"{len(st['per_zone'])} per zone (parameter_stability in the JSON)")
     print("  zone medians (nT)      |B|-|IGRF|  fast part  slow part  vector RMS (x, y, z GEI)")
     for name, m in medians.items():
         print(f"  {name:22s} {m['scalar_rms_nT']:9.1f}  {m['scalar_fast_nT']:9.1f}  "
