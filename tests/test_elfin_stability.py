@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from numpy.testing import assert_allclose
 
 from magcal.missions.elfin_stability import LINEAR_NAMES, linear_zone_parameters, spread
 from magcal.spin.despin import spin
@@ -93,6 +94,27 @@ def test_standard_errors_match_the_scatter_over_seeds():
     ratio = np.median(reports, axis=0) / scatter
     assert np.all((ratio > 0.5) & (ratio < 2.0)), ratio
     assert np.all(np.median(naive, axis=0) < np.median(reports, axis=0))
+
+
+def test_a_smooth_spin_axis_field_moves_the_gains_but_not_the_plane_responses():
+    """Noise-free pass whose spin-axis field is a quadratic in time: the spin-plane
+    rows' share of the spin-axis counts is then the offset drift (the degeneracy of the
+    real zones). The gains come out wrong by 3e-4 without any noise; the spin-plane
+    responses (spin-plane columns of C^-1) are exact."""
+    t = np.arange(0.0, 372.0, 0.1)
+    T = 2 * t / t[-1] - 1
+    ang = np.radians(20 + 25 * (T + 1))
+    perp = 43000 + 2500 * T
+    ref = np.column_stack([perp * np.cos(ang), perp * np.sin(ang), 1500 + 3000 * T ** 2])
+    phase = 2 * np.pi * t / SPIN_S
+    counts = np.linalg.solve(A_TRUE, (spin(ref, phase) - [300.0, -200.0, 150.0]).T).T + 3e6
+    fit = linear_zone_parameters(t, counts, ref, phase, t >= 2.0)
+    idx = [LINEAR_NAMES.index(f"gain{j}_nT_per_count") for j in (1, 2, 3)]
+    gains = np.linalg.norm(A_TRUE, axis=0)
+    assert np.max(np.abs(fit["values"][idx] / gains - 1)) > 1e-4
+    idx = [LINEAR_NAMES.index(f"plane_response{j}_counts_per_nT") for j in (1, 2, 3)]
+    plane = np.linalg.norm(np.linalg.inv(A_TRUE)[:, :2], axis=1)
+    assert_allclose(fit["values"][idx], plane, rtol=1e-9)
 
 
 def test_spread_threshold_is_the_chi2_quantile():

@@ -26,10 +26,13 @@ Parameters, all reconstructed from the products the pipeline keeps:
   (:mod:`magcal.missions.elfin_drift`) and the spin-axis tilt of the vector step
   (:mod:`magcal.missions.elfin_vector`).
 
-A large spread can be a degeneracy rather than physics: :func:`gain_degeneracy` gives,
-for each gain, its largest within-zone correlation with another parameter (from the
-sandwich covariance) and the spread of the row norms of ``C``, which a trade between
-gain and coupling would not share.
+A large spread can be a degeneracy rather than physics. The spin-axis field changes by
+only 240-3300 nT over an ELFIN pass, smoothly, so a multiple of the spin-axis row of
+``C`` added to a spin-plane row looks like offset drift: the column norms (gains) of the
+sensors with a large spin-axis share are poorly fixed, and the non-orthogonality angles
+with them. :func:`gain_degeneracy` gives the numbers (within-zone correlations, the
+spread of the row norms and of the spin-plane responses, i.e. the spin-plane columns of
+``C^-1``, which that trade leaves unchanged).
 """
 
 from __future__ import annotations
@@ -45,7 +48,10 @@ from magcal.spin.despin import spin
 BLOCK_S = 30.0
 #: Quantile of chi2_{n-1}/(n-1) below which the zone values count as one value.
 LEVEL = 0.99
-#: Linear-fit parameters, in the order of :func:`linear_zone_parameters`.
+#: Linear-fit parameters, in the order of :func:`linear_zone_parameters`: gains (column
+#: norms of ``C``), non-orthogonality, mid-zone body offsets, spin-axis turn, row norms of
+#: ``C`` and the spin-plane responses (norms of the rows of ``C^-1`` restricted to the
+#: spin-plane columns: counts per nT of spin-plane field, free of the spin-axis-row trade).
 LINEAR_NAMES = ("gain1_nT_per_count", "gain2_nT_per_count", "gain3_nT_per_count",
                 "nonorth12_deg", "nonorth13_deg", "nonorth23_deg",
                 "offset_x_nT", "offset_y_nT", "offset_z_nT", "spin_axis_turn_deg",
@@ -344,30 +350,51 @@ def zone_parameters(linear, products: dict | None = None, steps: dict | None = N
     return pd.DataFrame(vals), pd.DataFrame(stds), corrs
 
 
-def gain_degeneracy(values: pd.DataFrame, std: pd.DataFrame, corrs: list) -> dict:
+def gain_degeneracy(values: pd.DataFrame, std: pd.DataFrame, corrs: list,
+                    bz_range_nT=None) -> dict:
     """Is the gains' spread a trade with other parameters? Numbers to decide it.
 
-    For each sensor gain: the largest within-zone correlation with another parameter
-    (median over zones, and the parameter), the relative spread of the gain across
-    zones, and the relative spread of the row norms of ``C`` (body-axis field per count),
-    which a rotation of the sensor triad or a gain/coupling trade shifts differently.
+    The spin-axis field changes little over a pass (hundreds to a few thousand nT
+    against 45000 nT in the spin plane), and smoothly, so a multiple of the spin-axis
+    row of ``C`` added to a spin-plane row is nearly the offset drift: the spin-plane
+    rows' share of the spin-axis counts, and with it the column norms (gains) of the
+    sensors that have a large spin-axis component, are poorly fixed. The spin-plane
+    response of each sensor (counts per nT of spin-plane field: the spin-plane columns
+    of ``C^-1``) does not move under that trade.
+
+    Returns
+    -------
+    dict
+        Per gain: ``relative_spread`` across zones, ``median_zone_relative_std``, the
+        strongest within-zone correlation (median over zones) and its parameter, the
+        correlation across zones with the spin-axis row norm; the same spreads for the
+        row norms and the spin-plane responses; with ``bz_range_nT`` the correlation of
+        the spin-axis row norm's error with ``1 / range``.
     """
     names = list(LINEAR_NAMES)
     out = {}
     stack = np.array(corrs)
+    zrow = values["row_norm_z_nT_per_count"]
+
+    def rel(col):
+        return {"relative_spread": float(values[col].std() / values[col].mean()),
+                "median_zone_relative_std": float((std[col] / values[col]).median())}
+
     for j in range(3):
         med = np.nanmedian(np.abs(stack[:, j, :]), axis=0)
         med[j] = 0.0
         other = int(np.argmax(med))
         col = names[j]
-        out[col] = {"relative_spread": float(values[col].std() / values[col].mean()),
-                    "median_zone_relative_std": float((std[col] / values[col]).median()),
-                    "strongest_within_zone_correlation": float(med[other]),
-                    "with": names[other]}
-    for c in "xyz":
-        col = f"row_norm_{c}_nT_per_count"
-        out[col] = {"relative_spread": float(values[col].std() / values[col].mean()),
-                    "median_zone_relative_std": float((std[col] / values[col]).median())}
+        out[col] = {**rel(col), "strongest_within_zone_correlation": float(med[other]),
+                    "with": names[other],
+                    "correlation_across_zones_with_spin_axis_row_norm":
+                        float(np.corrcoef(values[col], zrow)[0, 1])}
+    for col in names[10:16]:
+        out[col] = rel(col)
+    if bz_range_nT is not None:
+        out["spin_axis_row_norm_std_vs_inverse_bz_range_correlation"] = float(
+            np.corrcoef(std["row_norm_z_nT_per_count"], 1.0 / np.asarray(bz_range_nT))[0, 1])
+        out["bz_range_nT"] = [float(r) for r in bz_range_nT]
     return out
 
 
@@ -383,6 +410,8 @@ def parameter_stability(linear, products: dict | None = None, steps: dict | None
         ``gain_degeneracy`` (:func:`gain_degeneracy`).
     """
     vals, stds, corrs = zone_parameters(linear, products, steps, block_s=block_s)
+    f = linear.field[linear.field["used"] == 1]
+    bz_range = [float(np.ptp(f.loc[f["zone"] == k, "igrf_z_despun"])) for k in vals["zone"]]
     names = [c for c in vals.columns if c != "zone"]
     table = vals.copy()
     for n in names:
@@ -399,4 +428,4 @@ def parameter_stability(linear, products: dict | None = None, steps: dict | None
         "zones": table.to_dict(orient="records"), "spread": sp,
         "stable": [n for n in names if sp[n]["verdict"] == "stable"],
         "per_zone": [n for n in names if sp[n]["verdict"] != "stable"],
-        "gain_degeneracy": gain_degeneracy(vals, stds, corrs)}
+        "gain_degeneracy": gain_degeneracy(vals, stds, corrs, bz_range)}
