@@ -95,6 +95,16 @@ class Engine:
         return list(dask.compute(*tasks, scheduler="processes", pool=self._get_pool(),
                                  num_workers=self.workers, callbacks=[_Bar()._callback]))
 
+    def start_workers(self) -> None:
+        """Spawn the local workers now and have each import the partition code, so a
+        driver busy with something else (simulating the input) hides their start-up
+        (a second or two each). Nothing waits for them; a distributed engine's workers
+        are running already."""
+        if self._client is None:
+            pool = self._get_pool()
+            for _ in range(self.workers):  # each submit spawns a worker while none is idle
+                pool.submit(_import_partition_code)
+
     def submit(self, func: Callable, item) -> Pending:
         """Start ``func(item)`` on a worker and return at once; ``.result()`` waits for
         its value (or raises its exception). Tasks submitted before a :meth:`map` are
@@ -189,6 +199,12 @@ class Pending:
     def result(self):
         """The task's value (waits for it)."""
         return self._wait()
+
+
+def _import_partition_code() -> None:
+    """What a worker imports to run partitions (see :meth:`Engine.start_workers`)."""
+    import magcal.chain.archive  # noqa: F401
+    import magcal.io.formats  # noqa: F401
 
 
 def _connect(scheduler):

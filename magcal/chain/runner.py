@@ -274,12 +274,14 @@ def run_chain(config: ChainConfig | str | Path, outdir: str | Path,
     if engine is not None and (workers is not None or scheduler is not None):
         raise InputError("give an open engine or workers/scheduler, not both")
     remove_partial_files(out)
-    if cfg["input"]["simulate"]:
-        extras["simulated"] = _simulate_input(cfg, out, progress)
-    files = cfg.input_files()
     own = engine is None
     engine = Engine(workers, scheduler, bars=progress is not None) if own else engine
     try:
+        if cfg["input"]["simulate"]:
+            if cfg.kind != "spin":  # the workers start while the driver simulates
+                engine.start_workers()
+            extras["simulated"] = _simulate_input(cfg, out, progress)
+        files = cfg.input_files()
         if cfg.kind == "spin":
             run = _Run(out, [{"path": str(p), "sha256": file_sha256(p)} for p in files],
                        progress)
@@ -353,7 +355,7 @@ def _geostationary_stages(run: _Run, cfg: ChainConfig, files, shas, extras: dict
     archive.prune_partitions(state, records, fit.key)
     pkeys = [r["key"] for r in records]
     # discovery needs only the 1-min record: it starts on a worker now and runs while
-    # the driver writes the model tables, the offsets and the corrected days
+    # the driver computes the offsets and the other worker the alignment
     discover_key = pending_discover = None
     if cfg["discover"]["enabled"]:
         cov = cfg.resolve(cfg["discover"]["covariates"])
@@ -362,14 +364,6 @@ def _geostationary_stages(run: _Run, cfg: ChainConfig, files, shas, extras: dict
         if not run.unchanged("discover", discover_key):
             pending_discover = engine.submit(archive.timed, (
                 archive.discovery_on_minutes, archive.MinuteTask(tuple(records), cfg)))
-    # the model tables (two CSV files of every 1-min sample) are written by a worker
-    # too; the stage is recorded after the corrected days, when they are surely done
-    index_files = [cfg.resolve(cfg["kp"]["file"]), cfg.resolve(cfg["model"]["drivers"])]
-    model_key = digest({"partitions": pkeys, "index_files": [  # named in its provenance
-        file_sha256(p) if p is not None and p.is_file() else None for p in index_files]})
-    pending_model = None if run.unchanged("model", model_key) else engine.submit(
-        archive.timed, (archive.model_on_minutes, archive.MinuteTask(
-            tuple(records), cfg, folder=str(run.outdir / "model"))))
     run.stage("read", archive.read_product, cfg, files, shas, records, run.partitions,
               key=digest({"shas": shas, "partitions": pkeys, "failed": failed}))
     offsets_path = run.outdir / "offsets" / "OFFSETS.csv"
@@ -413,6 +407,15 @@ def _geostationary_stages(run: _Run, cfg: ChainConfig, files, shas, extras: dict
         # on a worker too, while the corrected days are written
         pending_align = engine.submit(archive.timed, (
             archive.alignment_on_minutes, archive.MinuteTask(tuple(records), cfg, table)))
+    # the model tables (two CSV files of every 1-min sample) are written by a worker
+    # too, after the alignment (the longest task) has started; the stage is recorded
+    # after the corrected days, when they are surely done
+    index_files = [cfg.resolve(cfg["kp"]["file"]), cfg.resolve(cfg["model"]["drivers"])]
+    model_key = digest({"partitions": pkeys, "index_files": [  # named in its provenance
+        file_sha256(p) if p is not None and p.is_file() else None for p in index_files]})
+    pending_model = None if run.unchanged("model", model_key) else engine.submit(
+        archive.timed, (archive.model_on_minutes, archive.MinuteTask(
+            tuple(records), cfg, folder=str(run.outdir / "model"))))
     run.stage("corrected", archive.corrected_stage, run, table, records, cfg, engine,
               key=stage_keys["corrected"])
     run.stage("model", pending_model.result if pending_model else None, key=model_key)
