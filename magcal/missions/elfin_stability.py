@@ -74,7 +74,7 @@ def time_blocks(t_used, block_s: float = BLOCK_S, rows: int = 1) -> list[slice]:
     t = np.asarray(t_used, dtype=float)
     edges = np.searchsorted(t, np.arange(t[0], t[-1] + block_s, block_s))
     edges = np.unique(np.r_[edges, t.size])
-    return [slice(rows * a, rows * b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+    return [slice(rows * int(a), rows * int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]
 
 
 def _naive(design, resid) -> np.ndarray:
