@@ -351,7 +351,7 @@ def zone_parameters(linear, products: dict | None = None, steps: dict | None = N
 
 
 def gain_degeneracy(values: pd.DataFrame, std: pd.DataFrame, corrs: list,
-                    bz_range_nT=None) -> dict:
+                    bz_range_nT=None, couplings=None) -> dict:
     """Is the gains' spread a trade with other parameters? Numbers to decide it.
 
     The spin-axis field changes little over a pass (hundreds to a few thousand nT
@@ -369,7 +369,12 @@ def gain_degeneracy(values: pd.DataFrame, std: pd.DataFrame, corrs: list,
         strongest within-zone correlation (median over zones) and its parameter, the
         correlation across zones with the spin-axis row norm; the same spreads for the
         row norms and the spin-plane responses; with ``bz_range_nT`` the correlation of
-        the spin-axis row norm's error with ``1 / range``.
+        the spin-axis row norm's error with ``1 / range``. With ``couplings`` (the
+        zones' ``C``): ``spin_axis_to_sensor_deg`` (angle between each sensor axis and
+        the normal of the spin plane in count space, per zone) and, per spin-plane
+        response, its correlation with ``sin`` of that angle and its relative spread
+        once divided by it (what is left when the spin axis's motion relative to the
+        sensors is taken out).
     """
     names = list(LINEAR_NAMES)
     out = {}
@@ -391,6 +396,22 @@ def gain_degeneracy(values: pd.DataFrame, std: pd.DataFrame, corrs: list,
                         float(np.corrcoef(values[col], zrow)[0, 1])}
     for col in names[10:16]:
         out[col] = rel(col)
+    if couplings is not None:
+        angles, ratio = [], []
+        for a, resp in zip(couplings, values[list(names[13:16])].to_numpy()):
+            u = np.linalg.inv(a)
+            n = np.cross(u[:, 0], u[:, 1])
+            th = np.arccos(np.abs(n) / np.linalg.norm(n))
+            angles.append(np.degrees(th))
+            ratio.append(resp / np.sin(th))
+        angles, ratio = np.array(angles), np.array(ratio)
+        out["spin_axis_to_sensor_deg"] = angles.tolist()
+        for j in range(3):
+            col = names[13 + j]
+            out[col]["correlation_with_sin_spin_axis_angle"] = float(
+                np.corrcoef(values[col], np.sin(np.radians(angles[:, j])))[0, 1])
+            out[col]["relative_spread_over_sin_angle"] = float(
+                ratio[:, j].std(ddof=1) / ratio[:, j].mean())
     if bz_range_nT is not None:
         out["spin_axis_row_norm_std_vs_inverse_bz_range_correlation"] = float(
             np.corrcoef(std["row_norm_z_nT_per_count"], 1.0 / np.asarray(bz_range_nT))[0, 1])
@@ -428,4 +449,5 @@ def parameter_stability(linear, products: dict | None = None, steps: dict | None
         "zones": table.to_dict(orient="records"), "spread": sp,
         "stable": [n for n in names if sp[n]["verdict"] == "stable"],
         "per_zone": [n for n in names if sp[n]["verdict"] != "stable"],
-        "gain_degeneracy": gain_degeneracy(vals, stds, corrs, bz_range)}
+        "gain_degeneracy": gain_degeneracy(vals, stds, corrs, bz_range,
+                                           [z.coupling for z in linear.zones])}
