@@ -2,10 +2,12 @@
 
 Phases of :func:`archive_stages` (driven by :func:`magcal.chain.runner.run_chain`):
 
-1. **fit**: frames and PiCoG on the first ``[picog] fit_days`` days of data (the upload
-   matrices are constant, they are the product); the result is cached as
-   ``.partitions/fit-<key>.json``, the key being the SHA-256 of the files used and of
-   the configuration;
+1. **fit**: frames and PiCoG on the first ``[picog] fit_days`` days of data, at most
+   ``[picog] fit_max_samples`` samples (the upload matrices are constant, they are the
+   product), as a task on a worker while the other workers read the next files ahead;
+   the files are read once, on the workers, and the frames read here go to their
+   partitions; the result is cached as ``.partitions/fit-<key>.json``, the key being
+   the SHA-256 of the files used and of the configuration;
 2. **partitions**: one task per input file (:mod:`magcal.chain.partition`): common
    frame, PiCoG, Hpen, 1-min averages and model field, written atomically to
    ``.partitions/<stem>-<key>.npz``; a file whose key is unchanged and whose Kp and
