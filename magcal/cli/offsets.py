@@ -8,7 +8,7 @@ import numpy as np
 
 from magcal.cli._common import add_model_arguments, add_output, existing_file
 from magcal.errors import InputError
-from magcal.offsets.estimator import MIN_DAY_COVERAGE, MIN_LT_COVERAGE
+from magcal.offsets.defaults import MIN_DAY_COVERAGE, MIN_LT_COVERAGE
 
 
 def register(subparsers) -> None:

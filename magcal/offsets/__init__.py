@@ -14,17 +14,30 @@
 * :mod:`magcal.offsets.plots` - the Fig. 19 and Fig. 20 style plots.
 """
 
-from magcal.offsets.apply import (FLAG_MEANING, apply_offsets, interpolate_offsets,
-                                  outside_valid_windows)
-from magcal.offsets.averaging import average_to_cadence
-from magcal.offsets.diagnostics import local_time_hours, residual_by_local_time
-from magcal.offsets.estimator import (OffsetEstimator, fit_offsets, fit_offsets_frame,
-                                      quiet_mask)
-from magcal.offsets.table import OffsetTable, read_offsets_csv, write_offsets_csv
-from magcal.offsets.windows import window_coverage, window_grid, window_statistics
+from __future__ import annotations
 
-__all__ = ["FLAG_MEANING", "OffsetEstimator", "OffsetTable", "apply_offsets",
-           "average_to_cadence", "fit_offsets", "fit_offsets_frame", "interpolate_offsets",
-           "local_time_hours", "outside_valid_windows", "quiet_mask", "read_offsets_csv",
-           "residual_by_local_time", "window_coverage", "window_grid", "window_statistics",
-           "write_offsets_csv"]
+import importlib
+
+#: Public name -> the submodule that defines it, imported on first use (PEP 562): the
+#: estimator needs SciPy's statistics (about 1 s to import), which ``magcal offsets
+#: --help`` and the light submodules do not.
+_WHERE = {"FLAG_MEANING": "apply", "apply_offsets": "apply", "interpolate_offsets": "apply",
+          "outside_valid_windows": "apply", "average_to_cadence": "averaging",
+          "local_time_hours": "diagnostics", "residual_by_local_time": "diagnostics",
+          "OffsetEstimator": "estimator", "fit_offsets": "estimator",
+          "fit_offsets_frame": "estimator", "quiet_mask": "estimator",
+          "OffsetTable": "table", "read_offsets_csv": "table", "write_offsets_csv": "table",
+          "window_coverage": "windows", "window_grid": "windows",
+          "window_statistics": "windows"}
+
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str):
+    if name in _WHERE:
+        return getattr(importlib.import_module(f"magcal.offsets.{_WHERE[name]}"), name)
+    raise AttributeError(f"module 'magcal.offsets' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

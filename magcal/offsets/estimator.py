@@ -22,15 +22,12 @@ import numpy as np
 from magcal.errors import InputError
 from magcal.offsets.apply import apply_offsets
 from magcal.offsets.table import OffsetTable
+from magcal.offsets.defaults import MIN_DAY_COVERAGE, MIN_LT_COVERAGE
 from magcal.offsets.windows import (DAY_NS, thin_coverage_reason, window_coverage,
                                     window_grid, window_statistics)
 
 #: Kp values within this of ``kp_max`` count as equal (thirds stored as floats).
 KP_TOLERANCE = 1e-6
-#: Fewest of a window's days (fraction) that must hold used samples (7 of 28 days).
-MIN_DAY_COVERAGE = 0.25
-#: Fewest of the 24 local-time hours (fraction) that must hold used samples (12 of 24).
-MIN_LT_COVERAGE = 0.5
 #: A record spanning less than this fraction of the window is "far shorter" than it.
 SHORT_RECORD_FRACTION = 0.25
 
