@@ -377,7 +377,7 @@ def _geostationary_stages(run: _Run, cfg: ChainConfig, files, shas, extras: dict
     def keys(offsets_sha: str) -> dict:
         """The keys of the stages made from the offset product with this checksum."""
         out = {"corrected": digest({"partitions": pkeys, "offsets": offsets_sha,
-                                    "written": "daily_csv v1"})}
+                                    "written": "daily_csv v2 quality"})}
         if cfg["alignment"]["enabled"]:
             out["alignment"] = digest({
                 "partitions": pkeys, "offsets": offsets_sha, "cfg": cfg["alignment"],

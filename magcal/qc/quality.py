@@ -89,6 +89,17 @@ class QCSettings:
     def to_json(self) -> dict:
         return asdict(self)
 
+    @classmethod
+    def schema(cls) -> dict:
+        """``key -> (types, default)`` for the chain configuration's ``[qc]`` table."""
+        kinds = {bool: bool, int: int, float: (int, float)}
+        out = {}
+        for f in fields(cls):
+            default = f.default
+            types = (int, float) if f.name == "range_nT" else kinds[type(default)]
+            out[f.name] = (types, default)
+        return out
+
 
 @dataclass(frozen=True)
 class QCResult:
