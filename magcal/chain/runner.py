@@ -287,7 +287,9 @@ def run_chain(config: ChainConfig | str | Path, outdir: str | Path,
                        progress)
         else:
             from magcal.chain.archive import hash_inputs
+            from magcal.io.formats import in_time_order
 
+            files = in_time_order(files)
             shas = hash_inputs(files)
             run = _Run(out, [{"path": str(p), "sha256": s} for p, s in zip(files, shas)],
                        progress)
