@@ -508,8 +508,10 @@ def archive_faults(records, cadence_s: float) -> dict:
             out.append(f"{r['file']}: quality control flagged {qc['n_flagged']} of "
                        f"{r['n_samples']} samples ({parts}); they are kept, flagged, in the "
                        "corrected product and left out of every fit")
-        for rep in r.get("repairs") or []:
-            out.append(f"{r['file']}: {rep['what']} ({rep['count']})")
+        repairs: dict = {}
+        for rep in r.get("repairs") or []:  # one line per kind (fills come per column)
+            repairs[rep["what"]] = repairs.get(rep["what"], 0) + int(rep["count"])
+        out += [f"{r['file']}: {what} ({n})" for what, n in repairs.items()]
         if cadence_s > 0 and abs(r["cadence_s"] / cadence_s - 1) > 0.05:
             out.append(f"{r['file']}: cadence {r['cadence_s']:g} s where the archive's is "
                        f"{cadence_s:g} s (used at its own cadence)")

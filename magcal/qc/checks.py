@@ -4,8 +4,8 @@ Every check looks at one file's samples at their own cadence (a day of a daily
 archive), so its statistics are local to the record it flags:
 
 * :func:`spike_mask`: Hampel test on the residual to a running median, confirmed by the
-  first differences into or out of the flagged run (a smooth excursion that a running
-  median lags is not a spike);
+  first differences into and out of the flagged run (a spike jumps away and back; a
+  step of a heater switching, or a smooth excursion a running median lags, does not);
 * :func:`stuck_mask`: runs of identical readings (all three components repeat);
 * :func:`saturation_mask`: values at the declared instrument range, or repeated at the
   record's extreme value (a detected range);
@@ -74,7 +74,8 @@ def nonfinite_mask(values) -> np.ndarray:
 
 def spike_mask(values, *, window: int = 11, k: float = 8.0,
                scale_window: int = 201) -> np.ndarray:
-    """Samples that are spikes in any component (Hampel test, confirmed by differences).
+    """Samples that are spikes in any component (Hampel test, confirmed by a jump into
+    and a jump out of the run).
 
     Parameters
     ----------
@@ -126,13 +127,15 @@ def spike_mask(values, *, window: int = 11, k: float = 8.0,
         if not big.any():
             continue
         starts, ends = _runs(big)
-        into = np.zeros(starts.size, dtype=bool)
+        # a spike jumps away and comes back: a jump into the run and one out of it (a
+        # run at either end of the record needs only its one); a step jumps only once
+        into = np.ones(starts.size, dtype=bool)
         has_before = starts > 0
         into[has_before] = jump[starts[has_before] - 1]
-        out_of = np.zeros(starts.size, dtype=bool)
+        out_of = np.ones(starts.size, dtype=bool)
         has_after = ends < n
         out_of[has_after] = jump[ends[has_after] - 1]
-        keep = (into | out_of) & (ends - starts <= window // 2)
+        keep = into & out_of & (ends - starts <= window // 2)
         out |= _fill_runs(n, starts[keep], ends[keep])
     return out
 
