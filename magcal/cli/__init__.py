@@ -19,6 +19,8 @@ from magcal.errors import InputError, NotYetAvailableError
 
 # verb -> (module, one-line help). Order is the order of the processing chain.
 VERBS: dict[str, tuple[str, str]] = {
+    "qc": ("magcal.cli.qc", "per-sample quality flags (spikes, saturation, fills, time) of "
+                            "any input files"),
     "picog": ("magcal.cli.picog", "AC cleaning of multi-sensor data with PiCoG (fit, apply)"),
     "model": ("magcal.cli.model", "Tsyganenko/IGRF model field at the spacecraft in Hpen"),
     "offsets": ("magcal.cli.offsets", "DC offsets against the model on quiet days (fit, apply)"),
@@ -107,6 +109,9 @@ def main(argv: list[str] | None = None) -> int:
     except NotYetAvailableError as exc:
         print(str(exc), file=sys.stderr)
         return 1
+    except BrokenPipeError:  # the reader of stdout went away (| head): not an error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except KeyboardInterrupt:
         print("magcal: interrupted", file=sys.stderr)
         return 1
