@@ -66,3 +66,28 @@ def test_window_and_corner_plots_render(tmp_path):
     fig.savefig(tmp_path / "corner.png")
     assert (tmp_path / "corner.png").stat().st_size > 1000
     assert "NOT converged" in fig._suptitle.get_text()
+
+
+def test_whole_vs_windows_systematic_is_continuous_in_the_difference():
+    """The systematic term grows from 0 at two sigma of the difference and does not jump
+    at the warning level (issue 20: 400 saturated samples of 35 days moved a difference
+    from 3.2 to 3.0 sigma and, with a cut at 3 sigma, the stated Hn std by 24 %)."""
+    from types import SimpleNamespace
+
+    from magcal.alignment.checks import whole_vs_windows
+
+    def syst(z):
+        res = SimpleNamespace(angles_deg=np.array([z * 0.5, 0.0, 0.0]),
+                              std_deg=np.array([0.3, 0.3, 0.3]))
+        win = SimpleNamespace(mean_deg=np.zeros(3), mean_std_deg=np.array([0.4, 0.4, 0.4]))
+        check, warnings, s = whole_vs_windows(res, win)
+        return s[0], bool(warnings)
+
+    sd = 0.5  # hypot(0.3, 0.4)
+    assert syst(1.9)[0] == 0.0 and not syst(2.9)[1] and syst(3.1)[1]
+    below, above = syst(2.99)[0], syst(3.01)[0]
+    # no step at the warning level: a 0.02-sigma change moves it by the slope (0.67 sd
+    # per sigma there), where a cut at 3 sigma jumped by the whole difference (3 sd)
+    assert abs(above - below) < 0.02 * 0.7 * sd
+    assert np.isclose(syst(3.0)[0], sd * np.sqrt(9 - 4), rtol=1e-12)
+    assert np.isclose(syst(20.0)[0], 20 * sd, rtol=0.01)  # a large difference counts whole

@@ -246,6 +246,8 @@ def inflate(result: AlignmentResult, factors, dof: int) -> AlignmentResult:
 
 #: Whole-record vs window-mean disagreement (in sigma) that counts as significant.
 WHOLE_VS_WINDOWS_SIGMA = 3.0
+#: Differences up to this many sigma are the spread of two fits of the same data.
+SYSTEMATIC_FROM_SIGMA = 2.0
 
 
 def whole_vs_windows(result: AlignmentResult, windows,
@@ -265,14 +267,19 @@ def whole_vs_windows(result: AlignmentResult, windows,
     check : dict
     warnings : list of str
     systematic_deg : ndarray, shape (3,)
-        The difference where it exceeds ``n_sigma``, else 0: added in quadrature to the
-        standard deviation by :func:`add_systematic`.
+        The part of the difference beyond the spread two estimates of the same data can
+        have, ``sqrt(max(diff**2 - (2 sd)**2, 0))``: added in quadrature to the standard
+        deviation by :func:`add_systematic`. It grows continuously from 0 at two sigma,
+        so a small change of the data cannot switch a large term on or off (with a cut
+        at ``n_sigma`` adding the whole difference, 400 saturated samples of 35 days
+        moved a difference from 3.2 to 3.0 sigma and the stated Hn std from 0.79 to
+        0.60 deg); ``n_sigma`` is the level of the warning.
     """
     diff = result.angles_deg - windows.mean_deg
     sd = np.sqrt(result.std_deg ** 2 + windows.mean_std_deg ** 2)
     z = diff / sd
     bad = np.abs(z) > n_sigma
-    syst = np.where(bad, np.abs(diff), 0.0)
+    syst = np.sqrt(np.clip(diff ** 2 - (SYSTEMATIC_FROM_SIGMA * sd) ** 2, 0.0, None))
     check = {"window_mean_deg": _comp(windows.mean_deg),
              "window_mean_std_deg": _comp(windows.mean_std_deg),
              "difference_deg": _comp(diff), "difference_sigma": _comp(z),
@@ -285,8 +292,8 @@ def whole_vs_windows(result: AlignmentResult, windows,
             "the whole-record angles differ from the mean of the window angles beyond their "
             f"errors ({worst}): a slow error that the noise model does not describe (offset "
             "drift left by the offset correction, a slowly varying unmodelled field) pulls "
-            "the single fit; the difference is added in quadrature to std_deg and ci95_deg "
-            "as a systematic uncertainty")
+            "the single fit; the part of the difference beyond 2 sigma is added "
+            "in quadrature to std_deg and ci95_deg as a systematic uncertainty")
     return check, warnings, syst
 
 
