@@ -131,3 +131,45 @@ def test_spike_and_stuck_masks_leave_a_clean_random_walk_alone():
     x = np.cumsum(np.random.default_rng(9).normal(0, 0.1, (50_000, 3)), axis=0)
     assert not spike_mask(x).any()
     assert not stuck_mask(x).any()
+
+
+def test_one_sample_and_no_sample_records_are_checked_not_crashed():
+    """A file of one sample has no cadence (NaN): the checks run and flag nothing."""
+    assert flag_samples(np.array([0]), {"a": np.ones((1, 3))}, float("nan")).flags.tolist() == [0]
+    assert flag_samples(np.array([], dtype=np.int64), {"a": np.ones((0, 3))}, 30.0).flags.size == 0
+
+
+def test_time_jumps_inside_a_file_are_listed_with_their_span():
+    from magcal.chain.partition import _gaps
+
+    t = np.datetime64("2019-11-14", "ns") + np.r_[np.arange(700), np.arange(2140, 2880)] * \
+        np.timedelta64(30, "s")
+    gaps = _gaps(t.astype(np.int64), 30.0)
+    assert gaps == [["2019-11-14T05:49:30", "2019-11-14T17:50:00", 1440 * 30.0 + 30.0]]
+    # ten missing samples of 30 s (5 min) are under the 10-min floor: not a named jump
+    t2 = np.delete(np.arange(100), np.arange(40, 50)) * 30 * 10**9
+    assert _gaps(t2, 30.0) == []
+
+
+def test_a_file_qc_rejects_entirely_fails_with_the_counts():
+    from magcal.chain.partition import _check_usable
+    from magcal.errors import InputError
+
+    _check_usable(np.array([0, 4, 4], dtype=np.uint16), "day.csv")  # one usable sample
+    _check_usable(np.array([16, 16], dtype=np.uint16), "day.csv")   # bit 16 is information
+    with pytest.raises(InputError, match=r"every one of its 3 samples \(fill_or_nonfinite 3\)"):
+        _check_usable(np.array([4, 4, 4], dtype=np.uint16), "day.csv")
+
+
+def test_covariate_holes_are_named_at_the_files_own_spacing():
+    import pandas as pd
+
+    from magcal.chain.calibrate import _covariate_holes
+
+    hours = pd.date_range("2019-11-01", periods=240, freq="h")
+    dst = pd.DataFrame({"dst": np.zeros(240)}, index=hours)
+    record = pd.date_range("2019-11-01", hours[-1], freq="2min")
+    assert _covariate_holes(dst, record, "dst.csv") == []   # hourly file, 2-min record
+    holed = dst.drop(index=hours[100:150])
+    (line,) = _covariate_holes(holed, record, "dst.csv")
+    assert "1 hole(s) in dst" in line and "51.0 h" in line and "2019-11-05T03:00" in line

@@ -515,6 +515,8 @@ def archive_faults(records, cadence_s: float) -> dict:
         if cadence_s > 0 and abs(r["cadence_s"] / cadence_s - 1) > 0.05:
             out.append(f"{r['file']}: cadence {r['cadence_s']:g} s where the archive's is "
                        f"{cadence_s:g} s (used at its own cadence)")
+        out += [f"{r['file']}: no samples from {a} to {b} ({sec / 3600:.1f} h, a time jump "
+                "inside the file)" for a, b, sec in r.get("gaps") or []]
         if r.get("n_no_kp"):
             out.append(f"{r['file']}: no Kp for {r['n_no_kp']} of {r['n_minutes']} averaged "
                        "samples (a hole in the Kp file): they are not quiet-time candidates")

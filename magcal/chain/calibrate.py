@@ -207,6 +207,31 @@ def mean_record(minute: MinuteData, interval_s: float, cadence_s: float) -> Minu
                       means(minute.lon_deg), means(minute.lat_deg), means(minute.r_re))
 
 
+def _covariate_holes(raw: pd.DataFrame, index: pd.DatetimeIndex, path) -> list[str]:
+    """Warnings naming the holes of each covariate column of a file over the record's
+    span (a jump of more than 2.5 of its own median spacing, or a missing start or end):
+    discovery interpolates across them, and a user should know it did."""
+    out = []
+    t0, t1 = index.as_unit("ns")[0], index.as_unit("ns")[-1]
+    for c in raw.columns:
+        v = pd.to_numeric(raw[c], errors="coerce")
+        tv = v.index[np.isfinite(v.to_numpy(dtype=float))].as_unit("ns")
+        if tv.size < 2:
+            out.append(f"{path}: column {c} has fewer than 2 values; not used")
+            continue
+        step = np.median(np.diff(tv.asi8))
+        edges = np.concatenate([[t0.value], tv.asi8, [t1.value]])  # ns
+        edges = np.clip(edges, t0.value, t1.value)
+        jumps = np.flatnonzero(np.diff(edges) > 2.5 * step)
+        if jumps.size:
+            k = jumps[np.argmax(np.diff(edges)[jumps])]
+            a, b = pd.Timestamp(edges[k]), pd.Timestamp(edges[k + 1])
+            out.append(f"{path}: {jumps.size} hole(s) in {c} within the record, the longest "
+                       f"{(b - a).total_seconds() / 3600:.1f} h from {a:%Y-%m-%dT%H:%M} to "
+                       f"{b:%Y-%m-%dT%H:%M}; discovery interpolates across them")
+    return out
+
+
 def run_discovery(minute: MinuteData, config: ChainConfig):
     """Model-gap discovery on the cleaned data against the model (CONTRACTS §5).
 
@@ -231,13 +256,15 @@ def run_discovery(minute: MinuteData, config: ChainConfig):
                          "(need 60)", file=config.path)
     cov_path = config.resolve(cfg["covariates"])
     covariates = pd.DataFrame({"kp": minute.kp, "lon_deg": minute.lon_deg}, index=index)
-    inputs = []
+    inputs, warnings = [], []
     if cov_path is not None:
-        extra = read_any(cov_path).reindex(index, method="nearest", tolerance=pd.Timedelta(
+        raw_cov = read_any(cov_path)
+        extra = raw_cov.reindex(index, method="nearest", tolerance=pd.Timedelta(
             seconds=max(90.0, interval / 2)))
         covariates = covariates.join(extra.rename(columns={
             c: f"{c}_file" for c in extra.columns if c in covariates.columns}))
         inputs.append(cov_path)
+        warnings += _covariate_holes(raw_cov, index[ok], cov_path)
     result = discover_gap(measured[ok], model[ok], covariates=covariates[ok],
                           longitude_deg=float(np.nanmedian(minute.lon_deg)),
                           max_effects=cfg["max_effects"])
@@ -257,4 +284,4 @@ def run_discovery(minute: MinuteData, config: ChainConfig):
     return doc, StageProduct(stage="discover", summary={"effects": [e["name"] for e in
                                                                       doc["effects"]]},
                              lines=tuple(lines), documents={"REPORT.json": doc},
-                             provenance=prov)
+                             provenance=prov, warnings=tuple(warnings))

@@ -139,11 +139,13 @@ def _process(task: PartitionTask) -> dict:
         data = CleanedData(series.times, cleaned @ to_hpen.T, raw @ to_hpen.T)
         one_job = replace(cfg, sections={**cfg.sections, "model": {**cfg["model"], "jobs": 1}})
         flags = qc.flags
+        _check_usable(flags, task.file)
         # the averages and the model see only the samples QC keeps; the product keeps all
         minute, product = run_model(series, _masked(data, flags), one_job, tables)
         implausible = _implausible(data, minute, cfg)
         if (implausible & ~((flags & EXCLUDE) != 0)).any():
             flags = flags | np.where(implausible, IMPLAUSIBLE, 0).astype(np.uint16)
+            _check_usable(flags, task.file)
             minute, product = run_model(series, _masked(data, flags), one_job, tables)
     arrays = {"t_full": naive_times(series.times).astype(np.int64),
               "hpen_full": data.hpen, "raw_full": data.raw_hpen, "quality_full": flags,
@@ -163,6 +165,7 @@ def _process(task: PartitionTask) -> dict:
                    "counts": flag_counts(flags), "by_sensor": qc.by_sensor},
             "repairs": [r for r in read_step.get("repairs", []) if r.get("count")],
             "format": ",".join(read_step.get("formats", [])),
+            "gaps": _gaps(series.times, series.cadence_s),
             # the Kp and driver records this partition used (a rerun compares them)
             "index_digest": index_digest(tables, str(t[0]), str(t[-1]))}
     write_partition(Path(task.result), arrays, meta)
@@ -177,6 +180,35 @@ def _check_sensors(series, fit: FrameApply, file: str) -> None:
         raise InputError(f"has no sensor {', '.join(missing)} (it has "
                          f"{', '.join(s for s in series.sensors if s) or 'none'}); the "
                          f"archive's fit used {', '.join(fit.sensors)}", file=file)
+
+
+#: A time jump inside a file longer than this many samples (and 10 min) is named.
+GAP_SAMPLES = 10
+
+
+def _gaps(times, cadence_s: float) -> list:
+    """``[start, end, seconds]`` of every jump between consecutive samples longer than
+    ``GAP_SAMPLES`` cadences and 10 minutes (time jumps inside a file)."""
+    t = np.asarray(times.as_unit("ns").asi8 if hasattr(times, "as_unit") else times,
+                   dtype=np.int64)
+    if t.size < 2:
+        return []
+    limit = max(GAP_SAMPLES * (cadence_s if np.isfinite(cadence_s) else 0.0), 600.0) * 1e9
+    jumps = np.flatnonzero(np.diff(t) > limit)
+    iso = lambda v: str(np.datetime64(int(v), "ns").astype("datetime64[s]"))  # noqa: E731
+    return [[iso(t[j]), iso(t[j + 1]), float((t[j + 1] - t[j]) / 1e9)] for j in jumps]
+
+
+def _check_usable(flags, file: str) -> None:
+    """A file whose every sample QC excludes fails its partition with the flags' counts
+    (not an averaging error about empty bins)."""
+    from magcal.qc.flags import EXCLUDE
+    from magcal.qc.flags import counts as flag_counts
+
+    if flags.size and ((flags & EXCLUDE) != 0).all():
+        named = ", ".join(f"{k} {v}" for k, v in flag_counts(flags).items())
+        raise InputError(f"quality control flags every one of its {flags.size} samples "
+                         f"({named}): nothing left to process", file=file)
 
 
 def _masked(data, flags):

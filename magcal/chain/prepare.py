@@ -70,7 +70,8 @@ def quality_control(series: VectorSeries, config: ChainConfig):
     ref = config["frames"]["reference"]
     if ref and ref in series.sensors and ref not in names:
         names.append(ref)
-    return flag_samples(series.times.asi8, {s: series[s] for s in names}, series.cadence_s,
+    return flag_samples(series.times.as_unit("ns").asi8, {s: series[s] for s in names},
+                        series.cadence_s,
                         QCSettings.from_mapping(config["qc"]))
 
 

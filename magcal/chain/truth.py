@@ -71,11 +71,18 @@ def run_truth(cleaned: CleanedData, table, raw_target, config: ChainConfig):
     if all(c in truth for c in off_cols):
         res = offsets_against_truth(table, t, truth[off_cols].to_numpy(dtype=float))
         summary["offsets"] = res
-        lines.append(f"offset product vs injected drift and step: rms {res['rms_nT']:.2f} nT, "
-                     f"max {res['max_abs_nT']:.2f} nT; away from the step rms "
-                     f"{res['rms_away_from_steps_nT']:.2f} nT, max "
-                     f"{res['max_abs_away_from_steps_nT']:.2f} nT (true change "
-                     + "/".join(f"{v:.1f}" for v in res["true_change_nT"]) + " nT)")
+        if res["max_abs_nT"] is None:
+            res["reason"] = "no truth time inside the span of valid offset windows"
+            lines.append(f"offset product vs injected drift and step: not scored ({res['reason']})")
+        else:
+            away = res["max_abs_away_from_steps_nT"]
+            lines.append(
+                f"offset product vs injected drift and step: rms {res['rms_nT']:.2f} nT, "
+                f"max {res['max_abs_nT']:.2f} nT; away from the step "
+                + (f"rms {res['rms_away_from_steps_nT']:.2f} nT, max {away:.2f} nT"
+                   if away is not None else "no time (every time is within half a window)")
+                + " (true change " + "/".join(f"{v:.1f}" for v in res["true_change_nT"])
+                + " nT)")
     clean_cols = [f"clean_{c}" for c in HPEN]
     if all(c in truth for c in clean_cols):
         t_all = naive_times(cleaned.times)

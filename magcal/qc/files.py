@@ -99,7 +99,7 @@ def check_files(paths, settings: QCSettings | None = None, sensors=None,
     for s in names:
         series[s]  # a clear error naming a sensor the files do not have
     s = settings or QCSettings()
-    result = flag_samples(series.times.asi8, {n: series[n] for n in names},
+    result = flag_samples(series.times.as_unit("ns").asi8, {n: series[n] for n in names},
                           series.cadence_s, s)
     repairs = [dict(r, file=str(p)) for p, f in zip(files, frames)
                for r in f.attrs.get("repairs", []) if r.get("count", 1)]

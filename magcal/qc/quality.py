@@ -164,6 +164,8 @@ def flag_samples(times_ns, vectors: dict, cadence_s: float,
     by_sensor = {}
     if not s.enabled:
         return QCResult(flags, {})
+    if not np.isfinite(cadence_s) or cadence_s <= 0:  # one sample: no cadence, no run
+        cadence_s = s.stuck_seconds
     stuck_run = max(s.stuck_samples, int(np.ceil(s.stuck_seconds / max(cadence_s, 1e-9))))
     for name, b in vectors.items():
         b = np.asarray(b, dtype=float)

@@ -58,6 +58,8 @@ FAULT_KINDS = {
     "other_sensors": "failed",     # a day whose file has another sensor set
     "crlf": "none",                # CRLF line ends and +00:00 stamps
     "time_jitter": "warning",      # a block of stamps off the cadence grid
+    "gap_in_file": "warning",      # half a day of one file missing (a time jump inside it)
+    "dead_day": "failed",          # every reading of a day NaN (a sensor off all day)
 }
 
 _DAY = np.timedelta64(1, "D")
@@ -335,11 +337,27 @@ def _time_jitter(folder, days, fault, rng):
     return _done(fault, [_day_of(path)], [path.name], {_day_of(path): rows.tolist()})
 
 
+def _gap_in_file(folder, days, fault, rng):
+    path = days[fault.day]
+    frame = _read(path)
+    rows = _block(frame, len(frame) // 2, rng)
+    _write(frame.drop(index=rows), path)
+    return _done(fault, [_day_of(path)], [path.name])
+
+
+def _dead_day(folder, days, fault, rng):
+    path = days[fault.day]
+    frame = _read(path)
+    frame.iloc[:, 1:] = np.nan
+    _write(frame, path)
+    return _done(fault, [_day_of(path)], [path.name], {_day_of(path): list(range(len(frame)))})
+
+
 _APPLY = {
     "missing_days": _missing_days, "kp_hole": _kp_hole, "spikes": _spikes,
     "saturation": _saturation, "stuck": _stuck, "fill": _fill,
     "duplicate_file": _duplicate_file, "overlap_file": _overlap_file, "renamed": _renamed,
     "cadence": _cadence, "other_format": _other_format, "truncated": _truncated,
     "corrupt_gzip": _corrupt_gzip, "other_sensors": _other_sensors, "crlf": _crlf,
-    "time_jitter": _time_jitter,
+    "time_jitter": _time_jitter, "gap_in_file": _gap_in_file, "dead_day": _dead_day,
 }
