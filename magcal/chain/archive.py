@@ -43,6 +43,7 @@ import pandas as pd
 from magcal.chain.config import ChainConfig
 from magcal.chain.partition import (
     FULL_ARRAYS,
+    GAP_SAMPLES,
     MINUTE_ARRAYS,
     STATE_DIR,
     FrameApply,
@@ -535,6 +536,12 @@ def archive_faults(records, cadence_s: float) -> dict:
     for r in sorted(records, key=lambda r: (r["start"], r["file"])):
         if r["file"] in copies:
             continue
+        if latest_end is not None and r["start"] > latest_end:
+            gap_s = (pd.Timestamp(r["start"]) - pd.Timestamp(latest_end)).total_seconds()
+            if gap_s > max(GAP_SAMPLES * cadence_s, 600.0):
+                out.append(f"no file holds samples from {latest_end} to {r['start']} "
+                           f"({gap_s / 3600:.1f} h, between {name[latest_file]} and "
+                           f"{name[r['file']]})")
         if latest_end is not None and r["start"] <= latest_end:
             out.append(f"{r['file']}: overlaps {latest_file} from {r['start']} to "
                        f"{min(r['end'], latest_end)}; at a time both hold, the sample of "
