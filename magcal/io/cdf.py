@@ -375,7 +375,19 @@ def _write_epoch(writer, epoch: np.ndarray) -> None:
 
 def _write_data_variable(writer, name: str, values: np.ndarray, attrs: dict) -> None:
     labels = attrs.pop("labels", None)
-    if values.dtype.kind == "f" or values.dtype.kind == "b":
+    compress = attrs.pop("compress", 0)
+    if values.dtype.kind == "M":           # other times of a record: TT2000, support data
+        data = datetime64_to_tt2000(values.astype("datetime64[ns]"))
+        cdf_type, fill = _CDF_TT2000, FILLVAL_TT2000
+        vmin, vmax = np.int64(data.min()) if data.size else 0, np.int64(data.max()) \
+            if data.size else 0
+        attrs = {"VAR_TYPE": "support_data", "UNITS": "ns", **attrs}
+    elif values.dtype.kind in "UO":        # text per record (CDF_CHAR)
+        texts = [str(v) for v in values]
+        width = max([1] + [len(v.encode("utf-8")) for v in texts])
+        _write_text_variable(writer, name, texts, width, attrs)
+        return
+    elif values.dtype.kind == "f" or values.dtype.kind == "b":
         data = np.where(np.isfinite(values), values, FILLVAL_FLOAT).astype(np.float64)
         cdf_type, fill = _CDF_DOUBLE, np.float64(FILLVAL_FLOAT)
         finite = values[np.isfinite(values)]
@@ -418,4 +430,19 @@ def _write_data_variable(writer, name: str, values: np.ndarray, attrs: dict) -> 
             typed[key] = value
     spec = {"Variable": name, "Data_Type": cdf_type, "Num_Elements": 1, "Rec_Vary": True,
             "Dim_Sizes": dims, "Var_Type": "zVariable"}
+    if compress:
+        spec["Compress"] = int(compress)
     writer.write_var(spec, var_attrs=typed, var_data=data)
+
+
+def _write_text_variable(writer, name: str, texts: list, width: int, attrs: dict) -> None:
+    """One string per record as CDF_CHAR (ISTP support data; blank is no text)."""
+    full = {"DEPEND_0": "Epoch", "FIELDNAM": name, "CATDESC": name, "UNITS": " ",
+            "FILLVAL": " ", "VAR_TYPE": "support_data", "DISPLAY_TYPE": "no_plot",
+            "FORMAT": f"A{width}", **attrs}
+    full.pop("VALIDMIN", None)
+    full.pop("VALIDMAX", None)
+    spec = {"Variable": name, "Data_Type": _CDF_CHAR, "Num_Elements": width,
+            "Rec_Vary": True, "Dim_Sizes": [], "Var_Type": "zVariable"}
+    writer.write_var(spec, var_attrs=full,
+                     var_data=np.array([t.ljust(width) for t in texts] or [" " * width]))
