@@ -61,6 +61,16 @@ def runs(tmp_path_factory):
             cfg.write_text(CHAIN + f'[output]\nformat = "{fmt}"\n')
             run_chain(read_chain_config(cfg), folder / fmt, engine=engine)
             out[fmt] = folder / fmt
+        # the raw days as netCDF4 (read directly, no text): products in netCDF by default
+        from magcal.io.formats import read_any, write_any
+
+        (folder / "raw_nc").mkdir()
+        for day in sorted((folder / "raw").glob("day_*.csv")):
+            write_any(folder / "raw_nc" / f"{day.stem}.nc", read_any(day), "netcdf")
+        cfg = folder / "CHAIN_nc_input.toml"
+        cfg.write_text(CHAIN.replace('"raw/day_*.csv"', '"raw_nc/day_*.nc"'))
+        run_chain(read_chain_config(cfg), folder / "nc_input", engine=engine)
+        out["nc_input"] = folder / "nc_input"
         # a rerun of the netCDF run: nothing rewritten
         before = {p.name: file_sha256(p) for p in (folder / "netcdf" / "corrected").iterdir()}
         run_chain(read_chain_config(folder / "CHAIN_netcdf.toml"), folder / "netcdf",
@@ -129,3 +139,17 @@ def test_format_default_is_the_input_family_and_bad_format_refused(tmp_path):
     with pytest.raises(InputError, match=r"\[output\] format 'hdf5'"):
         parse_chain_config(base.format("csv") + '[output]\nformat = "hdf5"\n',
                            tmp_path / "C.toml")
+
+
+def test_netcdf_input_read_directly_gives_the_same_products(runs):
+    """Raw days as CF netCDF4 (``read_any``: no text on the way): the products default to
+    netCDF and equal the CSV-input run's."""
+    days = sorted((runs["nc_input"] / "corrected").glob("CORRECTED_*"))
+    assert days and all(p.suffix == ".nc" for p in days)
+    for p in days:
+        ref = read_product(runs["csv"] / "corrected" / p.with_suffix(".csv").name)
+        got = read_product(p)
+        assert got.index.equals(ref.index)
+        for c in ref.columns:
+            np.testing.assert_allclose(got[c].to_numpy(float), ref[c].to_numpy(float),
+                                       atol=5.1e-7, rtol=0)
