@@ -64,6 +64,10 @@ def test_netcdf_is_cf_with_flag_variable_and_provenance(tmp_path):
         assert q.attrs["flag_masks"].dtype == q.dtype
         np.testing.assert_array_equal(q.values, f["quality"].to_numpy())
         np.testing.assert_array_equal(ds["offset_flag"].values, f["offset_flag"].to_numpy())
+        o = ds["offset_flag"]  # a CF flag variable of values (CONTRACTS §2 codes 0-3)
+        assert list(o.attrs["flag_values"]) == [0, 1, 2, 3]
+        assert o.attrs["flag_values"].dtype == o.dtype
+        assert len(o.attrs["flag_meanings"].split()) == 4
 
 
 def test_cdf_is_istp_with_tt2000_and_support_data(tmp_path):

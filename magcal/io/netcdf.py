@@ -106,6 +106,8 @@ def write_netcdf_frame(path: str | os.PathLike, frame: pd.DataFrame, *,
     overrides = attrs or {}
     n = len(t)
     chunk = (min(max(n, 1), 262_144),)
+    # small tables (the offset windows): contiguous, without the chunk index overhead
+    packing = {"chunks": chunk, **_COMPRESSION} if n >= 4096 else {}
     target = Path(path)
     with atomic_path(target) as tmp:
         with h5netcdf.File(tmp, "w", track_order=True) as f:
@@ -119,8 +121,7 @@ def write_netcdf_frame(path: str | os.PathLike, frame: pd.DataFrame, *,
                 f.attrs["provenance"] = json.dumps(to_jsonable(dict(provenance)),
                                                    sort_keys=True)
             f.dimensions[dim] = n
-            v = f.create_variable(dim, (dim,), np.int64, data=t, chunks=chunk,
-                                  **_COMPRESSION)
+            v = f.create_variable(dim, (dim,), np.int64, data=t, **packing)
             v.attrs.update({"units": TIME_UNITS, "calendar": "standard", "axis": "T",
                             **describe(dim), "standard_name": "time",
                             **overrides.get(dim, {})})
@@ -134,15 +135,16 @@ def write_netcdf_frame(path: str | os.PathLike, frame: pd.DataFrame, *,
                     v = f.create_variable(name, (dim,), h5py.string_dtype(), data=data)
                     meta.pop("units", None)
                 elif kind == "time":
-                    v = f.create_variable(name, (dim,), np.int64, data=data, chunks=chunk,
-                                          **_COMPRESSION)
+                    v = f.create_variable(name, (dim,), np.int64, data=data, **packing)
                     meta.update({"units": TIME_UNITS, "calendar": "standard"})
                 else:
                     if "flag_masks" in meta:
                         data = data.astype(np.int32)
                         meta["flag_masks"] = np.asarray(meta["flag_masks"], dtype=np.int32)
-                    v = f.create_variable(name, (dim,), data.dtype, data=data, chunks=chunk,
-                                          fillvalue=fill, **_COMPRESSION)
+                    if "flag_values" in meta:  # CF: of the variable's type
+                        meta["flag_values"] = np.asarray(meta["flag_values"], dtype=data.dtype)
+                    v = f.create_variable(name, (dim,), data.dtype, data=data,
+                                          fillvalue=fill, **packing)
                 v.attrs.update(meta)
     return target
 

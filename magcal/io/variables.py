@@ -78,6 +78,11 @@ def describe(column: str) -> dict:
     """
     if column == "quality":
         return quality_attributes()
+    if column == "offset_flag":
+        from magcal.offsets.apply import FLAG_MEANING
+
+        return {**_KNOWN[column], "flag_values": sorted(FLAG_MEANING),
+                "flag_meanings": " ".join(_word(FLAG_MEANING[k]) for k in sorted(FLAG_MEANING))}
     if column in _KNOWN:
         return dict(_KNOWN[column])
     m = re.fullmatch(r"([a-z0-9_]+)_([xyz]|Hp|He|Hn)", column)
@@ -87,3 +92,8 @@ def describe(column: str) -> dict:
     if re.fullmatch(r"b[123]", column):
         return {"units": "nT", "long_name": f"sensor reading {column}"}
     return {"units": "1", "long_name": column}
+
+
+def _word(text: str) -> str:
+    """A description as one CF ``flag_meanings`` word (its part before a colon)."""
+    return re.sub(r"\W+", "_", text.split(":")[0].strip()).strip("_")
