@@ -11,7 +11,7 @@ import pytest
 from magcal.io.products import read_product, write_product
 from magcal.io.variables import QUALITY_BITS
 
-N = 2000
+N = 5000  # above the 4096 samples from which netCDF variables are compressed
 
 
 def _frame(seed: int = 3) -> pd.DataFrame:
