@@ -350,9 +350,13 @@ def run_partitions(cfg: ChainConfig, files, shas, fit: FrameApply, state: Path, 
     partitions start from them instead of reading the files again."""
     import time
 
+    from magcal.chain.partition import partition_columns
+
     start = time.perf_counter()
     part = digest(_config_part(cfg))
     tables = read_index_tables(cfg)
+    for path in list(read or {}):  # the driver holds (and ships) only what partitions use
+        read[path] = partition_columns(read[path], fit.sensors)
     tasks, skipped, records = [], [], []
     for path, sha in zip(files, shas):
         key = digest({"file": sha, "config": part, "fit": fit.key})[:24]
