@@ -193,7 +193,7 @@ def floor_figures(day_file: Path, work: Path) -> None:
         path.unlink(missing_ok=True)
         w = cdflib.cdfwrite.CDF(str(path), cdf_spec={"Majority": "Row_major"}, delete=True)
         spec = {"Rec_Vary": True, "Dim_Sizes": [], "Var_Type": "zVariable",
-                "Num_Elements": 1}
+                "Num_Elements": 1, "Compress": 0}  # as magcal's products
         w.write_var({**spec, "Variable": "Epoch", "Data_Type": 33}, var_attrs={},
                     var_data=datetime64_to_tt2000(t_ns.astype("datetime64[ns]")))
         for j, c in enumerate(("Hp", "He", "Hn")):

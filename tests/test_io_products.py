@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from magcal.io.products import read_product, write_product
-from magcal.io.variables import QUALITY_BITS
+from magcal.qc import flags as qcflags
 
 N = 5000  # above the 4096 samples from which netCDF variables are compressed
 
@@ -21,7 +21,7 @@ def _frame(seed: int = 3) -> pd.DataFrame:
     f = pd.DataFrame({"Hp": 90 + rng.normal(0, 3, N), "He": -20 + rng.normal(0, 3, N),
                       "Hn": rng.normal(0, 3, N),
                       "offset_flag": rng.integers(0, 4, N).astype(np.int8),
-                      "quality": rng.integers(0, 32, N)}, index=t)
+                      "quality": rng.integers(0, 64, N).astype(np.uint16)}, index=t)
     f.iloc[7:19, 1] = np.nan  # a gap in one component
     f.iloc[0, :3] = np.nan
     return f
@@ -37,6 +37,14 @@ def _offsets() -> pd.DataFrame:
                          "reason": ["", "too few samples", "", "caution: short"],
                          "days_covered": pd.array([10, None, 12, 14], dtype="Int64")},
                         index=center)
+
+
+def _assert_flags_decode(values, masks, meanings) -> None:
+    """The bits named by a file's masks/meanings are those magcal.qc set."""
+    names = dict(zip((int(m) for m in masks), meanings.split()))
+    for v in np.unique(values):
+        assert [n for m, n in names.items() if int(v) & m] == qcflags.describe(int(v))
+    assert {int(v) & int(qcflags.IMPLAUSIBLE) for v in values} == {0, 32}
 
 
 def test_netcdf_is_cf_with_flag_variable_and_provenance(tmp_path):
@@ -59,8 +67,10 @@ def test_netcdf_is_cf_with_flag_variable_and_provenance(tmp_path):
             np.testing.assert_array_equal(ds[c].values, f[c].to_numpy())  # NaN where NaN
         q = ds["quality"]
         assert q.attrs["standard_name"] == "quality_flag"
-        assert list(q.attrs["flag_masks"]) == [m for m, _, _ in QUALITY_BITS]
-        assert q.attrs["flag_meanings"].split() == [n for _, n, _ in QUALITY_BITS]
+        # the bits of magcal.qc (CONTRACTS 7.1 and magcal's implausible-vs-model bit)
+        assert list(q.attrs["flag_masks"]) == [1, 2, 4, 8, 16, 32]
+        assert q.attrs["flag_meanings"].split() == list(qcflags.FLAG_NAMES.values())
+        _assert_flags_decode(q.values, q.attrs["flag_masks"], q.attrs["flag_meanings"])
         assert q.attrs["flag_masks"].dtype == q.dtype
         np.testing.assert_array_equal(q.values, f["quality"].to_numpy())
         np.testing.assert_array_equal(ds["offset_flag"].values, f["offset_flag"].to_numpy())
@@ -93,7 +103,12 @@ def test_cdf_is_istp_with_tt2000_and_support_data(tmp_path):
     assert cdf.varattsget("Hp")["UNITS"] == "nT"
     assert cdf.varattsget("quality")["VAR_TYPE"] == "support_data"
     assert cdf.varattsget("offset_flag")["VAR_TYPE"] == "support_data"
-    assert cdf.varattsget("quality")["VALIDMAX"] == sum(m for m, _, _ in QUALITY_BITS)
+    qa = cdf.varattsget("quality")
+    assert qa["VALIDMIN"] == 0 and qa["VALIDMAX"] == 63
+    assert list(qa["FLAG_MASKS"]) == [1, 2, 4, 8, 16, 32]
+    assert qa["FLAG_MEANINGS"].split() == list(qcflags.FLAG_NAMES.values())
+    assert "32 implausible vs model" in qa["VAR_NOTES"]
+    _assert_flags_decode(cdf.varget("quality"), qa["FLAG_MASKS"], qa["FLAG_MEANINGS"])
     raw = cdf.varget("He")
     fill = cdf.varattsget("He")["FILLVAL"]
     assert (raw == fill).sum() == f["He"].isna().sum()
@@ -134,11 +149,16 @@ def test_offsets_table_round_trip_any_columns(tmp_path, suffix):
     assert back["days_covered"].isna().tolist() == [False, True, False, False]
 
 
-def test_netcdf_bytes_repeat(tmp_path):
-    """No timestamp in the file: a rerun leaves byte-identical products."""
-    f = _frame()
-    a = write_product(tmp_path / "a.nc", f, provenance={"x": 1}).read_bytes()
-    b = write_product(tmp_path / "a.nc", f, provenance={"x": 1}).read_bytes()
+@pytest.mark.parametrize("name", ["a.nc", "a.cdf", "OFFSETS.nc", "OFFSETS.cdf"])
+def test_bytes_repeat(tmp_path, name):
+    """No time of writing in the file (HDF5 object times, gzip headers): a rerun leaves
+    byte-identical products (a CDF's Generation_date is the day only)."""
+    import time
+
+    f = _offsets() if name.startswith("OFFSETS") else _frame()
+    a = write_product(tmp_path / name, f, provenance={"x": 1}).read_bytes()
+    time.sleep(1.1)  # gzip and HDF5 stamps have a resolution of one second
+    b = write_product(tmp_path / name, f, provenance={"x": 1}).read_bytes()
     assert a == b
 
 

@@ -91,7 +91,7 @@ def write_netcdf_frame(path: str | os.PathLike, frame: pd.DataFrame, *,
     >>> p = write_netcdf_frame(pathlib.Path(tempfile.mkdtemp()) / "a.nc", f)
     >>> with xr.open_dataset(p, engine="h5netcdf") as ds:
     ...     print(ds["Hp"].attrs["units"], ds["quality"].attrs["flag_meanings"].split()[2])
-    nT fill_or_non_finite
+    nT fill_or_nonfinite
     """
     import h5netcdf
 

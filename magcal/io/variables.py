@@ -2,13 +2,16 @@
 the quality flag bits, in one place for every product format.
 
 The CSV, netCDF and CDF writers of :mod:`magcal.io.products` describe a column by
-:func:`describe`; the quality flag's bits are :data:`QUALITY_BITS` (CONTRACTS §7.1):
-a new check adds its bit here and every format writes it.
+:func:`describe`; the quality flag's bits and names are those of
+:data:`magcal.qc.flags.FLAG_NAMES` (CONTRACTS §7.1), the one table of them: a new check
+adds its bit there and every format writes it.
 
 Examples
 --------
 >>> describe("Hp")["units"], describe("quality")["flag_masks"][:3]
 ('nT', [1, 2, 4])
+>>> describe("quality")["flag_meanings"].split()[0]
+'spike'
 >>> describe("fgmo_x")["units"]
 'nT'
 """
@@ -16,16 +19,6 @@ Examples
 from __future__ import annotations
 
 import re
-
-#: Bits of the per-sample ``quality`` flag (0 = good), in the order of CONTRACTS §7.1:
-#: ``(mask, name, description)``. Names are CF ``flag_meanings`` words.
-QUALITY_BITS = (
-    (1, "spike", "spike"),
-    (2, "saturated_or_stuck", "saturated or stuck"),
-    (4, "fill_or_non_finite", "fill or non-finite value"),
-    (8, "time_anomaly", "time anomaly"),
-    (16, "offset_held_or_extrapolated", "offset held or extrapolated"),
-)
 
 _HPEN = {"Hp": "along the local meridian, positive north",
          "He": "earthward", "Hn": "eastward"}
@@ -62,12 +55,15 @@ _KNOWN = {
 
 
 def quality_attributes() -> dict:
-    """The ``quality`` column's description as a CF flag variable."""
+    """The ``quality`` column's description as a CF flag variable: ``flag_masks`` and
+    ``flag_meanings`` are the bits and names of :data:`magcal.qc.flags.FLAG_NAMES`."""
+    from magcal.qc.flags import FLAG_NAMES
+
     return {"units": "1", "standard_name": "quality_flag",
             "long_name": "sample quality bit flags (0 = good): " + "; ".join(
-                f"{m} {d}" for m, _, d in QUALITY_BITS),
-            "flag_masks": [m for m, _, _ in QUALITY_BITS],
-            "flag_meanings": " ".join(n for _, n, _ in QUALITY_BITS)}
+                f"{m} {n.replace('_', ' ')}" for m, n in FLAG_NAMES.items()),
+            "flag_masks": list(FLAG_NAMES),
+            "flag_meanings": " ".join(FLAG_NAMES.values())}
 
 
 def describe(column: str) -> dict:
