@@ -80,6 +80,26 @@ def runs(tmp_path_factory):
     return out
 
 
+def _assert_quality_is_a_flag_variable(path: Path, fmt: str) -> None:
+    """The chain's quality column, seen by an independent reader, names qc's bits."""
+    from magcal.qc.flags import FLAG_NAMES
+
+    if fmt == "netcdf":
+        import xarray as xr
+
+        with xr.open_dataset(path, engine="h5netcdf") as ds:
+            attrs = ds["quality"].attrs
+            masks, meanings = attrs["flag_masks"], attrs["flag_meanings"]
+    else:
+        import cdflib
+
+        attrs = cdflib.CDF(str(path)).varattsget("quality")
+        assert attrs["VAR_TYPE"] == "support_data" and attrs["DEPEND_0"] == "Epoch"
+        masks, meanings = attrs["FLAG_MASKS"], attrs["FLAG_MEANINGS"]
+    assert [int(m) for m in masks] == list(FLAG_NAMES)
+    assert meanings.split() == list(FLAG_NAMES.values())
+
+
 @pytest.mark.parametrize("fmt,suffix", [("netcdf", ".nc"), ("cdf", ".cdf")])
 def test_binary_products_equal_csv_products(runs, fmt, suffix):
     csv_days = sorted((runs["csv"] / "corrected").glob("CORRECTED_*.csv"))
@@ -92,6 +112,8 @@ def test_binary_products_equal_csv_products(runs, fmt, suffix):
         for c in ref.columns:  # every CSV column, as a variable of the same name
             np.testing.assert_allclose(got[c].to_numpy(float), ref[c].to_numpy(float),
                                        atol=5.1e-7, rtol=0, err_msg=f"{b.name} {c}")
+    assert "quality" in ref.columns  # the QC bit flags of every sample (magcal.qc)
+    _assert_quality_is_a_flag_variable(days[0], fmt)
     assert (runs[fmt] / "offsets" / "OFFSETS.csv").is_file()  # the contract's file stays
     got = read_product(runs[fmt] / "offsets" / f"OFFSETS{suffix}")
     from magcal.offsets import read_offsets_csv
