@@ -7,7 +7,7 @@ netCDF4 files (``b_ob_sensor``, ``b_ib_sensor``, ``b_epn``, ``b_gse``, ``b_gsm``
 then prints:
 
 * **floor**: reading one input day's bytes with h5py alone, and writing the product's
-  bytes (time, Hp, He, Hn, flag; the same compression) with h5py alone and with cdflib
+  bytes (time, Hp, He, Hn, offset_flag, quality; the same compression) with h5py alone and with cdflib
   alone; magcal's reader and writers of the same day against it, and CSV for comparison;
 * **where a day's time goes**: one partition and one corrected day profiled in one
   process (cProfile: read, frames/PiCoG upload, 1-min averages, model, writes);
@@ -89,6 +89,7 @@ _GOES_EPOCH = np.datetime64("2000-01-01T12:00:00", "ns")
 PARTS = {"read GOES netCDF": "read_any", "frames and PiCoG upload": "apply_frame",
          "1-min averages": "average_to_cadence", "model field": "model_field_hpen",
          "write partition": "write_partition", "apply offsets": "apply_offsets",
+         "quality control (magcal.qc)": "quality_control",
          "write corrected netCDF": "write_day_product"}
 
 
@@ -147,7 +148,7 @@ def generate(folder: Path, days: int, cadence_s: float, seed: int = 2025) -> int
 
 
 # ------------------------------------------------------------------------------ floor
-def floor_figures(day_file: Path, work: Path) -> None:
+def floor_figures(day_file: Path, work: Path) -> dict:
     """The bytes of one day read and written with h5py / cdflib alone, and magcal's
     reader and writers of the same day."""
     import h5py
@@ -176,6 +177,7 @@ def floor_figures(day_file: Path, work: Path) -> None:
     t_ns = frame.index.tz_localize(None).as_unit("ns").asi8
     hpen = frame[["Hp", "He", "Hn"]].to_numpy(float) + 0.123456789
     flag = np.zeros(n, np.int8)
+    quality = np.zeros(n, np.uint16)  # the QC bit flags, written as int32 (CF flag masks)
     comp = {"compression": "gzip", "compression_opts": 1, "shuffle": True,
             "chunks": (min(n, 262_144),)}
 
@@ -185,6 +187,7 @@ def floor_figures(day_file: Path, work: Path) -> None:
             for j, c in enumerate(("Hp", "He", "Hn")):
                 f.create_dataset(c, data=np.ascontiguousarray(hpen[:, j]), **comp)
             f.create_dataset("offset_flag", data=flag, **comp)
+            f.create_dataset("quality", data=quality.astype(np.int32), **comp)
 
     def cdf_write():
         import cdflib
@@ -201,17 +204,21 @@ def floor_figures(day_file: Path, work: Path) -> None:
                         var_data=np.ascontiguousarray(hpen[:, j]))
         w.write_var({**spec, "Variable": "offset_flag", "Data_Type": 1}, var_attrs={},
                     var_data=flag)
+        w.write_var({**spec, "Variable": "quality", "Data_Type": 4}, var_attrs={},
+                    var_data=quality.astype(np.int32))
         w.close()
 
     floor_write, _ = best(h5_write)
     floor_cdf, _ = best(cdf_write)
     times = pd.DatetimeIndex(t_ns.astype("datetime64[ns]")).tz_localize("UTC")
-    cols = {"Hp": hpen[:, 0], "He": hpen[:, 1], "Hn": hpen[:, 2], "offset_flag": flag}
+    cols = {"Hp": hpen[:, 0], "He": hpen[:, 1], "Hn": hpen[:, 2], "offset_flag": flag,
+            "quality": quality}
     read_s, _ = best(lambda: read_any(day_file))
     nc_s, _ = best(lambda: write_day_product(work / "day.nc", "netcdf", times, cols, {}))
     cdf_s, _ = best(lambda: write_day_product(work / "day.cdf", "cdf", times, cols, {}))
     csv_s, _ = best(lambda: write_day_csv(work / "day.csv", times, hpen, ("Hp", "He", "Hn"),
-                                          flag, provenance={}), repeat=1)
+                                          flag, extra={"quality": quality}, provenance={}),
+                      repeat=1)
     from magcal.io.products import read_product
 
     back_nc, _ = best(lambda: read_product(work / "day.nc"))
@@ -227,6 +234,8 @@ def floor_figures(day_file: Path, work: Path) -> None:
           f"({mb['cdf']:.1f} MB); CSV {csv_s:.2f} s ({mb['csv']:.1f} MB)")
     print(f"  read the product back: netCDF {back_nc:.2f} s, CDF {back_cdf:.2f} s, CSV "
           f"{back_csv:.2f} s", flush=True)
+    return {"read": (read_s, floor_read), "write_nc": (nc_s, floor_write),
+            "write_cdf": (cdf_s, floor_cdf), "write_csv": csv_s}
 
 
 # ------------------------------------------------------------------------------ chain
@@ -273,7 +282,7 @@ def profile_parts_named(func, arg):
         bench_archive.PROFILE_PARTS = saved
 
 
-def chain_figures(work: Path, days: int) -> None:
+def chain_figures(work: Path, days: int) -> dict:
     import json
 
     (work / "CHAIN.toml").write_text(CHAIN.format(window=1, step=1))
@@ -299,9 +308,12 @@ def chain_figures(work: Path, days: int) -> None:
           f"(reading the same files in 1 and 2 processes): {f1 / f2:.2f}x")
     print(f"  a year of such days on 2 workers: {year_s / 60:.1f} min (target <= 15 min)",
           flush=True)
+    return {"speedup": one / two, "floor_speedup": f1 / f2, "year_min": year_s / 60,
+            "peak_mb": max(results[1][1], results[2][1]),
+            "per_day_1w": results[1][2] / days}
 
 
-def fixed_figures(work: Path, days: int) -> None:
+def fixed_figures(work: Path, days: int) -> float:
     """A ``days``-day 30 s archive: wall time not in partitions and corrected days."""
     import json
 
@@ -316,6 +328,42 @@ def fixed_figures(work: Path, days: int) -> None:
           f"{seconds:.1f} s wall, partitions + corrected {busy:.1f} s, fixed "
           f"{seconds - busy:.1f} s (target <= 3 s); stages: "
           + ", ".join(f"{k} {v:.1f}" for k, v in stages.items()), flush=True)
+    return seconds - busy
+
+
+def summary(days: int, fixed_days: int, floor: dict, per_day: float | None,
+            chain: dict | None, fixed: float | None) -> None:
+    """Every figure of issue 23 part 3 with its target, in one block."""
+    rows = [("read a GOES 10 Hz day (read_any)",
+             f"{floor['read'][0]:.2f} s = {floor['read'][0] / floor['read'][1]:.1f}x "
+             f"h5py floor ({floor['read'][1]:.2f} s)", "", None),
+            ("write a corrected day, netCDF",
+             f"{floor['write_nc'][0]:.2f} s = {floor['write_nc'][0] / floor['write_nc'][1]:.1f}x "
+             f"h5py floor ({floor['write_nc'][1]:.2f} s); CSV {floor['write_csv']:.2f} s", "", None),
+            ("write a corrected day, CDF",
+             f"{floor['write_cdf'][0]:.2f} s = "
+             f"{floor['write_cdf'][0] / floor['write_cdf'][1]:.1f}x cdflib floor "
+             f"({floor['write_cdf'][1]:.2f} s)", "", None)]
+    if per_day is not None:
+        rows.append(("one day per worker (partition + corrected, one process)",
+                     f"{per_day:.2f} s (chain on 1 worker: {chain['per_day_1w']:.2f} s/day)",
+                     "<= 1.5 s", per_day <= 1.5))
+        rows.append(("a year on 2 workers (extrapolated)", f"{chain['year_min']:.1f} min",
+                     "<= 15 min", chain["year_min"] <= 15))
+        rows.append((f"1 -> 2 workers on {days} days", f"{chain['speedup']:.2f}x (floor "
+                     f"{chain['floor_speedup']:.2f}x)", ">= 1.8x on 120 days",
+                     chain["speedup"] >= 1.8))
+        rows.append(("peak memory", f"{chain['peak_mb']:.0f} MB", "<= 1536 MB",
+                     chain["peak_mb"] <= 1536))
+    if fixed is not None:
+        rows.append((f"fixed cost per run ({fixed_days}-day 30 s archive)", f"{fixed:.1f} s",
+                     "<= 3 s on 35 days", fixed <= 3.0))
+    print(f"\nissue 23 part 3 figures ({load()}):")
+    for name, value, target, ok in rows:
+        verdict = "" if ok is None else ("met" if ok else "NOT met")
+        print(f"  {name:<58} {value:<48} {target:<20} {verdict}")
+    if days < 120 or (fixed is not None and fixed_days < 35):
+        print("  (smaller than the issue's 120 / 35 days: a quick check, not the figures)")
 
 
 def main(argv=None) -> int:
@@ -333,12 +381,14 @@ def main(argv=None) -> int:
         print(f"{args.days} GOES-format 10 Hz two-sensor days ({n} samples per sensor) "
               f"generated in {time.perf_counter() - t0:.0f} s", flush=True)
         day_file = sorted((work / "goes" / "raw").glob("*.nc"))[0]
-        floor_figures(day_file, work)
+        floor = floor_figures(day_file, work)
+        per_day = chain = fixed = None
         if not args.skip_chain:
-            chain_figures(work / "goes", args.days)
-            per_day_figures(work / "goes", day_file)
+            chain = chain_figures(work / "goes", args.days)
+            per_day = per_day_figures(work / "goes", day_file)
             if args.fixed_days:
-                fixed_figures(work / "fixed", args.fixed_days)
+                fixed = fixed_figures(work / "fixed", args.fixed_days)
+        summary(args.days, args.fixed_days, floor, per_day, chain, fixed)
     finally:
         if args.keep is None:
             shutil.rmtree(work, ignore_errors=True)
