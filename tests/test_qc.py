@@ -131,3 +131,25 @@ def test_spike_and_stuck_masks_leave_a_clean_random_walk_alone():
     x = np.cumsum(np.random.default_rng(9).normal(0, 0.1, (50_000, 3)), axis=0)
     assert not spike_mask(x).any()
     assert not stuck_mask(x).any()
+
+
+@pytest.mark.parametrize("n", [7, 150, 5_000])
+def test_local_scale_at_samples_equals_the_full_rolling_pass(n):
+    """The spike test's local scale, taken only at the samples that need it (issue 23:
+    a 10 Hz day), is exactly the rolling 90th percentile of the whole pass: NaN holes,
+    ties of a quantised record, the truncated windows at both ends."""
+    from magcal.qc.checks import _local_sigma, _LocalSigma
+
+    rng = np.random.default_rng(n)
+    a = np.round(np.abs(rng.normal(0, 1, n)), 1)
+    a[rng.random(n) < 0.1] = np.nan
+    a[:3] = np.nan
+    if n > 1000:
+        a[300:560] = np.nan  # a hole longer than the window: the whole record's scale
+    full = _local_sigma(a, 201)
+    got = _LocalSigma(a, 201)
+    idx = np.arange(n)
+    np.testing.assert_array_equal(got.at(idx[: max(1, n // 9)]), full[: max(1, n // 9)])
+    np.testing.assert_array_equal(got.at(idx), full)  # the full-pass branch
+    assert got.floor <= full.min()
+    assert np.isinf(_LocalSigma(np.full(9, np.nan), 201).at(np.arange(3))).all()
