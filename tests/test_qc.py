@@ -153,3 +153,16 @@ def test_local_scale_at_samples_equals_the_full_rolling_pass(n):
     np.testing.assert_array_equal(got.at(idx), full)  # the full-pass branch
     assert got.floor <= full.min()
     assert np.isinf(_LocalSigma(np.full(9, np.nan), 201).at(np.arange(3))).all()
+
+
+@pytest.mark.parametrize("n,window", [(5, 101), (250, 101), (5_000, 101), (5_000, 11)])
+def test_running_median_equals_pandas_truncated_rolling_median(n, window):
+    """The time check's running median (SciPy in the interior, pandas at the ends)
+    is pandas' centred rolling median with truncated end windows, to the bit."""
+    import pandas as pd
+
+    from magcal.qc.checks import running_median
+
+    a = np.round(np.random.default_rng(n).normal(0, 1, n), 2)  # ties
+    ref = pd.Series(a).rolling(window, center=True, min_periods=1).median().to_numpy()
+    np.testing.assert_array_equal(running_median(a, window), ref)
