@@ -173,3 +173,37 @@ def test_covariate_holes_are_named_at_the_files_own_spacing():
     holed = dst.drop(index=hours[100:150])
     (line,) = _covariate_holes(holed, record, "dst.csv")
     assert "1 hole(s) in dst" in line and "51.0 h" in line and "2019-11-05T03:00" in line
+
+@pytest.mark.parametrize("n", [7, 150, 5_000])
+def test_local_scale_at_samples_equals_the_full_rolling_pass(n):
+    """The spike test's local scale, taken only at the samples that need it (issue 23:
+    a 10 Hz day), is exactly the rolling 90th percentile of the whole pass: NaN holes,
+    ties of a quantised record, the truncated windows at both ends."""
+    from magcal.qc.checks import _local_sigma, _LocalSigma
+
+    rng = np.random.default_rng(n)
+    a = np.round(np.abs(rng.normal(0, 1, n)), 1)
+    a[rng.random(n) < 0.1] = np.nan
+    a[:3] = np.nan
+    if n > 1000:
+        a[300:560] = np.nan  # a hole longer than the window: the whole record's scale
+    full = _local_sigma(a, 201)
+    got = _LocalSigma(a, 201)
+    idx = np.arange(n)
+    np.testing.assert_array_equal(got.at(idx[: max(1, n // 9)]), full[: max(1, n // 9)])
+    np.testing.assert_array_equal(got.at(idx), full)  # the full-pass branch
+    assert got.floor <= full.min()
+    assert np.isinf(_LocalSigma(np.full(9, np.nan), 201).at(np.arange(3))).all()
+
+
+@pytest.mark.parametrize("n,window", [(5, 101), (250, 101), (5_000, 101), (5_000, 11)])
+def test_running_median_equals_pandas_truncated_rolling_median(n, window):
+    """The time check's running median (SciPy in the interior, pandas at the ends)
+    is pandas' centred rolling median with truncated end windows, to the bit."""
+    import pandas as pd
+
+    from magcal.qc.checks import running_median
+
+    a = np.round(np.random.default_rng(n).normal(0, 1, n), 2)  # ties
+    ref = pd.Series(a).rolling(window, center=True, min_periods=1).median().to_numpy()
+    np.testing.assert_array_equal(running_median(a, window), ref)

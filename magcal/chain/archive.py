@@ -358,9 +358,13 @@ def run_partitions(cfg: ChainConfig, files, shas, fit: FrameApply, state: Path, 
     partitions start from them instead of reading the files again."""
     import time
 
+    from magcal.chain.partition import partition_columns
+
     start = time.perf_counter()
     part = digest(_config_part(cfg))
     tables = read_index_tables(cfg)
+    for path in list(read or {}):  # the driver holds (and ships) only what partitions use
+        read[path] = partition_columns(read[path], fit.sensors)
     tasks, skipped, records = [], [], []
     for path, sha in zip(files, shas):
         key = digest({"file": sha, "config": part, "fit": fit.key})[:24]
@@ -662,6 +666,8 @@ def replace_keeping_previous(write, path: Path) -> Path:
 def offsets_stage(minute: MinuteData, cfg: ChainConfig, failed, records):
     """The offset product with failed partitions named; previous versions kept."""
     from magcal.chain.calibrate import run_offsets
+    from magcal.chain.output import product_format, write_offsets_product
+    from magcal.io.products import SUFFIX
     from magcal.offsets import write_offsets_csv
 
     table, product = run_offsets(minute, cfg)
@@ -672,7 +678,12 @@ def offsets_stage(minute: MinuteData, cfg: ChainConfig, failed, records):
     def writer(path):
         return replace_keeping_previous(lambda p: write_offsets_csv(p, table), path)
 
-    return table, replace(product, summary=summary, writers={"OFFSETS.csv": writer})
+    writers = {"OFFSETS.csv": writer}
+    fmt = product_format(cfg)
+    if fmt != "csv":  # the offset product in the run's format too, beside OFFSETS.csv
+        writers[f"OFFSETS{SUFFIX[fmt]}"] = lambda path: replace_keeping_previous(
+            lambda p: write_offsets_product(p, table, fmt), path)
+    return table, replace(product, summary=summary, writers=writers)
 
 
 # ------------------------------------------------------------------------ corrected
@@ -685,6 +696,8 @@ class DayTask:
     table: object
     path: str
     provenance: dict
+    #: product format (:mod:`magcal.chain.output`): csv, netcdf or cdf
+    fmt: str = "csv"
 
 
 def _bracket_key(table, day: str, partition_keys) -> str:
@@ -722,8 +735,16 @@ def write_corrected_day(task: DayTask) -> dict:
             corr, flag = hpen.copy(), np.full(len(t), 3, dtype=np.int8)
         flag = np.asarray(flag, dtype=int)
         quality = data.quality[day] | np.where(flag != 0, OFFSET_HELD, 0).astype(np.uint16)
-        write_day_csv(Path(task.path), times, corr, HPEN, flag, extra={"quality": quality},
-                      provenance=task.provenance or None)
+        if task.fmt == "csv":
+            write_day_csv(Path(task.path), times, corr, HPEN, flag, extra={"quality": quality},
+                          provenance=task.provenance or None)
+        else:
+            from magcal.chain.output import write_day_product
+
+            write_day_product(task.path, task.fmt, times,
+                              {**dict(zip(HPEN, corr.T)), "offset_flag": flag,
+                               "quality": quality},
+                              provenance=task.provenance or None)
         counts = np.bincount(flag, minlength=4)[:4]
         return {"day": task.day, "status": "ok", "sha256": file_sha256(task.path),
                 "n": len(times), "flags": counts.tolist(), "quality": flag_counts(quality)}
@@ -734,9 +755,11 @@ def write_corrected_day(task: DayTask) -> dict:
 def corrected_stage(run, table, records, cfg: ChainConfig, engine):
     """Daily corrected files, rewritten only for days whose inputs changed (or whose
     file no longer has the checksum it was written with)."""
+    from magcal.chain.output import corrected_name, other_formats, product_format
     from magcal.offsets import FLAG_MEANING
     from magcal.qc import FLAG_NAMES
 
+    fmt = product_format(cfg)
     out = run.outdir / "corrected"
     marker = run.outdir / STATE_DIR / "corrected.json"
     done = json.loads(marker.read_text()) if marker.is_file() else {}
@@ -748,30 +771,35 @@ def corrected_stage(run, table, records, cfg: ChainConfig, engine):
     tasks, keys, unchanged = [], {}, []
     for d, parts in sorted(by_day.items()):
         keys[d] = _bracket_key(table, d, [p["key"] for p in parts])
-        path = out / f"CORRECTED_{d.replace('-', '')}.csv"
+        path = out / corrected_name(d, fmt)
         old = done.get(d)
         if old and old["key"] == keys[d] and path.is_file():
             unchanged.append((d, path, old["sha256"]))
             continue
-        tasks.append(DayTask(d, tuple(p["result"] for p in parts), table, str(path), prov))
+        tasks.append(DayTask(d, tuple(p["result"] for p in parts), table, str(path), prov,
+                             fmt))
     # a day whose file was edited since is written again
     for (d, path, sha), now in zip(unchanged, hash_inputs([p for _, p, _ in unchanged])):
         if now != sha:
             parts = by_day[d]
-            tasks.append(DayTask(d, tuple(p["result"] for p in parts), table, str(path), prov))
+            tasks.append(DayTask(d, tuple(p["result"] for p in parts), table, str(path), prov,
+                                 fmt))
     tasks.sort(key=lambda t: t.day)
     results = engine.map(write_corrected_day, tasks, "corrected days")
     for res in results:
         if res["status"] == "ok":
             done[res["day"]] = {**res, "key": keys[res["day"]]}
     for d in sorted(set(done) - set(by_day)):  # its file is gone or now fails
-        (out / f"CORRECTED_{d.replace('-', '')}.csv").unlink(missing_ok=True)
+        (out / corrected_name(d, fmt)).unlink(missing_ok=True)
+    for d in sorted(done):  # an earlier run's file of the day in another format
+        for stale in other_formats(out, d, fmt):
+            stale.unlink()
     done = {d: v for d, v in done.items() if d in by_day}
     with atomic_path(marker) as tmp:
         tmp.write_text(json.dumps(done, sort_keys=True))
     inputs = {d: [p["sha256"] for p in parts] for d, parts in by_day.items()}
     for d in sorted(done):
-        run.add_entry(out / f"CORRECTED_{d.replace('-', '')}.csv", "corrected", inputs[d],
+        run.add_entry(out / corrected_name(d, fmt), "corrected", inputs[d],
                       done[d]["sha256"])
     counts = np.sum([done[d]["flags"] for d in done], axis=0) if done else np.zeros(4, int)
     n = int(sum(done[d]["n"] for d in done))

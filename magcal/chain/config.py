@@ -44,6 +44,7 @@ SCHEMA: dict[str, dict[str, tuple]] = {
     "discover": {"enabled": (bool, True), "max_effects": (int, 8), "covariates": (str, None)},
     "report": {"enabled": (bool, True), "pdf": (bool, False)},
     "truth": {"file": (str, None)},
+    "output": {"format": (str, "auto")},
     "qc": QCSettings.schema(),  # sample quality control (magcal.qc; README "[qc]")
     "spin": {"spin_period_s": ((int, float), None), "flipper": (bool, True),
              "units": (str, "nT"), "reference": (str, None), "state": (str, None),
@@ -188,6 +189,10 @@ def _check_values(s: dict, path: Path, kind: str) -> None:
     if s["input"]["format"] not in ("auto",) + FORMATS:
         raise InputError(f"[input] format {s['input']['format']!r}: use auto or one of "
                          f"{', '.join(FORMATS)}", file=path)
+    if s["output"]["format"] not in ("auto", "csv", "netcdf", "cdf"):
+        raise InputError(f"[output] format {s['output']['format']!r}: use auto (the input's "
+                         "family), csv, netcdf (CF-1.8) or cdf (ISTP)", file=path,
+                         column="output.format")
     if kind == "spin":
         _check_spin(s["spin"], path)
         return

@@ -369,17 +369,24 @@ def _geostationary_stages(run: _Run, cfg: ChainConfig, files, shas, extras: dict
     run.stage("read", archive.read_product, cfg, files, shas, records, run.partitions,
               key=digest({"shas": shas, "partitions": pkeys, "failed": failed}))
     offsets_path = run.outdir / "offsets" / "OFFSETS.csv"
+    from magcal.chain.output import product_format
+
+    fmt = product_format(cfg, files)
     offsets_key = digest({"partitions": pkeys, "files": [r["file"] for r in records],
                           "failed": failed, "offsets": cfg["offsets"],
-                          "model": cfg["model"]["name"]})
+                          "model": cfg["model"]["name"],
+                          **({"format": fmt} if fmt != "csv" else {})})
     truth_path = cfg.resolve(cfg["truth"]["file"]) if cfg["truth"]["file"] else None
     ref = cfg["alignment"]["reference"]
     ref_path = cfg.resolve(ref) if ref != "model" else None
 
     def keys(offsets_sha: str) -> dict:
         """The keys of the stages made from the offset product with this checksum."""
+        written = {"written": "daily_csv v2 quality"}
+        if fmt != "csv":  # a CSV run's key is unchanged by the formats
+            written["format"] = fmt
         out = {"corrected": digest({"partitions": pkeys, "offsets": offsets_sha,
-                                    "written": "daily_csv v2 quality"})}
+                                    **written})}
         if cfg["alignment"]["enabled"]:
             out["alignment"] = digest({
                 "partitions": pkeys, "offsets": offsets_sha, "cfg": cfg["alignment"],

@@ -266,7 +266,8 @@ def _format_for(values: np.ndarray) -> str:
 def write_cdf_product(path: str | os.PathLike, times,
                       variables: Mapping[str, tuple[np.ndarray, Mapping[str, Any]]],
                       global_attrs: Mapping[str, Any],
-                      provenance: Mapping[str, Any] | None = None) -> Path:
+                      provenance: Mapping[str, Any] | None = None,
+                      compress: int | None = None) -> Path:
     """Write a time series product as an ISTP-compliant CDF file, atomically.
 
     Parameters
@@ -294,6 +295,10 @@ def write_cdf_product(path: str | os.PathLike, times,
     provenance : mapping, optional
         The product's provenance record, stored as JSON text in the ``Provenance``
         global attribute; ``magcal_version`` is always added.
+    compress : int, optional
+        gzip level of every variable (0: none). Default: cdflib's (6), whose gzip
+        headers hold the time of writing; 0 writes the same bytes for the same data and
+        a 10 Hz day 5x faster.
 
     Returns
     -------
@@ -338,8 +343,10 @@ def write_cdf_product(path: str | os.PathLike, times,
                                          delete=True)
             try:
                 writer.write_globalattrs({k: {0: _attr_value(v)} for k, v in gattrs.items()})
-                _write_epoch(writer, epoch)
+                _write_epoch(writer, epoch, compress)
                 for name, values, attrs in prepared:
+                    if compress is not None:
+                        attrs.setdefault("compress", compress)
                     _write_data_variable(writer, name, values, attrs)
             finally:
                 writer.close()
@@ -358,11 +365,12 @@ def _attr_value(value):
     return str(value)
 
 
-def _write_epoch(writer, epoch: np.ndarray) -> None:
+def _write_epoch(writer, epoch: np.ndarray, compress: int | None = None) -> None:
     lo = datetime64_to_tt2000(np.array(["1990-01-01"], dtype="datetime64[ns]"))[0]
     hi = datetime64_to_tt2000(np.array(["2100-01-01"], dtype="datetime64[ns]"))[0]
     spec = {"Variable": "Epoch", "Data_Type": _CDF_TT2000, "Num_Elements": 1,
-            "Rec_Vary": True, "Dim_Sizes": [], "Var_Type": "zVariable"}
+            "Rec_Vary": True, "Dim_Sizes": [], "Var_Type": "zVariable",
+            **({"Compress": int(compress)} if compress is not None else {})}
     attrs = {"FIELDNAM": "Epoch", "CATDESC": "Time of each sample, UTC (CDF_TIME_TT2000)",
              "UNITS": "ns", "VAR_TYPE": "support_data", "FILLVAL": [FILLVAL_TT2000, "CDF_TIME_TT2000"],
              "VALIDMIN": [np.int64(lo), "CDF_TIME_TT2000"],
@@ -375,7 +383,20 @@ def _write_epoch(writer, epoch: np.ndarray) -> None:
 
 def _write_data_variable(writer, name: str, values: np.ndarray, attrs: dict) -> None:
     labels = attrs.pop("labels", None)
-    if values.dtype.kind == "f" or values.dtype.kind == "b":
+    compress = attrs.pop("compress", None)
+    if values.dtype.kind == "M":           # other times of a record: TT2000, support data
+        data = datetime64_to_tt2000(values.astype("datetime64[ns]"))
+        cdf_type, fill = _CDF_TT2000, FILLVAL_TT2000
+        vmin, vmax = np.int64(data.min()) if data.size else 0, np.int64(data.max()) \
+            if data.size else 0
+        attrs = {"VAR_TYPE": "support_data", "UNITS": "ns", **attrs}
+    elif values.dtype.kind in "UO":        # text per record (CDF_CHAR)
+        texts = [str(v) for v in values]
+        width = max([1] + [len(v.encode("utf-8")) for v in texts])
+        _write_text_variable(writer, name, texts, width,
+                             attrs if compress is None else {**attrs, "compress": compress})
+        return
+    elif values.dtype.kind == "f" or values.dtype.kind == "b":
         data = np.where(np.isfinite(values), values, FILLVAL_FLOAT).astype(np.float64)
         cdf_type, fill = _CDF_DOUBLE, np.float64(FILLVAL_FLOAT)
         finite = values[np.isfinite(values)]
@@ -418,4 +439,21 @@ def _write_data_variable(writer, name: str, values: np.ndarray, attrs: dict) -> 
             typed[key] = value
     spec = {"Variable": name, "Data_Type": cdf_type, "Num_Elements": 1, "Rec_Vary": True,
             "Dim_Sizes": dims, "Var_Type": "zVariable"}
+    if compress is not None:
+        spec["Compress"] = int(compress)
     writer.write_var(spec, var_attrs=typed, var_data=data)
+
+
+def _write_text_variable(writer, name: str, texts: list, width: int, attrs: dict) -> None:
+    """One string per record as CDF_CHAR (ISTP support data; blank is no text)."""
+    full = {"DEPEND_0": "Epoch", "FIELDNAM": name, "CATDESC": name, "UNITS": " ",
+            "FILLVAL": " ", "VAR_TYPE": "support_data", "DISPLAY_TYPE": "no_plot",
+            "FORMAT": f"A{width}", **attrs}
+    full.pop("VALIDMIN", None)
+    full.pop("VALIDMAX", None)
+    compress = full.pop("compress", None)
+    spec = {"Variable": name, "Data_Type": _CDF_CHAR, "Num_Elements": width,
+            "Rec_Vary": True, "Dim_Sizes": [], "Var_Type": "zVariable",
+            **({"Compress": int(compress)} if compress is not None else {})}
+    writer.write_var(spec, var_attrs=full,
+                     var_data=np.array([t.ljust(width) for t in texts] or [" " * width]))

@@ -12,10 +12,13 @@ format                    recognised by
                           (``b_epn``, ``b_ob_sensor``, ...): hires and 1-min averages
 ``cdf``                   CDF signature (ISTP files, magcal's own CDF products, ELFIN
                           FGS)
+``netcdf``                HDF5/netCDF4 signature, ``Conventions = CF-...`` and a CF time
+                          variable (magcal's own netCDF products, CF time series)
 ========================  ==============================================================
 
 Anything else is an :class:`~magcal.errors.InputError` naming the file and the formats
-supported. :func:`write_any` writes a frame as CSV or ISTP CDF (``magcal convert``).
+supported. :func:`write_any` writes a frame as CSV, ISTP CDF or CF-1.8 netCDF4
+(``magcal convert``).
 
 The frame returned is the CONTRACTS §0 layout: a tz-aware UTC ``DatetimeIndex`` named
 ``time``, flat columns (``<sensor>_x``, ``Hp,He,Hn``, ``b1,b2,b3``, scalars), with
@@ -34,9 +37,9 @@ import pandas as pd
 from magcal.errors import InputError
 
 #: Formats :func:`read_any` understands, for messages and ``--format`` choices.
-FORMATS = ("csv", "goes-netcdf", "cdf")
+FORMATS = ("csv", "goes-netcdf", "cdf", "netcdf")
 _SUPPORTED = ("supported: CSV with a 'time' header (plain or gzip), GOES-R MAG L2 netCDF4 "
-              "(hires or 1-min averages), ISTP CDF")
+              "(hires or 1-min averages), ISTP CDF, CF netCDF4 time series")
 _HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 _NETCDF3_MAGIC = (b"CDF\x01", b"CDF\x02", b"CDF\x05")
 _CDF_MAGIC = (b"\xcd\xf3\x00\x01", b"\xcd\xf2\x60\x02", b"\xcc\xcc\x00\x01", b"\x00\x00\xff\xff")
@@ -119,6 +122,10 @@ def detect_format(path: str | os.PathLike) -> str:
         names = _hdf5_variables(p)
         if any(v in names for v in _GOES_VARIABLES):
             return "goes-netcdf"
+        from magcal.io.netcdf import is_magcal_netcdf
+
+        if is_magcal_netcdf(p):
+            return "netcdf"
         raise InputError("netCDF4/HDF5 file without GOES-R MAG L2 variables "
                          f"({', '.join(_GOES_VARIABLES)}); {_SUPPORTED}", file=p)
     if raw[:4] in _NETCDF3_MAGIC:
@@ -214,6 +221,12 @@ def read_any(path: str | os.PathLike, fmt: str | None = None,
         from magcal.missions.goes import read_goes_mag
 
         frame = read_goes_mag(p)
+    elif kind == "netcdf":
+        from magcal.io.netcdf import read_netcdf_frame
+
+        frame = read_netcdf_frame(p)
+        frame.attrs.pop("provenance", None)
+        frame = frame[[c for c in frame.columns if frame[c].dtype.kind in "fiu"]]
     else:
         frame = read_cdf_frame(p)
     if required is not None:
@@ -311,7 +324,7 @@ def _vector_groups(columns) -> tuple[dict[str, list[str]], list[str]]:
 
 def write_any(path: str | os.PathLike, frame: pd.DataFrame, fmt: str,
               provenance: dict | None = None) -> Path:
-    """Write a CONTRACTS §0 frame as ``csv`` or ISTP ``cdf`` (atomically).
+    """Write a CONTRACTS §0 frame as ``csv``, ISTP ``cdf`` or CF-1.8 ``netcdf`` (atomically).
 
     Examples
     --------
@@ -328,8 +341,14 @@ def write_any(path: str | os.PathLike, frame: pd.DataFrame, fmt: str,
         from magcal.io.csv import write_csv_frame
 
         return write_csv_frame(target, frame, provenance=provenance)
+    if fmt == "netcdf":
+        from magcal.io.netcdf import write_netcdf_frame
+
+        names = ", ".join(Path(s).name for s in frame.attrs.get("source", [])) or "magcal"
+        return write_netcdf_frame(target, frame, provenance=provenance,
+                                  title=f"converted by magcal from {names}")
     if fmt != "cdf":
-        raise InputError(f"cannot write format {fmt!r} (use csv or cdf)", file=target)
+        raise InputError(f"cannot write format {fmt!r} (use csv, cdf or netcdf)", file=target)
     from magcal.io.cdf import write_cdf_product
 
     groups, aux = _vector_groups(frame.columns)

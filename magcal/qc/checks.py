@@ -108,7 +108,11 @@ def spike_mask(values, *, window: int = 11, k: float = 8.0,
     n = v.shape[0]
     if n < window:
         return np.zeros(n, dtype=bool)
-    resid = np.abs(v - median_filter(v, size=(window, 1), mode="reflect"))
+    # column by column: the same medians as one (window, 1) filter of the (n, m)
+    # array, 4x faster (0.19 against 0.81 s for a 10 Hz day's three components)
+    med = np.column_stack([median_filter(np.ascontiguousarray(v[:, c]), size=window,
+                                         mode="reflect") for c in range(v.shape[1])])
+    resid = np.abs(v - med)
     diff = np.abs(np.diff(v, axis=0))
     # a difference touching a missing (bridged) sample is neither a jump nor part of
     # the scale: a bridge is a straight line, far smoother than data
@@ -120,24 +124,76 @@ def spike_mask(values, *, window: int = 11, k: float = 8.0,
         # plus the signal's change per sample); the residual to a running median has a
         # point mass at zero (the centre sample is often the median) and no scale of
         # its own
-        sigma_d = _local_sigma(diff[:, c], scale_window)
-        with np.errstate(invalid="ignore"):
-            jump = diff[:, c] > k * sigma_d  # jump[i]: between samples i and i + 1
-        big = (resid[:, c] > k * np.r_[sigma_d[0], sigma_d]) & ~bridged[:, c]
+        sigma_d = _LocalSigma(diff[:, c], scale_window)
+        # sample i is tested against sigma_d[i - 1] (sigma_d[0] for the first); the
+        # local scale is only needed where the residual passes its floor
+        maybe = np.flatnonzero((resid[:, c] > k * sigma_d.floor) & ~bridged[:, c])
+        big = np.zeros(n, dtype=bool)
+        big[maybe] = resid[maybe, c] > k * sigma_d.at(np.maximum(maybe - 1, 0))
         if not big.any():
             continue
         starts, ends = _runs(big)
         # a spike jumps away and comes back: a jump into the run and one out of it (a
         # run at either end of the record needs only its one); a step jumps only once
+        # (jump at i: between samples i and i + 1)
         into = np.ones(starts.size, dtype=bool)
         has_before = starts > 0
-        into[has_before] = jump[starts[has_before] - 1]
+        into[has_before] = _jump(diff[:, c], sigma_d, starts[has_before] - 1, k)
         out_of = np.ones(starts.size, dtype=bool)
         has_after = ends < n
-        out_of[has_after] = jump[ends[has_after] - 1]
+        out_of[has_after] = _jump(diff[:, c], sigma_d, ends[has_after] - 1, k)
         keep = into & out_of & (ends - starts <= window // 2)
         out |= _fill_runs(n, starts[keep], ends[keep])
     return out
+
+
+def _jump(diff: np.ndarray, sigma_d: "_LocalSigma", at: np.ndarray, k: float) -> np.ndarray:
+    with np.errstate(invalid="ignore"):
+        return diff[at] > k * sigma_d.at(at)
+
+
+class _LocalSigma:
+    """:func:`_local_sigma` evaluated only at the samples asked for (a 10 Hz day has
+    864,000 differences per component, of which a few thousand pass the floor; the
+    full rolling quantile was 0.5 s per component). ``at(idx)`` equals
+    ``_local_sigma(a, scale_window)[idx]`` exactly (pandas' rolling quantile: linear
+    interpolation between the sorted finite values of the window)."""
+
+    def __init__(self, a: np.ndarray, scale_window: int):
+        self.a, self.window = a, scale_window
+        self._padded = None
+        ok = np.isfinite(a)
+        self.empty = not ok.any()
+        if self.empty:
+            self.floor = np.inf
+            return
+        self.whole = float(np.quantile(a[ok], 0.9)) / Q90_SIGMA
+        positive = a[ok & (a > 0)]
+        quantum = float(positive.min()) if positive.size else 0.0
+        self.floor = max(0.25 * self.whole, quantum, 1e-12)
+
+    def at(self, idx: np.ndarray) -> np.ndarray:
+        from numpy.lib.stride_tricks import sliding_window_view
+
+        idx = np.asarray(idx, dtype=np.int64)
+        if self.empty:
+            return np.full(idx.size, np.inf)
+        if idx.size > self.a.size // 8:  # most of the record: the whole rolling pass
+            return _local_sigma(self.a, self.window)[idx]
+        w, half = self.window, (self.window - 1) // 2
+        if self._padded is None:
+            self._padded = np.pad(self.a, (half, w - 1 - half), constant_values=np.nan)
+        rows = np.sort(sliding_window_view(self._padded, w)[idx], axis=1)  # NaN last
+        nobs = np.isfinite(rows).sum(axis=1)
+        x = 0.9 * (nobs - 1)
+        lo = x.astype(np.int64)
+        r = np.arange(idx.size)
+        vlow = rows[r, np.clip(lo, 0, w - 1)]
+        vhigh = rows[r, np.clip(lo + 1, 0, w - 1)]
+        q = np.where(x == lo, vlow, vlow + (vhigh - vlow) * (x - lo))
+        local = np.where(nobs > 0, q, np.nan) / Q90_SIGMA
+        local = np.where(np.isfinite(local), local, self.whole)
+        return np.maximum(local, self.floor)
 
 
 def _local_sigma(a: np.ndarray, scale_window: int) -> np.ndarray:
@@ -236,11 +292,37 @@ def time_mask(times_ns, cadence_s: float, *, tolerance: float = 0.25,
         return np.zeros(t.size, dtype=bool)
     c = int(round(cadence_s * 1e9))
     angle = 2 * np.pi * (((t - t[0]) % c) / c)
-    ref = np.arctan2(
-        pd.Series(np.sin(angle)).rolling(window, center=True, min_periods=1).median(),
-        pd.Series(np.cos(angle)).rolling(window, center=True, min_periods=1).median())
-    d = np.abs(np.angle(np.exp(1j * (angle - ref.to_numpy())))) / (2 * np.pi)
+    ref = np.arctan2(running_median(np.sin(angle), window),
+                     running_median(np.cos(angle), window))
+    d = np.abs(np.angle(np.exp(1j * (angle - ref)))) / (2 * np.pi)
     return d > tolerance
+
+
+def running_median(a: np.ndarray, window: int) -> np.ndarray:
+    """Centred running median over ``window`` samples (odd), truncated at the ends:
+    ``pandas.Series(a).rolling(window, center=True, min_periods=1).median()`` of a
+    finite array, with the full windows of the interior taken by SciPy's 1-D median
+    filter (4x faster on a 10 Hz day) and the truncated ones by pandas.
+
+    Examples
+    --------
+    >>> running_median(np.array([1.0, 9.0, 2.0, 3.0, 7.0]), 3).tolist()
+    [5.0, 2.0, 3.0, 3.0, 5.0]
+    """
+    import pandas as pd
+    from scipy.ndimage import median_filter
+
+    a = np.asarray(a, dtype=float)
+    half = window // 2
+    if window % 2 == 0 or a.size <= 2 * window:
+        return pd.Series(a).rolling(window, center=True, min_periods=1).median().to_numpy()
+    out = median_filter(a, size=window, mode="reflect")  # exact where the window is full
+    edge = 2 * half + 1
+    out[:half] = pd.Series(a[:edge]).rolling(window, center=True,
+                                             min_periods=1).median().to_numpy()[:half]
+    out[-half:] = pd.Series(a[-edge:]).rolling(window, center=True,
+                                               min_periods=1).median().to_numpy()[-half:]
+    return out
 
 
 def implausible_mask(b_nT, model_nT, *, max_deviation_nT: float = 1000.0,
