@@ -3,7 +3,7 @@
 The run of ``data_samples/chain/ELFIN.toml`` on the real ELFIN-A day is checked against
 the issue's targets (zone medians of ``|B| - |IGRF|`` at most 30 nT, its fast part at
 most 10 nT, every zone calibrated) and against the library call on the same inputs
-(:func:`magcal.missions.elfin_pipeline.calibrate_elfin_day`): the chain must write what
+(:func:`magcal.missions.elfin.pipeline.calibrate_elfin_day`): the chain must write what
 the library computes. Configuration errors are one line and exit status 2; the
 "worse than the step before" bookkeeping is checked on constructed scores.
 """
@@ -23,7 +23,7 @@ from numpy.testing import assert_allclose
 from conftest import REPO_ROOT, real_data_path
 from magcal.cli import main
 from magcal.errors import InputError
-from magcal.missions.elfin_pipeline import ElfinDay, ElfinSettings
+from magcal.missions.elfin.pipeline import ElfinDay, ElfinSettings
 
 CONFIG = REPO_ROOT / "data_samples" / "chain" / "ELFIN.toml"
 FGS = "ela_l1_fgs_20220112_v01.cdf"
@@ -53,8 +53,8 @@ def chain(tmp_path_factory):
 @pytest.fixture(scope="module")
 def library(chain):
     """The library call on the same files with the same (default) settings."""
-    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
-    from magcal.missions.elfin_pipeline import calibrate_elfin_day
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.pipeline import calibrate_elfin_day
 
     fgs = read_elfin_fgs(real_data_path("elfin", FGS))
     state = read_elfin_state(real_data_path("elfin", STATE))

@@ -1,7 +1,7 @@
 """Slow part of the ELFIN scalar residual: spin-plane gain drift and reference screening.
 
-Injected truth on a simulated spinner (magcal.missions.elfin_drift), a closed-form check
-of the reference screening (magcal.missions.elfin_reference), and the real ELFIN-A passes
+Injected truth on a simulated spinner (magcal.missions.elfin.drift), a closed-form check
+of the reference screening (magcal.missions.elfin.diagnostics.reference), and the real ELFIN-A passes
 of 2022-01-12 (ELFIN SOC, PI V. Angelopoulos, UCLA; Open Data for Scientific Use),
 skipped when ../shared/real-data is absent.
 """
@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from magcal.missions.elfin_drift import drift_shape_agreement, fit_gain_drift
-from magcal.missions.elfin_reference import screen_slow_part
-from magcal.missions.elfin_scalar import fast_part, rms
+from magcal.missions.elfin.drift import drift_shape_agreement, fit_gain_drift
+from magcal.missions.elfin.diagnostics.reference import screen_slow_part
+from magcal.missions.elfin.scalar import fast_part, rms
 from magcal.spin.despin import despin, spin
 
 SPIN_S = 2.85
@@ -101,8 +101,8 @@ def real_zones():
     from tests.conftest import real_data_path
 
     folder = real_data_path("elfin")
-    from magcal.missions.elfin import calibrate_elfin
-    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.linear import calibrate_elfin
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
 
     fgs = read_elfin_fgs(folder / "ela_l1_fgs_20220112_v01.cdf")
     state = read_elfin_state(folder / "ela_l1_state_defn_20220112_v01.cdf")
@@ -111,9 +111,9 @@ def real_zones():
 
 @pytest.mark.realdata
 def test_real_gain_drift_removes_the_slow_part(real_zones):
-    from magcal.missions.elfin_correction import correct_elfin_calibration
-    from magcal.missions.elfin_drift import correct_gain_drift, drift_agreement_table
-    from magcal.missions.elfin_joint import score_field
+    from magcal.missions.elfin.harmonic import correct_elfin_calibration
+    from magcal.missions.elfin.drift import correct_gain_drift, drift_agreement_table
+    from magcal.missions.elfin.joint import score_field
 
     harmonic, _ = correct_elfin_calibration(real_zones)
     drifted, table = correct_gain_drift(harmonic)
@@ -135,7 +135,7 @@ def test_real_gain_drift_removes_the_slow_part(real_zones):
 @pytest.mark.realdata
 def test_real_slow_part_is_in_the_spin_plane_magnitude(real_zones):
     """The spin-axis component adds < 5 nT to the slow part: not an attitude error."""
-    from magcal.missions.elfin_correction import correct_elfin_calibration
+    from magcal.missions.elfin.harmonic import correct_elfin_calibration
 
     harmonic, _ = correct_elfin_calibration(real_zones)
     f = harmonic.field
@@ -153,7 +153,7 @@ def test_real_slow_part_is_in_the_spin_plane_magnitude(real_zones):
 
 def test_vector_step_removes_body_fixed_terms_and_keeps_natural_fields():
     """Body-fixed spin harmonics and a tilt go; an inertial (natural) field stays."""
-    from magcal.missions.elfin_vector import correct_vector_zone
+    from magcal.missions.elfin.vector import correct_vector_zone
 
     rng = np.random.default_rng(9)
     t, T, _ = _pass()
@@ -182,7 +182,7 @@ def test_vector_step_removes_body_fixed_terms_and_keeps_natural_fields():
 
 
 def test_tilt_is_recovered_inside_the_bound_and_clipped_outside():
-    from magcal.missions.elfin_vector import refine_tilt
+    from magcal.missions.elfin.vector import refine_tilt
 
     t, T, _ = _pass()
     ang = np.radians(-30 - 40 * (T + 1) / 2)
@@ -200,10 +200,10 @@ def test_tilt_is_recovered_inside_the_bound_and_clipped_outside():
 
 @pytest.mark.realdata
 def test_real_vector_step_lowers_the_vector_residual(real_zones):
-    from magcal.missions.elfin_correction import correct_elfin_calibration
-    from magcal.missions.elfin_drift import correct_gain_drift
-    from magcal.missions.elfin_joint import score_field
-    from magcal.missions.elfin_vector import correct_vector
+    from magcal.missions.elfin.harmonic import correct_elfin_calibration
+    from magcal.missions.elfin.drift import correct_gain_drift
+    from magcal.missions.elfin.joint import score_field
+    from magcal.missions.elfin.vector import correct_vector
 
     drifted, _ = correct_gain_drift(correct_elfin_calibration(real_zones)[0])
     final, table = correct_vector(drifted)
@@ -218,7 +218,7 @@ def test_real_vector_step_lowers_the_vector_residual(real_zones):
 
 
 def test_drift_pair_tells_one_direction_from_isotropic_gain_drift():
-    from magcal.missions.elfin_drift import drift_pair
+    from magcal.missions.elfin.drift import drift_pair
 
     rng = np.random.default_rng(10)
     t, T, truth = _pass()
@@ -238,7 +238,7 @@ def test_drift_pair_tells_one_direction_from_isotropic_gain_drift():
 def test_instrument_candidates_closed_form():
     import pandas as pd
 
-    from magcal.missions.elfin_reference import instrument_candidates
+    from magcal.missions.elfin.diagnostics.reference import instrument_candidates
 
     idx = pd.date_range("2022-01-12", periods=4000, freq="1s", tz="UTC").as_unit("ns")
     sun = np.r_[np.zeros(2000), np.ones(2000)]                     # eclipse, then sunlight

@@ -8,10 +8,10 @@ A configuration such as::
     units = "counts"
     reference = "igrf"
     state = "ela_l1_state_defn_20220112_v01.cdf"
-    [spin.pipeline]          # optional: magcal.missions.elfin_pipeline.ElfinSettings
+    [spin.pipeline]          # optional: magcal.missions.elfin.pipeline.ElfinSettings
     vector_step = true
 
-runs :func:`magcal.missions.elfin_pipeline.calibrate_elfin_day` in three stages::
+runs :func:`magcal.missions.elfin.pipeline.calibrate_elfin_day` in three stages::
 
     read (FGS counts + state file) -> calibrate (spin/ELFIN_CAL.json: the workflow's
     calibration document; spin/SPIN.json: zone medians per product) -> calibrated
@@ -45,7 +45,7 @@ def elfin_inputs(cfg: ChainConfig, files) -> tuple:
         Not exactly one input file, a missing state file, a ``[truth]`` file (no truth
         is known for real counts) or a bad ``[spin.pipeline]`` table.
     """
-    from magcal.missions.elfin_pipeline import ElfinSettings
+    from magcal.missions.elfin.pipeline import ElfinSettings
 
     if len(files) != 1:
         raise InputError(f"the ELFIN chain takes one FGS file; [input] files matches "
@@ -61,7 +61,7 @@ def elfin_inputs(cfg: ChainConfig, files) -> tuple:
 
 
 def _read(fgs_path, state_path):
-    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
 
     fgs, state = read_elfin_fgs(fgs_path), read_elfin_state(state_path)
     if fgs.attrs.get("probe") != state.attrs.get("probe"):
@@ -80,7 +80,7 @@ def _read(fgs_path, state_path):
 
 
 def _calibrate(data, settings, inputs):
-    from magcal.missions.elfin_pipeline import calibrate_elfin_day
+    from magcal.missions.elfin.pipeline import calibrate_elfin_day
 
     fgs, state = data
     prov = make_provenance("elfin calibration against IGRF",
@@ -105,7 +105,7 @@ def _calibrate(data, settings, inputs):
 
 
 def _calibrated(day, probe: str):
-    from magcal.missions.elfin_pipeline import plot_residuals
+    from magcal.missions.elfin.pipeline import plot_residuals
 
     table = day.calibrated_table()
     date = f"{table.index[0]:%Y-%m-%d}"

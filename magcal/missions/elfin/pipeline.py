@@ -4,16 +4,16 @@ The steps live in their own modules; this one orchestrates them for one day of F
 counts and its state file (``workflows/elfin_calibration.py`` and ``magcal run`` with
 ``[spin] units = "counts"`` both call :func:`calibrate_elfin_day`)::
 
-    linear per-zone fit against IGRF (magcal.missions.elfin)
-    -> spin-ripple cross-check, no model field (elfin_ripple)
-    -> spin-harmonic correction of |B| (elfin_correction)        "harmonic"
-    -> spin-plane gain drift within each pass (elfin_drift)      "harmonic + gain drift"
-    -> vector-only body-fixed harmonics and tilt (elfin_vector)  "+ vector step"
-    -> 1x/2x terms of |B| drifting within a minute (elfin_correction) "+ fast drift"
-    -> spin phase refitted on the calibrated field (elfin_vector) "+ phase refit"
-    -> optional joint fit across zones, delivered only if no worse (elfin_joint)
+    linear per-zone fit against IGRF (magcal.missions.elfin.linear)
+    -> spin-ripple cross-check, no model field (diagnostics.ripple)
+    -> spin-harmonic correction of |B| (harmonic)        "harmonic"
+    -> spin-plane gain drift within each pass (drift)      "harmonic + gain drift"
+    -> vector-only body-fixed harmonics and tilt (vector)  "+ vector step"
+    -> 1x/2x terms of |B| drifting within a minute (harmonic) "+ fast drift"
+    -> spin phase refitted on the calibrated field (vector) "+ phase refit"
+    -> optional joint fit across zones, delivered only if no worse (joint)
 
-Every product is scored with :func:`magcal.missions.elfin_joint.score_field`; the last
+Every product is scored with :func:`magcal.missions.elfin.joint.score_field`; the last
 step run is delivered (or the joint fit when it wins), and a step that makes a zone
 median worse than the step before is named in :meth:`ElfinDay.worse_steps` so that a
 caller can warn rather than stay silent.
@@ -158,7 +158,7 @@ class ElfinDay:
         Step name -> its per-zone table (``spin_harmonic_correction``, ``gain_drift``,
         ``drift_agreement``, ``vector_correction``) for the steps that ran.
     scores : dict
-        Product name -> :func:`~magcal.missions.elfin_joint.score_field` table, in step
+        Product name -> :func:`~magcal.missions.elfin.joint.score_field` table, in step
         order (``joint`` last when it ran).
     joint : dict or None
         The joint fit's record (without its product) when it ran.
@@ -166,7 +166,7 @@ class ElfinDay:
         Shift (``"+0.1"``) -> per-zone RMS of the linear calibration, when scanned.
     stability : dict
         Which parameters are stable across zones, with block-sandwich errors
-        (:func:`magcal.missions.elfin_stability.parameter_stability`).
+        (:func:`magcal.missions.elfin.diagnostics.stability.parameter_stability`).
     """
 
     calibration: object
@@ -277,7 +277,7 @@ class ElfinDay:
                         "calibrated field (cubic B-spline, 60 s knots; the first phase fit, "
                         "30 s knots, was made on the linear calibration)",
                 "zones": self.steps["phase_refit"].to_dict(orient="records")}
-        payload["scores"] = {"note": "zone medians of magcal.missions.elfin_joint.score_field "
+        payload["scores"] = {"note": "zone medians of magcal.missions.elfin.joint.score_field "
                                      "(nT) for each product; the last one before 'joint' is "
                                      "delivered unless joint_fit says otherwise",
                              "medians": self.medians()}
@@ -296,8 +296,8 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
     Parameters
     ----------
     fgs, state : DataFrame
-        From :func:`~magcal.missions.elfin_files.read_elfin_fgs` and
-        :func:`~magcal.missions.elfin_files.read_elfin_state`.
+        From :func:`~magcal.missions.elfin.files.read_elfin_fgs` and
+        :func:`~magcal.missions.elfin.files.read_elfin_state`.
     settings : ElfinSettings, optional
         Which steps run (default: every step except the joint fit and the scan).
     provenance : dict, optional
@@ -312,9 +312,9 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
     InputError
         Frames without the ELFIN columns, or a zone without orbit and attitude.
     """
-    from magcal.missions.elfin import calibrate_elfin
-    from magcal.missions.elfin_joint import score_field
-    from magcal.missions.elfin_ripple import ripple_crosscheck
+    from magcal.missions.elfin.linear import calibrate_elfin
+    from magcal.missions.elfin.joint import score_field
+    from magcal.missions.elfin.diagnostics.ripple import ripple_crosscheck
 
     s = settings or ElfinSettings()
     linear = calibrate_elfin(fgs, state, provenance=provenance)
@@ -322,35 +322,35 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
     products, steps = {"linear": linear}, {}
     cal = linear
     if s.harmonic:
-        from magcal.missions.elfin_correction import correct_elfin_calibration
+        from magcal.missions.elfin.harmonic import correct_elfin_calibration
 
         cal, steps["spin_harmonic_correction"] = correct_elfin_calibration(cal)
         products["harmonic"] = cal
         if s.gain_drift:
-            from magcal.missions.elfin_drift import correct_gain_drift, drift_agreement_table
+            from magcal.missions.elfin.drift import correct_gain_drift, drift_agreement_table
 
             cal, steps["gain_drift"] = correct_gain_drift(cal)
             steps["drift_agreement"] = drift_agreement_table(linear)
             products["harmonic + gain drift"] = cal
             if s.vector_step:
-                from magcal.missions.elfin_vector import correct_vector
+                from magcal.missions.elfin.vector import correct_vector
 
                 knot = s.vector_knot_s or None
                 cal, steps["vector_correction"] = correct_vector(cal, bound_deg=s.tilt_bound_deg,
                                                                  knot_s=knot)
                 products["+ vector step"] = cal
                 if s.fast_drift:
-                    from magcal.missions.elfin_correction import correct_fast_drift
+                    from magcal.missions.elfin.harmonic import correct_fast_drift
 
                     cal, steps["fast_drift"] = correct_fast_drift(cal, knot_s=30.0)
                     products["+ fast drift"] = cal
                 if s.phase_refit:
-                    from magcal.missions.elfin_vector import correct_phase
+                    from magcal.missions.elfin.vector import correct_phase
 
                     cal, steps["phase_refit"] = correct_phase(cal, knot_s=60.0)
                     products["+ phase refit"] = cal
     scores = {name: score_field(p.field) for name, p in products.items()}
-    from magcal.missions.elfin_stability import parameter_stability
+    from magcal.missions.elfin.diagnostics.stability import parameter_stability
 
     stability = parameter_stability(linear, products, steps)
     joint = None
@@ -369,7 +369,7 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
 def _joint(linear, incumbent, scores: dict) -> tuple:
     """Joint fit across zones, scored against the linear and incumbent products; returns
     the delivered calibration, the fit's record and the joint product's scores."""
-    from magcal.missions.elfin_joint import calibrate_joint, choose_product, score_field
+    from magcal.missions.elfin.joint import calibrate_joint, choose_product, score_field
 
     product, fit = calibrate_joint(linear)
     names = list(scores)
@@ -401,7 +401,7 @@ def plot_residuals(path: str | Path, cal, title: str = "ELFIN: calibrated minus 
     """
     import matplotlib
 
-    from magcal.missions.elfin import CREDIT
+    from magcal.missions.elfin.linear import CREDIT
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

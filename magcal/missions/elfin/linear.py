@@ -9,7 +9,7 @@ with ``b`` the raw counts, extended by slow drifts that the real data need:
   the offsets ``o(T)`` drift; ``T`` runs from -1 to 1 over the zone and the drifts are
   polynomials of degree ``axis_degree`` and ``offset_degree`` (0 gives the plain
   12-parameter model);
-* despun frame (rows of :func:`~magcal.missions.elfin_phase.despun_basis`, ``Z`` = spin
+* despun frame (rows of :func:`~magcal.missions.elfin.phase.despun_basis`, ``Z`` = spin
   axis from the attitude file): ``B_despun = despin(B_body, p)`` (CONTRACTS §4 sense),
   with the spin phase ``p`` = a quadratic in time plus a cubic spline with knots every
   ``phase_knot_s``;
@@ -19,7 +19,7 @@ Given the phase, the model is linear in the calibration parameters (ordinary lea
 squares, per component); given the calibration, the phase correction is the spline fit
 of the angle between the calibrated and the IGRF spin-plane field. The two steps
 alternate. The first phase comes from the counts alone
-(:func:`~magcal.missions.elfin_phase.phase_from_counts`); its sense is chosen by the fit.
+(:func:`~magcal.missions.elfin.phase.phase_from_counts`); its sense is chosen by the fit.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import pandas as pd
 
 from magcal.errors import InputError
 from magcal.io.jsonio import product_dict
-from magcal.missions.elfin_phase import (
+from magcal.missions.elfin.phase import (
     TWO_PI,
     despun_basis,
     phase_from_counts,
@@ -39,7 +39,7 @@ from magcal.missions.elfin_phase import (
     split_zones,
     wrap,
 )
-from magcal.missions.elfin_timing import check_timing
+from magcal.missions.elfin.timing import check_timing
 from magcal.spin.despin import despin, spin
 
 CREDIT = "ELFIN SOC (PI V. Angelopoulos, UCLA); data: Open Data for Scientific Use"
@@ -93,8 +93,8 @@ class ZoneCalibration:
     rms_by_sense_nT : list of float
         Overall vector RMS with the phase sense +1 and -1 (the smaller one is kept).
     timestamp_anomalies : list of dict
-        From :func:`~magcal.missions.elfin_phase.repair_timestamps` and
-        :func:`~magcal.missions.elfin_timing.check_timing` (repaired and flagged blocks).
+        From :func:`~magcal.missions.elfin.phase.repair_timestamps` and
+        :func:`~magcal.missions.elfin.timing.check_timing` (repaired and flagged blocks).
     n_timing_repaired, n_timing_flagged : int
         Samples moved next to an unpaired time-stamp jump, and samples left out
         (``used = 0``) because the counts do not fit the spin where they are stamped.
@@ -238,7 +238,7 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
         Also fit a constant tilt of the attitude file's spin axis (two angles).
     exclude : array_like of bool, optional
         Samples never used (e.g. flagged by
-        :func:`~magcal.missions.elfin_timing.check_timing`); they stay in the output.
+        :func:`~magcal.missions.elfin.timing.check_timing`); they stay in the output.
 
     Returns
     -------
@@ -362,7 +362,7 @@ class ElfinCalibration:
     ``igrf_x_gei ...`` and ``igrf_x_despun ...``, the spin ``phase`` (rad) and the
     attitude file's spin axis ``spin_axis_gei_x ..`` (despun Z, defines the despun frame)
     and the raw counts ``b1, b2, b3`` (for fits that start again from the counts, e.g.
-    :func:`magcal.missions.elfin_joint.calibrate_joint`).
+    :func:`magcal.missions.elfin.joint.calibrate_joint`).
     """
 
     zones: tuple
@@ -429,19 +429,19 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
     Parameters
     ----------
     fgs : DataFrame
-        From :func:`magcal.missions.elfin_files.read_elfin_fgs` (``b1, b2, b3`` counts, UTC index).
+        From :func:`magcal.missions.elfin.files.read_elfin_fgs` (``b1, b2, b3`` counts, UTC index).
     state : DataFrame
-        From :func:`magcal.missions.elfin_files.read_elfin_state` (GEI position km, spin axis).
+        From :func:`magcal.missions.elfin.files.read_elfin_state` (GEI position km, spin axis).
     min_gap_s : float
         Gaps longer than this separate science zones.
     time_shift_s : float
         The reference is evaluated at ``t + time_shift_s`` (to scan for a timing
         offset between the counts and the orbit).
     repair_times : bool
-        Undo paired time-stamp jumps (:func:`~magcal.missions.elfin_phase.repair_timestamps`).
+        Undo paired time-stamp jumps (:func:`~magcal.missions.elfin.phase.repair_timestamps`).
     check_times : bool
         Then check the stamps against the spin in the counts
-        (:func:`~magcal.missions.elfin_timing.check_timing`): repair blocks next to
+        (:func:`~magcal.missions.elfin.timing.check_timing`): repair blocks next to
         unpaired jumps, mark what still does not fit ``used = 0`` (counted in
         ``n_timing_flagged``).
     zones : sequence of int, optional

@@ -1,7 +1,7 @@
 """Spin-plane gain drift within an ELFIN pass: the slow part of the scalar residual.
 
 After the linear calibration and the spin-harmonic correction
-(:mod:`magcal.missions.elfin_correction`) the ELFIN-A scalar residual ``|B| - |IGRF|``
+(:mod:`magcal.missions.elfin.harmonic`) the ELFIN-A scalar residual ``|B| - |IGRF|``
 keeps a *slow part* of about 60 nT RMS per science zone (quadratic to cubic in time
 over the ~6 min pass). What the data say about it (2022-01-12, see
 ``workflows/elfin_scalar_floor.py --slow``):
@@ -9,7 +9,7 @@ over the ~6 min pass). What the data say about it (2022-01-12, see
 * it lives in the magnitude of the spin-plane field (the spin-axis component adds
   < 3 nT to it), which a constant-gain calibration fixes to ``G |counts_perp|`` whatever
   the attitude: it is not an attitude error;
-* reference errors do not explain it (:mod:`magcal.missions.elfin_reference`): a time
+* reference errors do not explain it (:mod:`magcal.missions.elfin.diagnostics.reference`): a time
   offset, a rotated position frame or the external field would need one coefficient
   for the day, and the coefficients they need differ in sign from zone to zone or are
   unphysical;
@@ -43,7 +43,7 @@ from dataclasses import replace
 import numpy as np
 import pandas as pd
 
-from magcal.missions.elfin_scalar import fast_part, fit_spin_harmonics, rms
+from magcal.missions.elfin.scalar import fast_part, fit_spin_harmonics, rms
 
 
 def unit_time(t, use) -> np.ndarray:
@@ -145,7 +145,7 @@ def drift_shape_agreement(t_s, b_body, ref_magnitude_nT, *, fit_mask=None,
     t_s, b_body, ref_magnitude_nT, fit_mask :
         As in :func:`fit_gain_drift`; ``b_body`` from the linear calibration.
     drift_degree, poly_degree :
-        Passed to :func:`~magcal.missions.elfin_scalar.fit_spin_harmonics` (slow part:
+        Passed to :func:`~magcal.missions.elfin.scalar.fit_spin_harmonics` (slow part:
         the polynomial of ``poly_degree``).
 
     Returns
@@ -249,7 +249,7 @@ def map_zones(cal, step, note: str, params: dict):
     table : DataFrame
         One row per zone: ``zone`` and the step's ``info``.
     """
-    from magcal.missions.elfin_phase import despun_basis
+    from magcal.missions.elfin.phase import despun_basis
 
     f = cal.field.copy()
     rows = []
@@ -273,7 +273,7 @@ def correct_gain_drift(cal, **kw):
     Parameters
     ----------
     cal : magcal.missions.elfin.ElfinCalibration
-        Usually after :func:`~magcal.missions.elfin_correction.correct_elfin_calibration`.
+        Usually after :func:`~magcal.missions.elfin.harmonic.correct_elfin_calibration`.
     **kw
         Passed to :func:`fit_gain_drift`.
 
