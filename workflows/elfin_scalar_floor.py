@@ -83,21 +83,19 @@ def _slow(data: Path) -> None:
 
 
 def _product(data: Path, knot_s: float | None):
-    """The calibration chain; with ``knot_s`` the vector step drifts on splines, the fast
-    drift (spin harmonics of |B| on ``knot_s`` splines) follows it, and the spin phase is
-    refitted last (60 s knots)."""
-    from magcal.missions.elfin.linear import calibrate_elfin
-    from magcal.missions.elfin.harmonic import correct_elfin_calibration, correct_fast_drift
-    from magcal.missions.elfin.drift import correct_gain_drift
+    """The delivered calibration (:func:`magcal.missions.elfin.pipeline.calibrate_elfin_day`);
+    with ``knot_s`` the vector step drifts on splines, the fast drift (spin harmonics of
+    |B| on ``knot_s`` splines) follows it and the phase is refitted last; without, the
+    vector step's drift is a cubic and neither follows."""
     from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
-    from magcal.missions.elfin.vector import correct_phase, correct_vector
+    from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
 
     fgs, state = read_elfin_fgs(data / FGS_FILE), read_elfin_state(data / STATE_FILE)
-    cal, _ = correct_gain_drift(correct_elfin_calibration(calibrate_elfin(fgs, state))[0])
-    cal = correct_vector(cal, knot_s=knot_s)[0]
-    if knot_s is not None:
-        cal = correct_phase(correct_fast_drift(cal, knot_s=knot_s)[0])[0]
-    return cal, state
+    splines = knot_s is not None
+    settings = ElfinSettings(vector_knot_s=knot_s if splines else 0.0,
+                             fast_knot_s=knot_s if splines else 30.0,
+                             fast_drift=splines, phase_refit=splines)
+    return calibrate_elfin_day(fgs, state, settings, diagnostics=False).calibration, state
 
 
 def _sun(data: Path) -> None:

@@ -54,7 +54,7 @@ def unit_time(t, use) -> np.ndarray:
 
 
 def fit_gain_drift(t_s, b_body, ref_magnitude_nT, *, degree: int = 3, fit_mask=None,
-                   n_iter: int = 2) -> tuple[np.ndarray, dict]:
+                   n_iter: int = 2, shape=None) -> tuple[np.ndarray, dict]:
     """Remove a slowly drifting isotropic spin-plane gain from body-frame vectors.
 
     Model: the measured spin-plane components are ``(1 + g(T))`` times the true ones,
@@ -76,6 +76,13 @@ def fit_gain_drift(t_s, b_body, ref_magnitude_nT, *, degree: int = 3, fit_mask=N
         Samples used in the fit (default all); the correction is applied to all.
     n_iter : int
         Refits (the second removes what the first leaves at second order).
+    shape : array_like (n,), optional
+        A reference-free time shape of the drift (:func:`harmonic_shape`, the 2x-spin
+        harmonic's drift): then ``g(T) = g_0 + g_1 shape`` (two numbers per zone)
+        with ``g_1`` fixed by the gain's geometry (a one-direction gain change has equal
+        isotropic and 2x halves, so the drift of ``|B|`` is ``+-shape``; only the sign
+        and ``g_0`` are fitted), so that a natural field along B, which changes ``|B|``
+        but makes no 2x-spin harmonic, is not fitted away as a gain drift.
 
     Returns
     -------
@@ -101,15 +108,31 @@ def fit_gain_drift(t_s, b_body, ref_magnitude_nT, *, degree: int = 3, fit_mask=N
     ref = np.asarray(ref_magnitude_nT, dtype=float)
     use = np.ones(t.size, bool) if fit_mask is None else np.asarray(fit_mask, bool)
     T = unit_time(t, use)
-    powers = np.column_stack([T ** d for d in range(degree + 1)])
     r0 = np.linalg.norm(b, axis=1) - ref
+    if shape is None:
+        powers = np.column_stack([T ** d for d in range(degree + 1)])
+    else:
+        # isotropic and 2x halves of a one-direction gain change are equal: the drift is
+        # +-shape in |B| (nT); only its sign and a constant gain are fitted
+        a = np.asarray(shape, dtype=float)
+        h = (b[:, 0] ** 2 + b[:, 1] ** 2) / np.linalg.norm(b, axis=1)
+        sign = 1.0 if float(a[use] @ r0[use]) >= 0 else -1.0
+        powers = np.column_stack([np.ones_like(t), sign * a / h])
+        degree = 0
     total = np.ones(t.size)
-    coef = np.zeros(degree + 1)
+    coef = np.zeros(powers.shape[1])
     for _ in range(max(1, n_iter)):
         mag = np.linalg.norm(b, axis=1)
         design = powers * ((b[:, 0] ** 2 + b[:, 1] ** 2) / mag)[:, None]
-        w = np.linalg.lstsq(design[use], (mag - ref)[use], rcond=None)[0]
-        g = powers @ w
+        if shape is None:
+            w = np.linalg.lstsq(design[use], (mag - ref)[use], rcond=None)[0]
+            g = powers @ w
+        else:
+            fixed = powers[:, 1] if not coef.any() else 0.0 * powers[:, 1]
+            g0 = np.linalg.lstsq(design[use, :1], (mag - ref - fixed * design[:, 0])[use],
+                                 rcond=None)[0]
+            w = np.r_[g0, 0.0 if coef.any() else 1.0]
+            g = g0[0] + fixed
         b[:, :2] /= (1.0 + g)[:, None]
         total *= 1.0 + g
         coef += w
@@ -184,6 +207,34 @@ def drift_shape_agreement(t_s, b_body, ref_magnitude_nT, *, fit_mask=None,
             "slow_rms_nT": rms(slow), "slow_unabsorbed_nT": rms(s_p),
             "correlation": float(np.corrcoef(s_p, a_p)[0, 1]),
             "ratio": abs(ratio), "slow_left_nT": rms(s_p - ratio * a_p)}
+
+
+def harmonic_shape(t_s, b_body, ref_magnitude_nT, *, fit_mask=None,
+                   drift_degree: int = 3, poly_degree: int = 5) -> np.ndarray:
+    """Time shape of the 2x-spin harmonic's drift in the scalar residual, at all samples.
+
+    The amplitude ``a(t)`` of :func:`drift_shape_agreement` (the drift of the complex 2x
+    coefficient along its principal direction), fitted on ``fit_mask`` and interpolated
+    to every sample. Reference-free: a natural field changes ``|B|`` at twice the spin
+    frequency only at second order, a spin-plane gain change at first order.
+
+    Returns
+    -------
+    ndarray (n,)
+        ``a(t)`` (nT, sign arbitrary) with its mean removed.
+    """
+    t = np.asarray(t_s, dtype=float)
+    b = np.asarray(b_body, dtype=float)
+    ref = np.asarray(ref_magnitude_nT, dtype=float)
+    use = np.ones(t.size, bool) if fit_mask is None else np.asarray(fit_mask, bool)
+    r = np.linalg.norm(b[use], axis=1) - ref[use]
+    psi = np.angle(b[use, 0] + 1j * b[use, 1])
+    model = fit_spin_harmonics(t[use], r, psi, fixed=(4,), drifting=(1, 2),
+                               drift_degree=drift_degree, poly_degree=poly_degree)
+    c2 = model.coefficients[2]
+    xy = np.column_stack([c2.real - c2.real.mean(), c2.imag - c2.imag.mean()])
+    vt = np.linalg.svd(xy, full_matrices=False)[2]
+    return np.interp(t, t[use], xy @ vt[0])
 
 
 def drift_pair(t_s, b_body, ref_body, *, fit_mask=None, degree: int = 3) -> dict:
@@ -267,13 +318,16 @@ def map_zones(cal, step, note: str, params: dict):
     return replace(cal, field=f, parameters=out), pd.DataFrame(rows)
 
 
-def correct_gain_drift(cal, **kw):
+def correct_gain_drift(cal, *, shape_from=None, **kw):
     """Apply :func:`fit_gain_drift` zone by zone to an ElfinCalibration.
 
     Parameters
     ----------
     cal : magcal.missions.elfin.ElfinCalibration
         Usually after :func:`~magcal.missions.elfin.harmonic.correct_elfin_calibration`.
+    shape_from : ElfinCalibration, optional
+        The *linear* calibration of the same rows: the drift then follows each zone's
+        2x-spin harmonic (:func:`harmonic_shape`) instead of a cubic in time.
     **kw
         Passed to :func:`fit_gain_drift`.
 
@@ -289,12 +343,18 @@ def correct_gain_drift(cal, **kw):
 
     def step(t, z, used):
         _, body, ref_mag, phase, desp, ref = _zone_body(z)
-        fixed, info = fit_gain_drift(t, body, ref_mag, fit_mask=used, **kw)
+        shape = None
+        if shape_from is not None:
+            lin = shape_from.field.loc[shape_from.field["zone"] == z["zone"].iloc[0]]
+            _, lbody, lref, *_ = _zone_body(lin)
+            shape = harmonic_shape(t, lbody, lref, fit_mask=used)
+        fixed, info = fit_gain_drift(t, body, ref_mag, fit_mask=used, shape=shape, **kw)
         new_d = despin(fixed, phase)
         return new_d, {**info, "vector_rms_before_nT": rms((desp - ref)[used]),
                        "vector_rms_after_nT": rms((new_d - ref)[used])}
 
-    return map_zones(cal, step, "gain_drift", kw)
+    return map_zones(cal, step, "gain_drift",
+                     {**kw, "shape": "2x-spin harmonic" if shape_from is not None else "cubic"})
 
 
 def drift_agreement_table(cal, **kw) -> pd.DataFrame:

@@ -147,7 +147,7 @@ def _powers(T, degree: int, first: int = 0) -> np.ndarray:
 
 
 def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, n_iter,
-             fit_attitude=False):
+             fit_attitude=False, hold=False):
     """Alternate calibration (linear) and phase steps; return weights, body field, phase.
 
     Spin-plane rows: ``[counts, 1, T, .., T^offset_degree]``. Spin-axis row:
@@ -156,7 +156,7 @@ def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, 
     spin-axis offset does not drift in the model: with the small range of the
     spin-axis field in one pass a drifting ``o3`` would trade off against the
     spin-axis gain. The phase correction is a cubic spline (``knots``) or, without
-    knots, a quadratic.
+    knots, a quadratic. ``hold``: the phase stays ``base`` (no phase step).
     """
     from scipy.interpolate import make_lsq_spline
 
@@ -182,7 +182,7 @@ def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, 
         # the last two columns are the attitude correction: not part of the data
         return (wx, wy, wz), np.column_stack([bx, by, z[:, :-2] @ wz[:-2]]), tgt
 
-    for _ in range(max(1, n_iter)):
+    for _ in range(0 if hold else max(1, n_iter)):
         _, b_body, tgt = calibrate(base + corr)
         dphi = wrap(np.arctan2(tgt[:, 1], tgt[:, 0]) - np.arctan2(b_body[:, 1], b_body[:, 0]))
         if spline_knots is not None:
@@ -213,7 +213,7 @@ def _phase_jumps(t, resid_angle, used, period_s, min_gap_s=1.0) -> list:
 def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: int = 2,
              axis_degree: int = 2, phase_knot_s: float | None = 30.0, n_iter: int = 8,
              fit_attitude: bool = False, times_iso=("", ""), timestamp_anomalies=(),
-             exclude=None) -> _ZoneFit:
+             exclude=None, phase=None) -> _ZoneFit:
     """Calibrate one zone of raw counts against a reference field in the despun frame.
 
     Parameters
@@ -239,6 +239,10 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
     exclude : array_like of bool, optional
         Samples never used (e.g. flagged by
         :func:`~magcal.missions.elfin.timing.check_timing`); they stay in the output.
+    phase : array_like (n,), optional
+        Hold the spin phase at this solution (rad) and fit only the linear calibration:
+        the injection tests' reference run (:mod:`magcal.missions.elfin.injection`),
+        where a phase fitted against the model cannot absorb an injected field.
 
     Returns
     -------
@@ -263,12 +267,17 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
     knots = None if phase_knot_s is None else np.arange(t[0], t[-1], float(phase_knot_s))
 
     best, tried = None, []
-    for sense in (1.0, -1.0):
-        coef = np.polyfit(t[used] - t[0], sense * raw[used], 2)
-        base = np.polyval(coef, t - t[0])
+    held = phase is not None
+    for sense in ((1.0,) if held else (1.0, -1.0)):
+        if held:
+            base = np.asarray(phase, dtype=float)
+            coef = np.polyfit(t[used] - t[0], base[used], 2)
+        else:
+            coef = np.polyfit(t[used] - t[0], sense * raw[used], 2)
+            base = np.polyval(coef, t - t[0])
         out = _iterate(t, x, T, ref, base, used, offset_degree=offset_degree,
                        axis_degree=axis_degree, knots=knots, n_iter=n_iter,
-                       fit_attitude=fit_attitude)
+                       fit_attitude=fit_attitude, hold=held)
         fitted = out[4]
         rms = float(np.sqrt(np.mean((fitted - ref)[used] ** 2)))
         tried.append(rms)
@@ -423,7 +432,7 @@ class ElfinCalibration:
 def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float = 60.0,
                     time_shift_s: float = 0.0, repair_times: bool = True,
                     check_times: bool = True, zones=None, provenance=None,
-                    **fit_kw) -> ElfinCalibration:
+                    hold_phase=None, **fit_kw) -> ElfinCalibration:
     """Calibrate ELFIN FGS counts zone by zone against IGRF at the spacecraft.
 
     Parameters
@@ -446,6 +455,10 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
         ``n_timing_flagged``).
     zones : sequence of int, optional
         Only these zone numbers (0-based).
+    hold_phase : array_like (len(fgs),), optional
+        Spin phase (rad) per FGS row, held instead of fitted (``phase`` of
+        :func:`fit_zone`); e.g. the ``phase`` column of an earlier calibration of the
+        same rows.
     **fit_kw
         Passed to :func:`fit_zone`.
 
@@ -457,6 +470,8 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
 
     if not {"b1", "b2", "b3"} <= set(fgs.columns):
         raise InputError("FGS frame needs columns b1, b2, b3")
+    if hold_phase is not None and len(hold_phase) != len(fgs):
+        raise InputError(f"hold_phase has {len(hold_phase)} values for {len(fgs)} FGS rows")
     t_all = (fgs.index.asi8 - fgs.index.asi8[0]) / 1e9
     t_ref = fgs.index[0]
     ts = (state.index.asi8 - fgs.index.asi8[0]) / 1e9
@@ -486,8 +501,9 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
         basis = despun_basis(ax)
         ref = np.einsum("nij,nj->ni", basis, ref_gei)
         iso = (str(fgs.index[a].tz_convert(None)), str(fgs.index[b - 1].tz_convert(None)))
+        held = None if hold_phase is None else np.asarray(hold_phase, float)[a:b]
         fit = fit_zone(t, fgs[["b1", "b2", "b3"]].to_numpy()[a:b], ref, times_iso=iso,
-                       timestamp_anomalies=anomalies, exclude=bad, **fit_kw)
+                       timestamp_anomalies=anomalies, exclude=bad, phase=held, **fit_kw)
         results.append(fit.summary)
         cal_gei = np.einsum("nji,nj->ni", basis, fit.b_despun)
         idx = t_ref + pd.to_timedelta(np.round(t * 1e9).astype("int64"), unit="ns")

@@ -36,6 +36,10 @@ CALIBRATED_COLUMNS = ("zone", "used", "bx_gei", "by_gei", "bz_gei", "bx_despun",
                       "bz_despun", "igrf_x_gei", "igrf_y_gei", "igrf_z_gei", "phase")
 #: Zone medians compared from one step to the next (:meth:`ElfinDay.worse_steps`).
 SCORED = ("scalar_rms_nT", "scalar_fast_nT", "scalar_slow_nT", "vector_rms_nT")
+#: Settings that buy a smaller residual against the model with natural signal lost
+#: (each is a time-varying fit against IGRF; see :mod:`magcal.missions.elfin.injection`).
+SIGNAL_TRADE = ("linear_phase_knot_s", "gain_drift", "gain_drift_2x", "vector_step", "vector_knot_s",
+                "fast_drift", "fast_knot_s", "phase_refit", "refit_knot_s")
 #: Relative (and absolute, nT) growth of a zone median below which it is rounding.
 ROUNDING = 1e-9
 
@@ -52,6 +56,11 @@ class ElfinSettings:
     gain_drift : bool
         The spin-plane gain drift after the harmonic correction (False also skips the
         vector step, which corrects what the drift leaves).
+    gain_drift_2x : bool
+        The gain drift follows the time shape of the 2x-spin harmonic's drift (a
+        reference-free gain signature; two numbers per zone) instead of a free cubic
+        against the model. Signal trade: the cubic also fits a natural field along B
+        (which changes ``|B|``) as a gain drift.
     vector_step : bool
         The vector-only step: body-fixed spin harmonics and a spin-axis tilt.
     tilt_bound_deg : float
@@ -69,6 +78,15 @@ class ElfinSettings:
     phase_refit : bool
         Last, the spin phase refitted on the calibrated field (60 s knots, no finer than
         the first phase fit, which was made on the linear calibration).
+    linear_phase_knot_s : float
+        Knot spacing (s) of the spin-phase spline fitted with the linear calibration
+        against IGRF (0: a quadratic phase only). Signal trade: a spline phase fitted
+        against a model turns an along-track (spin-plane) natural field into a phase error
+        and removes it (measured: ``workflows/elfin_preservation.py``).
+    fast_knot_s : float
+        Knot spacing (s) of the fast drift's B-splines.
+    refit_knot_s : float
+        Knot spacing (s) of the last phase refit.
     joint : bool
         Also the joint fit across zones (about 60 s); delivered only if no worse.
     scan : bool
@@ -78,11 +96,15 @@ class ElfinSettings:
 
     harmonic: bool = True
     gain_drift: bool = True
+    gain_drift_2x: bool = False
     vector_step: bool = True
     tilt_bound_deg: float = 0.2
     vector_knot_s: float = 30.0
     fast_drift: bool = True
     phase_refit: bool = True
+    linear_phase_knot_s: float = 30.0
+    fast_knot_s: float = 30.0
+    refit_knot_s: float = 60.0
     joint: bool = False
     scan: bool = False
 
@@ -102,7 +124,7 @@ class ElfinSettings:
         >>> ElfinSettings.from_mapping({"tilt": 1})
         Traceback (most recent call last):
         ...
-        magcal.errors.InputError: settings: unknown key 'tilt' (known: harmonic, gain_drift, vector_step, tilt_bound_deg, vector_knot_s, fast_drift, phase_refit, joint, scan)
+        magcal.errors.InputError: settings: unknown key 'tilt' (known: harmonic, gain_drift, gain_drift_2x, vector_step, tilt_bound_deg, vector_knot_s, fast_drift, phase_refit, linear_phase_knot_s, fast_knot_s, refit_knot_s, joint, scan)
         """
         known = {f.name: f for f in fields(cls)}
         out = {}
@@ -121,8 +143,12 @@ class ElfinSettings:
         settings = cls(**out)
         if settings.tilt_bound_deg < 0:
             raise InputError(f"{where}: tilt_bound_deg must not be negative")
-        if settings.vector_knot_s < 0:
-            raise InputError(f"{where}: vector_knot_s must not be negative")
+        for key in ("vector_knot_s", "linear_phase_knot_s"):
+            if getattr(settings, key) < 0:
+                raise InputError(f"{where}: {key} must not be negative")
+        for key in ("fast_knot_s", "refit_knot_s"):
+            if getattr(settings, key) <= 0:
+                raise InputError(f"{where}: {key} must be positive")
         return settings
 
     def steps(self) -> tuple:
@@ -167,6 +193,9 @@ class ElfinDay:
     stability : dict
         Which parameters are stable across zones, with block-sandwich errors
         (:func:`magcal.missions.elfin.diagnostics.stability.parameter_stability`).
+    products : dict
+        Product name -> its calibration, in step order (what each step made; the
+        injection tests compare them step by step).
     """
 
     calibration: object
@@ -178,6 +207,7 @@ class ElfinDay:
     joint: dict | None = None
     scan: dict = field(default_factory=dict)
     stability: dict = field(default_factory=dict)
+    products: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def delivered(self) -> str:
@@ -231,8 +261,17 @@ class ElfinDay:
 
     def to_json(self) -> dict:
         """The calibration document (the keys of ``elfin_calibration.json``)."""
+        from dataclasses import asdict
+
         s = self.settings
         payload = self.calibration.to_json()
+        payload["settings"] = asdict(s)
+        payload["signal_trade"] = {
+            "note": "steps fitted against IGRF with time-varying freedom can absorb a "
+                    "natural field; measured by injecting synthetic signals into the raw "
+                    "counts (workflows/elfin_preservation.py, magcal.missions.elfin."
+                    "injection). Settings that trade kept signal for residual:",
+            "switches": {k: getattr(s, k) for k in SIGNAL_TRADE}}
         payload["table"] = self.linear.table().to_dict(orient="records")
         payload["ripple_crosscheck"] = {
             "note": "spin-ripple calibration (Kivelson et al. 1992, no model field) on the "
@@ -266,7 +305,8 @@ class ElfinDay:
                 "zones": self.steps["vector_correction"].to_dict(orient="records")}
         if "fast_drift" in self.steps:
             payload["fast_drift"] = {
-                "note": "1x/2x spin harmonics of |B| with coefficients on 30 s B-splines, "
+                "note": f"1x/2x spin harmonics of |B| with coefficients on {s.fast_knot_s:g} s "
+                        "B-splines, "
                         "removed as vectors (the sunlit zones' terms change within a minute; "
                         "a Sun-locked term is not what the data support: workflows/"
                         "elfin_scalar_floor.py --sun)",
@@ -274,8 +314,9 @@ class ElfinDay:
         if "phase_refit" in self.steps:
             payload["phase_refit"] = {
                 "note": "spin phase refitted last against IGRF's spin-plane angle on the "
-                        "calibrated field (cubic B-spline, 60 s knots; the first phase fit, "
-                        "30 s knots, was made on the linear calibration)",
+                        f"calibrated field (cubic B-spline, {s.refit_knot_s:g} s knots; the first "
+                        f"phase fit, {s.linear_phase_knot_s:g} s knots (0: quadratic), was "
+                        "made on the linear calibration)",
                 "zones": self.steps["phase_refit"].to_dict(orient="records")}
         payload["scores"] = {"note": "zone medians of magcal.missions.elfin.joint.score_field "
                                      "(nT) for each product; the last one before 'joint' is "
@@ -290,7 +331,8 @@ class ElfinDay:
 
 def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
                         settings: ElfinSettings | None = None, *,
-                        provenance: dict | None = None) -> ElfinDay:
+                        provenance: dict | None = None, hold_phase=None,
+                        diagnostics: bool = True) -> ElfinDay:
     """Calibrate one day of ELFIN FGS counts against IGRF through the configured steps.
 
     Parameters
@@ -302,6 +344,12 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
         Which steps run (default: every step except the joint fit and the scan).
     provenance : dict, optional
         Carried by the delivered calibration (and so by :meth:`ElfinDay.to_json`).
+    hold_phase : array_like (len(fgs),), optional
+        Spin phase per FGS row held by the linear fit instead of fitted (see
+        :func:`~magcal.missions.elfin.linear.calibrate_elfin`); for the injection tests.
+    diagnostics : bool
+        Also the spin-ripple cross-check and the parameter stability (False: the
+        calibration only, e.g. for repeated injection runs).
 
     Returns
     -------
@@ -317,8 +365,10 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
     from magcal.missions.elfin.diagnostics.ripple import ripple_crosscheck
 
     s = settings or ElfinSettings()
-    linear = calibrate_elfin(fgs, state, provenance=provenance)
-    ripple = ripple_crosscheck(linear, fgs)
+    knot = s.linear_phase_knot_s or None
+    linear = calibrate_elfin(fgs, state, provenance=provenance, hold_phase=hold_phase,
+                             phase_knot_s=knot)
+    ripple = ripple_crosscheck(linear, fgs) if diagnostics else pd.DataFrame()
     products, steps = {"linear": linear}, {}
     cal = linear
     if s.harmonic:
@@ -329,7 +379,8 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
         if s.gain_drift:
             from magcal.missions.elfin.drift import correct_gain_drift, drift_agreement_table
 
-            cal, steps["gain_drift"] = correct_gain_drift(cal)
+            cal, steps["gain_drift"] = correct_gain_drift(
+                cal, shape_from=linear if s.gain_drift_2x else None)
             steps["drift_agreement"] = drift_agreement_table(linear)
             products["harmonic + gain drift"] = cal
             if s.vector_step:
@@ -342,17 +393,17 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
                 if s.fast_drift:
                     from magcal.missions.elfin.harmonic import correct_fast_drift
 
-                    cal, steps["fast_drift"] = correct_fast_drift(cal, knot_s=30.0)
+                    cal, steps["fast_drift"] = correct_fast_drift(cal, knot_s=s.fast_knot_s)
                     products["+ fast drift"] = cal
                 if s.phase_refit:
                     from magcal.missions.elfin.vector import correct_phase
 
-                    cal, steps["phase_refit"] = correct_phase(cal, knot_s=60.0)
+                    cal, steps["phase_refit"] = correct_phase(cal, knot_s=s.refit_knot_s)
                     products["+ phase refit"] = cal
     scores = {name: score_field(p.field) for name, p in products.items()}
     from magcal.missions.elfin.diagnostics.stability import parameter_stability
 
-    stability = parameter_stability(linear, products, steps)
+    stability = parameter_stability(linear, products, steps) if diagnostics else {}
     joint = None
     if s.joint:
         cal, joint, scores["joint"] = _joint(linear, cal, scores)
@@ -363,7 +414,8 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
             scan[f"{shift:+.1f}"] = {"rms_vector_nT": t["rms_vector_nT"].tolist(),
                                      "rms_scalar_nT": t["rms_scalar_nT"].tolist()}
     return ElfinDay(calibration=cal, linear=linear, settings=s, ripple=ripple, steps=steps,
-                    scores=scores, joint=joint, scan=scan, stability=stability)
+                    scores=scores, joint=joint, scan=scan, stability=stability,
+                    products=products)
 
 
 def _joint(linear, incumbent, scores: dict) -> tuple:
