@@ -63,7 +63,7 @@ def signal_shape(kind: str, t_s, t0: float) -> np.ndarray:
     if shape == "tanh":
         return amp * 0.5 * (1.0 + np.tanh(x * _TANH_10_90 / width))
     env = np.where(np.abs(x) <= width / 2, np.cos(np.pi * x / width) ** 2, 0.0)
-    return amp * env * np.sin(2.0 * np.pi * WAVE_HZ * x)
+    return amp * env * np.cos(2.0 * np.pi * WAVE_HZ * x)
 
 
 def fwhm(t_s, y) -> float:
