@@ -278,6 +278,13 @@ def _zone_body(z):
     return t, spin(desp, phase), np.linalg.norm(ref, axis=1), phase, desp, ref
 
 
+def fit_samples(z) -> np.ndarray:
+    """Samples a step fits on: ``used`` and, where the field has it, ``fit`` (0/1, rows
+    left out of every fit but kept in the product)."""
+    use = z["used"].to_numpy() == 1
+    return use & (z["fit"].to_numpy() == 1) if "fit" in z.columns else use
+
+
 def map_zones(cal, step, note: str, params: dict):
     """Run ``step`` on each zone of an ElfinCalibration and write back its vectors.
 
@@ -308,7 +315,7 @@ def map_zones(cal, step, note: str, params: dict):
         sel = (f["zone"] == k).to_numpy()
         z = f.loc[sel]
         t = (z.index.asi8 - z.index.asi8[0]) / 1e9
-        new_d, info = step(t, z, z["used"].to_numpy() == 1)
+        new_d, info = step(t, z, fit_samples(z))
         basis = despun_basis(z[["spin_axis_gei_x", "spin_axis_gei_y",
                                 "spin_axis_gei_z"]].to_numpy(float))
         f.loc[sel, ["bx_despun", "by_despun", "bz_despun"]] = new_d
@@ -368,7 +375,7 @@ def drift_agreement_table(cal, **kw) -> pd.DataFrame:
     for k in sorted(cal.field["zone"].unique()):
         z = cal.field[cal.field["zone"] == k]
         t, body, ref_mag, phase, _, ref = _zone_body(z)
-        used = z["used"].to_numpy() == 1
+        used = fit_samples(z)
         rows.append({"zone": int(k),
                      **drift_shape_agreement(t, body, ref_mag, fit_mask=used, **kw),
                      **drift_pair(t, body, spin(ref, phase), fit_mask=used)})

@@ -120,13 +120,15 @@ def correct_elfin_calibration(cal, **kw):
         Per zone: scalar and vector RMS against IGRF before and after, fast parts, the
         4x amplitude and the drifting 1x/2x RMS.
     """
+    from magcal.missions.elfin.drift import fit_samples
+
     f = cal.field.copy()
     rows = []
     for k in sorted(f["zone"].unique()):
         sel = (f["zone"] == k).to_numpy()
         z = f.loc[sel]
         t = (z.index.asi8 - z.index.asi8[0]) / 1e9
-        used = z["used"].to_numpy() == 1
+        used = fit_samples(z)
         phase = z["phase"].to_numpy()
         desp = z[["bx_despun", "by_despun", "bz_despun"]].to_numpy()
         ref_d = z[["igrf_x_despun", "igrf_y_despun", "igrf_z_despun"]].to_numpy()

@@ -230,7 +230,7 @@ def preservation(clean_day, injected_day, signals: dict, kind: str) -> pd.DataFr
 
 def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
                    kinds=tuple(SIGNALS), zones=None, hold: bool = False,
-                   progress=None) -> tuple[pd.DataFrame, object]:
+                   mask_signal: float = 0.0, progress=None) -> tuple[pd.DataFrame, object]:
     """Inject each signal kind into each chosen zone and measure what every product keeps.
 
     Parameters
@@ -247,6 +247,11 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         calibrated.
     hold : bool
         Hold the spin phase at the clean linear solution (the machinery check).
+    mask_signal : float
+        If positive, leave the samples where the signal exceeds this fraction of its
+        peak out of every fit (clean and injected runs alike): what a fit on quiet
+        intervals only would keep, given where the signal is (an upper bound for a
+        detected disturbance mask).
     progress : callable, optional
         Called with one line per run.
 
@@ -282,9 +287,18 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         signals = {k: signal_gei(kind, f[f["zone"] == k], state)
                    for k in dict.fromkeys(f["zone"].to_numpy())}
         injected = inject_counts(fgs, clean.linear, signals)
+        base, skip = clean, None
+        if mask_signal > 0:
+            skip = np.zeros(len(fgs), bool)
+            zone = f["zone"].to_numpy()
+            for k, dg in signals.items():
+                size = np.linalg.norm(dg, axis=1)
+                skip[np.flatnonzero(zone == k)] = size > mask_signal * size.max()
+            base = calibrate_elfin_day(fgs, state, s, hold_phase=hold_phase,
+                                       fit_exclude=skip, diagnostics=False)
         day = calibrate_elfin_day(injected, state, s, hold_phase=hold_phase,
-                                  diagnostics=False)
-        tab = preservation(clean, day, signals, kind)
+                                  fit_exclude=skip, diagnostics=False)
+        tab = preservation(base, day, signals, kind)
         if zones is not None:
             tab["zone"] = [list(zones)[k] for k in tab["zone"]]
         tables.append(tab)

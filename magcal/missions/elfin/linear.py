@@ -139,6 +139,7 @@ class _ZoneFit:
     phase: np.ndarray
     used: np.ndarray
     summary: ZoneCalibration
+    fit: np.ndarray | None = None
 
 
 def _powers(T, degree: int, first: int = 0) -> np.ndarray:
@@ -213,7 +214,7 @@ def _phase_jumps(t, resid_angle, used, period_s, min_gap_s=1.0) -> list:
 def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: int = 2,
              axis_degree: int = 2, phase_knot_s: float | None = 30.0, n_iter: int = 8,
              fit_attitude: bool = False, times_iso=("", ""), timestamp_anomalies=(),
-             exclude=None, phase=None) -> _ZoneFit:
+             exclude=None, phase=None, fit_exclude=None) -> _ZoneFit:
     """Calibrate one zone of raw counts against a reference field in the despun frame.
 
     Parameters
@@ -243,6 +244,9 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
         Hold the spin phase at this solution (rad) and fit only the linear calibration:
         the injection tests' reference run (:mod:`magcal.missions.elfin.injection`),
         where a phase fitted against the model cannot absorb an injected field.
+    fit_exclude : array_like of bool, optional
+        Samples left out of the fit but kept in the output (``used`` stays 1): e.g.
+        intervals with a natural field the model lacks, so that the fit cannot absorb it.
 
     Returns
     -------
@@ -256,6 +260,9 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
     used = (t >= t[0] + skip_s) & np.all(np.isfinite(c), axis=1) & np.all(np.isfinite(ref), axis=1)
     if exclude is not None:
         used &= ~np.asarray(exclude, bool)
+    out_used = used.copy()
+    if fit_exclude is not None:
+        used &= ~np.asarray(fit_exclude, bool)
     if used.sum() < 200:
         raise InputError(f"zone {times_iso[0]}: only {int(used.sum())} usable samples")
     c_mean = c[used].mean(axis=0)
@@ -341,7 +348,8 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
         n_timing_repaired=sum(a["n_samples"] for a in timestamp_anomalies
                               if a["kind"] == "unpaired_repaired"),
         n_timing_flagged=int(np.sum(exclude)) if exclude is not None else 0)
-    return _ZoneFit(b_despun=fitted, phase=phase, used=used, summary=summary)
+    return _ZoneFit(b_despun=fitted, phase=phase, used=out_used, summary=summary,
+                    fit=used)
 
 
 def igrf_gei(times, pos_gei_km) -> np.ndarray:
@@ -432,7 +440,7 @@ class ElfinCalibration:
 def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float = 60.0,
                     time_shift_s: float = 0.0, repair_times: bool = True,
                     check_times: bool = True, zones=None, provenance=None,
-                    hold_phase=None, **fit_kw) -> ElfinCalibration:
+                    hold_phase=None, fit_exclude=None, **fit_kw) -> ElfinCalibration:
     """Calibrate ELFIN FGS counts zone by zone against IGRF at the spacecraft.
 
     Parameters
@@ -459,6 +467,9 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
         Spin phase (rad) per FGS row, held instead of fitted (``phase`` of
         :func:`fit_zone`); e.g. the ``phase`` column of an earlier calibration of the
         same rows.
+    fit_exclude : array_like (len(fgs),) of bool, optional
+        Rows left out of every fit but kept in the product (``fit_exclude`` of
+        :func:`fit_zone`); the field's ``fit`` column (0/1) carries it to the later steps.
     **fit_kw
         Passed to :func:`fit_zone`.
 
@@ -502,12 +513,15 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
         ref = np.einsum("nij,nj->ni", basis, ref_gei)
         iso = (str(fgs.index[a].tz_convert(None)), str(fgs.index[b - 1].tz_convert(None)))
         held = None if hold_phase is None else np.asarray(hold_phase, float)[a:b]
+        skip = None if fit_exclude is None else np.asarray(fit_exclude, bool)[a:b]
         fit = fit_zone(t, fgs[["b1", "b2", "b3"]].to_numpy()[a:b], ref, times_iso=iso,
-                       timestamp_anomalies=anomalies, exclude=bad, phase=held, **fit_kw)
+                       timestamp_anomalies=anomalies, exclude=bad, phase=held,
+                       fit_exclude=skip, **fit_kw)
         results.append(fit.summary)
         cal_gei = np.einsum("nji,nj->ni", basis, fit.b_despun)
         idx = t_ref + pd.to_timedelta(np.round(t * 1e9).astype("int64"), unit="ns")
-        data = {"zone": np.full(t.size, k), "used": fit.used.astype(int)}
+        data = {"zone": np.full(t.size, k), "used": fit.used.astype(int),
+                "fit": fit.fit.astype(int)}
         for name, arr in (("{}_gei", cal_gei), ("{}_despun", fit.b_despun)):
             for j, c in enumerate("xyz"):
                 data["b" + name.format(c)] = arr[:, j]

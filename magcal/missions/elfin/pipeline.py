@@ -332,7 +332,7 @@ class ElfinDay:
 def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
                         settings: ElfinSettings | None = None, *,
                         provenance: dict | None = None, hold_phase=None,
-                        diagnostics: bool = True) -> ElfinDay:
+                        fit_exclude=None, diagnostics: bool = True) -> ElfinDay:
     """Calibrate one day of ELFIN FGS counts against IGRF through the configured steps.
 
     Parameters
@@ -347,6 +347,9 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
     hold_phase : array_like (len(fgs),), optional
         Spin phase per FGS row held by the linear fit instead of fitted (see
         :func:`~magcal.missions.elfin.linear.calibrate_elfin`); for the injection tests.
+    fit_exclude : array_like (len(fgs),) of bool, optional
+        FGS rows left out of every step's fit but calibrated (intervals with a natural
+        field the model lacks; see :func:`~magcal.missions.elfin.linear.calibrate_elfin`).
     diagnostics : bool
         Also the spin-ripple cross-check and the parameter stability (False: the
         calibration only, e.g. for repeated injection runs).
@@ -367,7 +370,7 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
     s = settings or ElfinSettings()
     knot = s.linear_phase_knot_s or None
     linear = calibrate_elfin(fgs, state, provenance=provenance, hold_phase=hold_phase,
-                             phase_knot_s=knot)
+                             fit_exclude=fit_exclude, phase_knot_s=knot)
     ripple = ripple_crosscheck(linear, fgs) if diagnostics else pd.DataFrame()
     products, steps = {"linear": linear}, {}
     cal = linear
