@@ -36,6 +36,7 @@ from magcal.missions.elfin.phase import (
     despun_basis,
     phase_from_counts,
     repair_timestamps,
+    spline_knots,
     split_zones,
     wrap,
 )
@@ -163,10 +164,8 @@ def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, 
 
     xy = np.column_stack([x, _powers(T, offset_degree)])
     corr = np.zeros_like(t)
-    spline_knots = None
-    if knots is not None:
-        inner = knots[(knots > t[used][0]) & (knots < t[used][-1])]
-        spline_knots = np.r_[[t[used][0]] * 4, inner, [t[used][-1]] * 4]
+    knot_vector = None if knots is None else spline_knots(t[used], knots, origin=t[0],
+                                                          trim_end=False)
     tu = t[used] - t[used][0]
 
     def calibrate(phase):
@@ -186,8 +185,8 @@ def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, 
     for _ in range(0 if hold else max(1, n_iter)):
         _, b_body, tgt = calibrate(base + corr)
         dphi = wrap(np.arctan2(tgt[:, 1], tgt[:, 0]) - np.arctan2(b_body[:, 1], b_body[:, 0]))
-        if spline_knots is not None:
-            spl = make_lsq_spline(t[used], dphi[used], spline_knots, k=3)
+        if knot_vector is not None:
+            spl = make_lsq_spline(t[used], dphi[used], knot_vector, k=3)
             corr = corr + spl(np.clip(t, t[used][0], t[used][-1]))
         else:
             corr = corr + np.polyval(np.polyfit(tu, dphi[used], 2), t - t[used][0])
@@ -271,7 +270,7 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
     T = 2.0 * (t - t[used][0]) / span - 1.0
     raw_phase, _ = phase_from_counts(t[used], c[used])
     raw = np.interp(t, t[used], raw_phase)
-    knots = None if phase_knot_s is None else np.arange(t[0], t[-1], float(phase_knot_s))
+    knots = None if phase_knot_s is None else float(phase_knot_s)
 
     best, tried = None, []
     held = phase is not None

@@ -39,7 +39,8 @@ def drift_basis(t_s, use, *, degree: int = 3, knot_s: float | None = None) -> np
     ``T`` runs from -1 to 1 over the samples selected by ``use``. With ``knot_s`` the
     columns are cubic B-splines with knots every ``knot_s`` seconds over the same span
     (each column is zero outside its four knot intervals; times outside the span are
-    clipped to it), otherwise ``1, T, .., T^degree``.
+    clipped to it; no knot where ``use`` has no samples:
+    :func:`~magcal.missions.elfin.phase.spline_knots`), otherwise ``1, T, .., T^degree``.
 
     Examples
     --------
@@ -54,12 +55,10 @@ def drift_basis(t_s, use, *, degree: int = 3, knot_s: float | None = None) -> np
         return np.column_stack([unit_time(t, use) ** d for d in range(degree + 1)])
     from scipy.interpolate import BSpline
 
-    t0, t1 = t[use][0], t[use][-1]
-    inner = np.arange(t0, t1, float(knot_s))[1:]
-    if inner.size and t1 - inner[-1] < 0.5 * knot_s:
-        inner = inner[:-1]                       # no sliver of an interval at the end
-    knots = np.r_[[t0] * 4, inner, [t1] * 4]
-    return BSpline.design_matrix(np.clip(t, t0, t1), knots, 3).toarray()
+    from magcal.missions.elfin.phase import spline_knots
+
+    knots = spline_knots(t[use], knot_s)        # none where ``use`` has no samples
+    return BSpline.design_matrix(np.clip(t, knots[0], knots[-1]), knots, 3).toarray()
 
 
 def vector_harmonic_correction(t_s, b_body, ref_body, *, plane=(-1, 3), axial=(1,),
