@@ -103,9 +103,11 @@ def runs(day):
     kinds = ("gauss_ew", "gauss_along", "pulse_b")
     held = run_injections(fgs, state, kinds=kinds, hold=True)[0]
     delivered = run_injections(fgs, state, kinds=kinds)[0]
-    free = run_injections(fgs, state, ElfinSettings(linear_phase_knot_s=0.0,
-                                                    gain_drift_2x=True), kinds=kinds)[0]
-    return held, delivered, free
+    free = run_injections(fgs, state, ElfinSettings(gain_drift_2x=True), kinds=kinds)[0]
+    splines = run_injections(fgs, state, ElfinSettings(linear_phase_knot_s=30.0,
+                                                       phase_refit=True),
+                             kinds=("gauss_along",))[0]
+    return held, delivered, free, splines
 
 
 def _row(tab, kind, product):
@@ -127,12 +129,17 @@ def test_phase_held_linear_fit_keeps_all_but_the_zone_mean(runs):
 
 
 def test_measured_absorbers_are_the_named_switches(runs):
-    """The phase spline (linear_phase_knot_s) removes an along-track pulse; the cubic
-    gain drift removes a pulse along B; their reference-free settings keep both."""
-    held, delivered, free = runs
+    """The phase splines (linear_phase_knot_s, phase_refit) remove an along-track pulse,
+    the delivered quadratic phase keeps part of it; the cubic gain drift removes a pulse
+    along B, the reference-free drift (gain_drift_2x) keeps what the linear fit left."""
+    held, delivered, free, splines = runs
     last = delivered["product"].iloc[-1]
-    assert _row(delivered, "gauss_along", "linear")["energy_kept"] < 0.1
-    assert _row(free, "gauss_along", "linear")["energy_kept"] > 0.3
+    assert last == "+ fast drift"
+    # measured on zone 1: 0.002 with the splines, 0.42 delivered
+    assert _row(splines, "gauss_along", "linear")["energy_kept"] < 0.1
+    assert _row(splines, "gauss_along", "+ phase refit")["energy_kept"] < 0.1
+    assert _row(delivered, "gauss_along", "linear")["energy_kept"] > 0.3
+    assert _row(delivered, "gauss_along", last)["energy_kept"] > 0.3
     lin_b = _row(delivered, "pulse_b", "harmonic")["energy_kept"]
     assert _row(delivered, "pulse_b", "harmonic + gain drift")["energy_kept"] < 0.5 * lin_b
     assert _row(free, "pulse_b", "harmonic + gain drift")["energy_kept"] == pytest.approx(

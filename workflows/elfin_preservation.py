@@ -14,12 +14,17 @@ Three runs of the table, so that each step's share can be read:
 * ``held``: the spin phase held at its clean solution, no phase refit (the machinery
   check: only the per-zone linear fit can absorb, and it takes the zone mean);
 * ``delivered``: :class:`~magcal.missions.elfin.pipeline.ElfinSettings` defaults;
-* ``--settings KEY=VALUE ...``: any other settings (e.g. ``linear_phase_knot_s=0``).
+* ``--settings KEY=VALUE ...``: any other settings (e.g. ``linear_phase_knot_s=30
+  phase_refit=true``, the phase splines of before);
+* ``--mask-signal 0.05``: the delivered settings with the samples where the signal
+  exceeds 5 % of its peak left out of every fit (``fit_exclude``): what the pipeline
+  keeps when the disturbed interval is known from elsewhere.
 
 Usage::
 
     python workflows/elfin_preservation.py [--zones 1,4,7,10] [--signals gauss_ew,...]
-                                           [--no-held] [--settings linear_phase_knot_s=0]
+                                           [--no-held] [--settings KEY=VALUE ...]
+                                           [--mask-signal FRACTION]
 
 About 10 s per signal and run for the whole day (12 zones) on an idle core; the
 default zones (4) take about a third of that. Reads ``../shared/real-data/elfin/``.
@@ -81,6 +86,10 @@ def main(argv=None) -> int:
     ap.add_argument("--no-held", action="store_true", help="skip the held-phase run")
     ap.add_argument("--settings", nargs="*", default=None, metavar="KEY=VALUE",
                     help="also a run with these ElfinSettings")
+    ap.add_argument("--mask-signal", type=float, default=0.0, metavar="FRACTION",
+                    help="also a run with the samples where the signal exceeds this "
+                         "fraction of its peak left out of every fit (what a fit on "
+                         "intervals known to be quiet would keep), e.g. 0.05")
     args = ap.parse_args(argv)
     if not (args.data / FGS_FILE).is_file():
         print(f"real data not found: {args.data / FGS_FILE}", file=sys.stderr)
@@ -88,15 +97,20 @@ def main(argv=None) -> int:
     fgs, state = read_elfin_fgs(args.data / FGS_FILE), read_elfin_state(args.data / STATE_FILE)
     zones = None if args.zones == "all" else [int(z) for z in args.zones.split(",")]
     kinds = args.signals.split(",")
-    runs = [] if args.no_held else [("held phase (machinery check)", None, True)]
-    runs.append(("delivered", None, False))
+    runs = [] if args.no_held else [("held phase (machinery check)", None, True, 0.0)]
+    runs.append(("delivered", None, False, 0.0))
     if args.settings:
-        runs.append((f"settings {' '.join(args.settings)}", _settings(args.settings), False))
+        runs.append((f"settings {' '.join(args.settings)}", _settings(args.settings), False,
+                     0.0))
+    if args.mask_signal > 0:
+        runs.append((f"delivered, fitted without the samples above {args.mask_signal:g} of "
+                     "the signal's peak", None, False, args.mask_signal))
     print(f"ELFIN-A 2022-01-12, zones {args.zones}, signals {', '.join(kinds)}\n{CREDIT}")
-    for label, settings, hold in runs:
+    for label, settings, hold, mask in runs:
         t0 = time.perf_counter()
         tab, clean = run_injections(fgs, state, settings, kinds=kinds, zones=zones,
-                                    hold=hold, progress=lambda line: print("  " + line))
+                                    hold=hold, mask_signal=mask,
+                                    progress=lambda line: print("  " + line))
         _print(f"{label} ({time.perf_counter() - t0:.0f} s)", tab, clean)
     return 0
 

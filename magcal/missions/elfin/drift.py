@@ -53,8 +53,48 @@ def unit_time(t, use) -> np.ndarray:
     return 2.0 * (t - t0) / max(t1 - t0, 1e-12) - 1.0
 
 
+def tukey_weights(t_s, resid, use, c: float, smooth_s: float = 3.0) -> np.ndarray:
+    """Tukey biweights of a residual smoothed over ``smooth_s`` seconds (about a spin).
+
+    ``w = (1 - (r / (c sigma))^2)^2`` for ``|r| < c sigma``, else 0, with ``r`` the
+    residual's running mean over ``smooth_s`` (so that the spin harmonics left in it do
+    not count as outliers) and ``sigma`` 1.4826 times its median absolute deviation on
+    ``use``. A localised natural field (tens of seconds of tens of nT on a few-nT floor)
+    is weighted out instead of fitted.
+
+    Examples
+    --------
+    >>> t = np.arange(0.0, 300.0, 0.1)
+    >>> r = np.random.default_rng(0).normal(0, 3, t.size)
+    >>> r[(t > 140) & (t < 160)] += 100.0
+    >>> w = tukey_weights(t, r, t >= 0, 4.685)
+    >>> float(w[(t > 142) & (t < 158)].max()), bool(np.median(w[t < 100]) > 0.9)
+    (0.0, True)
+    """
+    from scipy.ndimage import uniform_filter1d
+
+    t = np.asarray(t_s, dtype=float)
+    use = np.asarray(use, bool)
+    dt = float(np.median(np.diff(t[use]))) if use.sum() > 1 else 1.0
+    width = max(1, int(round(smooth_s / max(dt, 1e-9))))
+    r = uniform_filter1d(np.asarray(resid, dtype=float), width, mode="nearest")
+    sigma = 1.4826 * float(np.median(np.abs(r[use] - np.median(r[use]))))
+    u = r / max(c * sigma, 1e-12)
+    return np.where(np.abs(u) < 1.0, (1.0 - u ** 2) ** 2, 0.0)
+
+
+def _shape_residual(b, r0, a, use) -> np.ndarray:
+    """Scalar residual left by the two-number drift ``g_0 + sign * shape`` (first order;
+    ``g_0`` the median, so that a natural field does not move it)."""
+    h = (b[:, 0] ** 2 + b[:, 1] ** 2) / np.linalg.norm(b, axis=1)
+    sign = 1.0 if float(a[use] @ r0[use]) >= 0 else -1.0
+    e = r0 - sign * a
+    return e - float(np.median(e[use] / h[use])) * h     # robust g_0: a pulse does not move it
+
+
 def fit_gain_drift(t_s, b_body, ref_magnitude_nT, *, degree: int = 3, fit_mask=None,
-                   n_iter: int = 2, shape=None) -> tuple[np.ndarray, dict]:
+                   n_iter: int = 2, shape=None, robust_c: float = 0.0,
+                   robust_iter: int = 5) -> tuple[np.ndarray, dict]:
     """Remove a slowly drifting isotropic spin-plane gain from body-frame vectors.
 
     Model: the measured spin-plane components are ``(1 + g(T))`` times the true ones,
@@ -83,6 +123,16 @@ def fit_gain_drift(t_s, b_body, ref_magnitude_nT, *, degree: int = 3, fit_mask=N
         isotropic and 2x halves, so the drift of ``|B|`` is ``+-shape``; only the sign
         and ``g_0`` are fitted), so that a natural field along B, which changes ``|B|``
         but makes no 2x-spin harmonic, is not fitted away as a gain drift.
+    robust_c : float
+        If positive, the polynomial drift is fitted by iteratively reweighted least
+        squares with Tukey biweights of this many robust sigmas
+        (:func:`tukey_weights`, ``robust_iter`` passes): a localised natural field
+        along B (a pulse of a minute or two on the few-nT floor the drift leaves) is
+        weighted out instead of taken as a gain change. A drift as slow as the pass
+        is still fitted (it is what the robust scale measures against). With
+        ``shape`` too, the first weights come from the residual the reference-free
+        shape leaves (which a natural field along B stands out of, as the shape does
+        not follow it) and the drift is the weighted cubic.
 
     Returns
     -------
@@ -109,6 +159,10 @@ def fit_gain_drift(t_s, b_body, ref_magnitude_nT, *, degree: int = 3, fit_mask=N
     use = np.ones(t.size, bool) if fit_mask is None else np.asarray(fit_mask, bool)
     T = unit_time(t, use)
     r0 = np.linalg.norm(b, axis=1) - ref
+    start = None
+    if robust_c > 0 and shape is not None:
+        # the reference-free shape is the robust fit's start, not its model
+        start, shape = _shape_residual(b, r0, np.asarray(shape, dtype=float), use), None
     if shape is None:
         powers = np.column_stack([T ** d for d in range(degree + 1)])
     else:
@@ -121,11 +175,24 @@ def fit_gain_drift(t_s, b_body, ref_magnitude_nT, *, degree: int = 3, fit_mask=N
         degree = 0
     total = np.ones(t.size)
     coef = np.zeros(powers.shape[1])
+    weight = np.ones(t.size)
+    if robust_c > 0 and shape is None:
+        mag = np.linalg.norm(b, axis=1)
+        design = powers * ((b[:, 0] ** 2 + b[:, 1] ** 2) / mag)[:, None]
+        first = np.ones(t.size) if start is None else tukey_weights(t, start, use, robust_c)
+        weight = first
+        for _ in range(max(1, robust_iter)):
+            sw = np.sqrt(weight[use])[:, None]
+            w = np.linalg.lstsq(design[use] * sw, (mag - ref)[use] * sw[:, 0], rcond=None)[0]
+            # what the start weighted out stays out: the cubic cannot take it back
+            weight = np.minimum(first, tukey_weights(t, mag - ref - design @ w, use, robust_c))
+    sw = np.sqrt(weight[use])
     for _ in range(max(1, n_iter)):
         mag = np.linalg.norm(b, axis=1)
         design = powers * ((b[:, 0] ** 2 + b[:, 1] ** 2) / mag)[:, None]
         if shape is None:
-            w = np.linalg.lstsq(design[use], (mag - ref)[use], rcond=None)[0]
+            w = np.linalg.lstsq(design[use] * sw[:, None], (mag - ref)[use] * sw,
+                                rcond=None)[0]
             g = powers @ w
         else:
             fixed = powers[:, 1] if not coef.any() else 0.0 * powers[:, 1]
@@ -141,6 +208,7 @@ def fit_gain_drift(t_s, b_body, ref_magnitude_nT, *, degree: int = 3, fit_mask=N
     info = {"gain_coefficients": coef.tolist(),
             "gain_drift_pp": float(np.ptp(gain[use])),
             "gain_mid": float(np.interp(0.0, T[use], gain[use])),
+            "weighted_out_fraction": float(np.mean(weight[use] < 0.5)),
             "scalar_rms_before_nT": rms(r0[use]), "scalar_rms_after_nT": rms(r1[use]),
             "scalar_fast_before_nT": rms(fast_part(t[use], r0[use])),
             "scalar_fast_after_nT": rms(fast_part(t[use], r1[use])),
@@ -325,7 +393,7 @@ def map_zones(cal, step, note: str, params: dict):
     return replace(cal, field=f, parameters=out), pd.DataFrame(rows)
 
 
-def correct_gain_drift(cal, *, shape_from=None, **kw):
+def correct_gain_drift(cal, *, shape_from=None, robust_start_from=None, **kw):
     """Apply :func:`fit_gain_drift` zone by zone to an ElfinCalibration.
 
     Parameters
@@ -335,6 +403,9 @@ def correct_gain_drift(cal, *, shape_from=None, **kw):
     shape_from : ElfinCalibration, optional
         The *linear* calibration of the same rows: the drift then follows each zone's
         2x-spin harmonic (:func:`harmonic_shape`) instead of a cubic in time.
+    robust_start_from : ElfinCalibration, optional
+        The linear calibration whose 2x-spin shape starts a robust cubic fit
+        (``robust_c`` in ``kw``; see :func:`fit_gain_drift`).
     **kw
         Passed to :func:`fit_gain_drift`.
 
@@ -351,8 +422,9 @@ def correct_gain_drift(cal, *, shape_from=None, **kw):
     def step(t, z, used):
         _, body, ref_mag, phase, desp, ref = _zone_body(z)
         shape = None
-        if shape_from is not None:
-            lin = shape_from.field.loc[shape_from.field["zone"] == z["zone"].iloc[0]]
+        if shape_from is not None or robust_start_from is not None:
+            shape_from_ = shape_from if shape_from is not None else robust_start_from
+            lin = shape_from_.field.loc[shape_from_.field["zone"] == z["zone"].iloc[0]]
             _, lbody, lref, *_ = _zone_body(lin)
             shape = harmonic_shape(t, lbody, lref, fit_mask=used)
         fixed, info = fit_gain_drift(t, body, ref_mag, fit_mask=used, shape=shape, **kw)

@@ -149,7 +149,7 @@ def _powers(T, degree: int, first: int = 0) -> np.ndarray:
 
 
 def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, n_iter,
-             fit_attitude=False, hold=False):
+             fit_attitude=False, hold=False, phase_degree=2):
     """Alternate calibration (linear) and phase steps; return weights, body field, phase.
 
     Spin-plane rows: ``[counts, 1, T, .., T^offset_degree]``. Spin-axis row:
@@ -158,7 +158,8 @@ def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, 
     spin-axis offset does not drift in the model: with the small range of the
     spin-axis field in one pass a drifting ``o3`` would trade off against the
     spin-axis gain. The phase correction is a cubic spline (``knots``) or, without
-    knots, a quadratic. ``hold``: the phase stays ``base`` (no phase step).
+    knots, such that the whole phase is a polynomial of ``phase_degree`` (2: the
+    base's quadratic plus a quadratic). ``hold``: the phase stays ``base`` (no phase step).
     """
     from scipy.interpolate import make_lsq_spline
 
@@ -189,7 +190,9 @@ def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, 
             spl = make_lsq_spline(t[used], dphi[used], knot_vector, k=3)
             corr = corr + spl(np.clip(t, t[used][0], t[used][-1]))
         else:
-            corr = corr + np.polyval(np.polyfit(tu, dphi[used], 2), t - t[used][0])
+            # the whole phase (base + correction) a polynomial of phase_degree
+            total = base + corr + dphi
+            corr = np.polyval(np.polyfit(tu, total[used], phase_degree), t - t[used][0]) - base
     phase = base + corr
     w, b_body, _ = calibrate(phase)
     eps = w[2][-2:]
@@ -213,7 +216,7 @@ def _phase_jumps(t, resid_angle, used, period_s, min_gap_s=1.0) -> list:
 def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: int = 2,
              axis_degree: int = 2, phase_knot_s: float | None = 30.0, n_iter: int = 8,
              fit_attitude: bool = False, times_iso=("", ""), timestamp_anomalies=(),
-             exclude=None, phase=None, fit_exclude=None) -> _ZoneFit:
+             exclude=None, phase=None, fit_exclude=None, phase_degree: int = 2) -> _ZoneFit:
     """Calibrate one zone of raw counts against a reference field in the despun frame.
 
     Parameters
@@ -231,7 +234,11 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
         Polynomial degrees of the offset drift and of the spin-axis row (0, 0: plain
         12-parameter model).
     phase_knot_s : float or None
-        Knot spacing of the spline phase correction; None for the quadratic phase only.
+        Knot spacing of the spline phase correction; None for a polynomial phase only.
+    phase_degree : int
+        Without knots, the degree of the whole spin phase in time (2: a spin rate that
+        changes linearly; 1: a constant spin rate, so that a spin-plane natural field
+        cannot turn the phase within the pass).
     n_iter : int
         Alternations of the calibration and phase steps.
     fit_attitude : bool
@@ -283,7 +290,7 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
             base = np.polyval(coef, t - t[0])
         out = _iterate(t, x, T, ref, base, used, offset_degree=offset_degree,
                        axis_degree=axis_degree, knots=knots, n_iter=n_iter,
-                       fit_attitude=fit_attitude, hold=held)
+                       fit_attitude=fit_attitude, hold=held, phase_degree=phase_degree)
         fitted = out[4]
         rms = float(np.sqrt(np.mean((fitted - ref)[used] ** 2)))
         tried.append(rms)

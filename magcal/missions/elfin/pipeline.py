@@ -38,8 +38,9 @@ CALIBRATED_COLUMNS = ("zone", "used", "bx_gei", "by_gei", "bz_gei", "bx_despun",
 SCORED = ("scalar_rms_nT", "scalar_fast_nT", "scalar_slow_nT", "vector_rms_nT")
 #: Settings that buy a smaller residual against the model with natural signal lost
 #: (each is a time-varying fit against IGRF; see :mod:`magcal.missions.elfin.injection`).
-SIGNAL_TRADE = ("linear_phase_knot_s", "gain_drift", "gain_drift_2x", "vector_step", "vector_knot_s",
-                "fast_drift", "fast_knot_s", "phase_refit", "refit_knot_s")
+SIGNAL_TRADE = ("linear_phase_knot_s", "linear_phase_degree", "linear_axis_degree",
+                "gain_drift", "gain_drift_2x", "gain_drift_robust_c", "vector_step",
+                "vector_knot_s", "fast_drift", "fast_knot_s", "phase_refit", "refit_knot_s")
 #: Relative (and absolute, nT) growth of a zone median below which it is rounding.
 ROUNDING = 1e-9
 
@@ -76,13 +77,32 @@ class ElfinSettings:
         minute). Harmonics of ``|B|`` are instrumental: a natural field changes ``|B|``
         at the spin frequency only to second order.
     phase_refit : bool
-        Last, the spin phase refitted on the calibrated field (60 s knots, no finer than
-        the first phase fit, which was made on the linear calibration).
+        Last, the spin phase refitted on the calibrated field (``refit_knot_s`` knots).
+        Off by default: it makes no difference to ``|B|`` and turns an along-track
+        natural field into a phase error (with it the vector residual is 18 instead of
+        40 nT, zone median, and an along-track 200 nT 40 s pulse is lost).
     linear_phase_knot_s : float
         Knot spacing (s) of the spin-phase spline fitted with the linear calibration
         against IGRF (0: a quadratic phase only). Signal trade: a spline phase fitted
         against a model turns an along-track (spin-plane) natural field into a phase error
-        and removes it (measured: ``workflows/elfin_preservation.py``).
+        and removes it (measured: ``workflows/elfin_preservation.py``). Default 0: the
+        scalar residual does not depend on the phase (7.1 nT with 0, 7.4 nT with 30 s
+        knots and the refit), the vector residual does (40 against 18 nT).
+    linear_phase_degree : int
+        With ``linear_phase_knot_s = 0``: the degree of the spin phase in time over the
+        zone (2: the spin rate may change linearly; 1: a constant spin rate). Signal
+        trade: every degree of freedom of the phase fitted against the model turns
+        part of an along-track field into a phase error.
+    linear_axis_degree : int
+        Degree of the slow spin-axis tilt in the linear fit's spin-axis row (the
+        calibrated spin-plane components times ``T^1..T^d``; 0: no tilt). Signal trade:
+        with 45000 nT in the spin plane a tilt of 0.4 deg over the pass is 300 nT along
+        the spin axis, so the tilt terms fit an east-west field (a current sheet) away.
+    gain_drift_robust_c : float
+        Tukey biweight (in robust sigmas) of the gain drift's fit
+        (:func:`~magcal.missions.elfin.drift.fit_gain_drift`, ``robust_c``); 0: plain
+        least squares. Signal trade: the plain cubic takes a natural field along B that
+        lasts a minute or two as a gain drift.
     fast_knot_s : float
         Knot spacing (s) of the fast drift's B-splines.
     refit_knot_s : float
@@ -101,8 +121,11 @@ class ElfinSettings:
     tilt_bound_deg: float = 0.2
     vector_knot_s: float = 30.0
     fast_drift: bool = True
-    phase_refit: bool = True
-    linear_phase_knot_s: float = 30.0
+    phase_refit: bool = False
+    linear_phase_knot_s: float = 0.0
+    linear_phase_degree: int = 2
+    linear_axis_degree: int = 2
+    gain_drift_robust_c: float = 0.0
     fast_knot_s: float = 30.0
     refit_knot_s: float = 60.0
     joint: bool = False
@@ -124,7 +147,7 @@ class ElfinSettings:
         >>> ElfinSettings.from_mapping({"tilt": 1})
         Traceback (most recent call last):
         ...
-        magcal.errors.InputError: settings: unknown key 'tilt' (known: harmonic, gain_drift, gain_drift_2x, vector_step, tilt_bound_deg, vector_knot_s, fast_drift, phase_refit, linear_phase_knot_s, fast_knot_s, refit_knot_s, joint, scan)
+        magcal.errors.InputError: settings: unknown key 'tilt' (known: harmonic, gain_drift, gain_drift_2x, vector_step, tilt_bound_deg, vector_knot_s, fast_drift, phase_refit, linear_phase_knot_s, linear_phase_degree, linear_axis_degree, gain_drift_robust_c, fast_knot_s, refit_knot_s, joint, scan)
         """
         known = {f.name: f for f in fields(cls)}
         out = {}
@@ -134,16 +157,23 @@ class ElfinSettings:
             default = known[key].default
             if isinstance(default, bool):
                 ok = isinstance(value, bool)
+            elif isinstance(default, int):
+                ok = float(value) == int(value) if isinstance(value, (int, float)) \
+                    and not isinstance(value, bool) else False
+                value = int(value) if ok else value
             else:
                 ok = isinstance(value, (int, float)) and not isinstance(value, bool)
             if not ok:
-                kind = "true or false" if isinstance(default, bool) else "a number"
+                kind = ("true or false" if isinstance(default, bool) else
+                        "a whole number" if isinstance(default, int) else "a number")
                 raise InputError(f"{where}: {key} must be {kind}, got {value!r}")
             out[key] = float(value) if isinstance(default, float) else value
         settings = cls(**out)
         if settings.tilt_bound_deg < 0:
             raise InputError(f"{where}: tilt_bound_deg must not be negative")
-        for key in ("vector_knot_s", "linear_phase_knot_s"):
+        for key in ("vector_knot_s", "linear_phase_knot_s", "linear_axis_degree",
+                    "linear_phase_degree",
+                    "gain_drift_robust_c"):
             if getattr(settings, key) < 0:
                 raise InputError(f"{where}: {key} must not be negative")
         for key in ("fast_knot_s", "refit_knot_s"):
@@ -370,7 +400,9 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
     s = settings or ElfinSettings()
     knot = s.linear_phase_knot_s or None
     linear = calibrate_elfin(fgs, state, provenance=provenance, hold_phase=hold_phase,
-                             fit_exclude=fit_exclude, phase_knot_s=knot)
+                             fit_exclude=fit_exclude, phase_knot_s=knot,
+                             axis_degree=s.linear_axis_degree,
+                             phase_degree=s.linear_phase_degree)
     ripple = ripple_crosscheck(linear, fgs) if diagnostics else pd.DataFrame()
     products, steps = {"linear": linear}, {}
     cal = linear
@@ -383,7 +415,9 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
             from magcal.missions.elfin.drift import correct_gain_drift, drift_agreement_table
 
             cal, steps["gain_drift"] = correct_gain_drift(
-                cal, shape_from=linear if s.gain_drift_2x else None)
+                cal, shape_from=linear if s.gain_drift_2x else None,
+                robust_start_from=linear if s.gain_drift_robust_c > 0 else None,
+                robust_c=s.gain_drift_robust_c)
             steps["drift_agreement"] = drift_agreement_table(linear)
             products["harmonic + gain drift"] = cal
             if s.vector_step:
