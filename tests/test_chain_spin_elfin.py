@@ -116,7 +116,7 @@ def test_chain_writes_what_the_library_computes(chain, library, tmp_path):
     # the CSV holds six decimals
     assert_allclose(table.to_numpy(), expected.to_numpy(), rtol=0, atol=5.01e-7)
     summary = json.loads((out / "spin" / "SPIN.json").read_text())
-    assert summary["delivered"] == library.delivered == "+ fast drift"
+    assert summary["delivered"] == library.delivered == "+ phase refit"
     for name, med in library.medians().items():
         assert summary["zone_medians_nT"][name] == pytest.approx(med, rel=1e-12)
 
@@ -217,10 +217,8 @@ def test_worse_steps_name_every_median_that_grows():
 
 def test_settings_steps_and_checks():
     assert ElfinSettings().steps() == ("linear", "harmonic", "harmonic + gain drift",
-                                       "+ vector step", "+ fast drift")
-    assert ElfinSettings(phase_refit=True).steps()[-1] == "+ phase refit"
-    assert ElfinSettings(fast_drift=False, phase_refit=True).steps()[-2:] == (
-        "+ vector step", "+ phase refit")
+                                       "+ vector step", "+ fast drift", "+ phase refit")
+    assert ElfinSettings(fast_drift=False).steps()[-2:] == ("+ vector step", "+ phase refit")
     assert ElfinSettings(vector_step=False).steps()[-1] == "harmonic + gain drift"
     assert ElfinSettings(gain_drift=False).steps() == ("linear", "harmonic")
     assert ElfinSettings(harmonic=False).steps() == ("linear",)

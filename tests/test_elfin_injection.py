@@ -134,12 +134,14 @@ def test_measured_absorbers_are_the_named_switches(runs):
     along B, the reference-free drift (gain_drift_2x) keeps what the linear fit left."""
     held, delivered, free, splines = runs
     last = delivered["product"].iloc[-1]
-    assert last == "+ fast drift"
-    # measured on zone 1: 0.002 with the splines, 0.42 delivered
+    assert last == "+ phase refit"
+    # measured on zone 1: 0.002 with the splines; delivered 0.42 after the linear step
+    # (its quadratic phase takes the pulse's projection on 1, t, t^2), 0.25 after the
+    # cubic refit
     assert _row(splines, "gauss_along", "linear")["energy_kept"] < 0.1
     assert _row(splines, "gauss_along", "+ phase refit")["energy_kept"] < 0.1
     assert _row(delivered, "gauss_along", "linear")["energy_kept"] > 0.3
-    assert _row(delivered, "gauss_along", last)["energy_kept"] > 0.3
+    assert _row(delivered, "gauss_along", last)["energy_kept"] > 0.15
     lin_b = _row(delivered, "pulse_b", "harmonic")["energy_kept"]
     assert _row(delivered, "pulse_b", "harmonic + gain drift")["energy_kept"] < 0.5 * lin_b
     assert _row(free, "pulse_b", "harmonic + gain drift")["energy_kept"] == pytest.approx(
