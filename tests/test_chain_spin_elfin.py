@@ -158,6 +158,13 @@ def _config(tmp_path, spin: str, fgs: str = "fgs.cdf") -> str:
     ('reference = "igrf"\n', "fgs.cdf", 'applies only to units = "counts"'),
     ('units = "counts"\nreference = "igrf"\nstate = "state.cdf"\n[spin.pipeline]\ntilt = 1\n',
      "fgs.cdf", "[spin] pipeline: unknown key 'tilt'"),
+    ('units = "counts"\nreference = "igrf"\nstate = "state.cdf"\n'
+     'disturbed = [["2022-01-12T05:12:00", "2022-01-12T05:10:00"]]\n', "fgs.cdf",
+     "[spin] disturbed: ['2022-01-12T05:12:00', '2022-01-12T05:10:00'] is not [start, end]"),
+    ('units = "counts"\nreference = "igrf"\nstate = "state.cdf"\ndisturbed = [["noon"]]\n',
+     "fgs.cdf", "[spin] disturbed: ['noon'] is not [start, end]"),
+    ('disturbed = [["2022-01-12T05:10:00", "2022-01-12T05:12:00"]]\n', "fgs.cdf",
+     'disturbed applies only to units = "counts"'),
     ('units = "counts"\nreference = "igrf"\nstate = "state.cdf"\n', "data.csv", "data.csv"),
     ('units = "counts"\nreference = "igrf"\nstate = "state.cdf"\n', "fgs.cdf", "fgs.cdf"),
 ])

@@ -8,6 +8,8 @@ A configuration such as::
     units = "counts"
     reference = "igrf"
     state = "ela_l1_state_defn_20220112_v01.cdf"
+    disturbed = [["2022-01-12T05:10:00", "2022-01-12T05:12:00"]]  # optional, UTC: left
+                             # out of every fit (a natural field known from elsewhere)
     [spin.pipeline]          # optional: magcal.missions.elfin.pipeline.ElfinSettings
     vector_step = true
 
@@ -57,7 +59,7 @@ def elfin_inputs(cfg: ChainConfig, files) -> tuple:
     if not state.is_file():
         raise InputError("[spin] state: ELFIN state file not found", file=state)
     settings = ElfinSettings.from_mapping(cfg["spin"]["pipeline"], where="[spin] pipeline")
-    return files[0], state, settings
+    return files[0], state, settings, [tuple(i) for i in cfg["spin"]["disturbed"]]
 
 
 def _read(fgs_path, state_path):
@@ -79,14 +81,16 @@ def _read(fgs_path, state_path):
                                           "read", {}, inputs=[fgs_path, state_path]))
 
 
-def _calibrate(data, settings, inputs):
-    from magcal.missions.elfin.pipeline import calibrate_elfin_day
+def _calibrate(data, settings, inputs, disturbed=()):
+    from magcal.missions.elfin.pipeline import calibrate_elfin_day, disturbed_rows
 
     fgs, state = data
     prov = make_provenance("elfin calibration against IGRF",
-                           {"model": "IGRF (IRBEM)", "settings": asdict(settings)},
+                           {"model": "IGRF (IRBEM)", "settings": asdict(settings),
+                            "disturbed": [list(i) for i in disturbed]},
                            inputs=inputs)
-    day = calibrate_elfin_day(fgs, state, settings, provenance=prov)
+    skip = disturbed_rows(fgs.index, disturbed) if disturbed else None
+    day = calibrate_elfin_day(fgs, state, settings, provenance=prov, fit_exclude=skip)
     medians = day.medians()
     n = len(day.calibration.zones)
     worse = day.worse_measures()
@@ -96,6 +100,9 @@ def _calibrate(data, settings, inputs):
         flag = ", ".join(label for col, label in _LABELS if col in worse.get(name, ()))
         lines.append(f"{name:22s} " + " ".join(f"{m[col]:10.1f}" for col, _ in _LABELS)
                      + (f"   WORSE than the step before: {flag}" if flag else ""))
+    if disturbed:
+        lines.append(f"{int(skip.sum())} samples in {len(disturbed)} disturbed interval(s) "
+                     "left out of every fit and calibrated")
     lines.append(f"delivered: {day.delivered}")
     summary = {"n_zones": n, "delivered": day.delivered, "zone_medians_nT": medians,
                "settings": asdict(settings)}
@@ -127,9 +134,10 @@ def elfin_stages(run, cfg: ChainConfig, files, extras: dict) -> None:
 
     The state file joins the run's inputs (its SHA-256 is recorded with every product).
     """
-    fgs_path, state_path, settings = elfin_inputs(cfg, files)
+    fgs_path, state_path, settings, disturbed = elfin_inputs(cfg, files)
     run.inputs.append({"path": str(state_path), "sha256": file_sha256(state_path)})
     data = run.stage("read", _read, fgs_path, state_path)
-    day = run.stage("calibrate", _calibrate, data, settings, [fgs_path, state_path])
+    day = run.stage("calibrate", _calibrate, data, settings, [fgs_path, state_path],
+                    disturbed)
     extras["calibrated"] = run.stage("calibrated", _calibrated, day, data[0].attrs["probe"])
     extras["elfin"] = day

@@ -315,6 +315,12 @@ class ElfinDay:
             "zones": self.ripple.to_dict(orient="records")}
         if self.joint is not None:
             payload["joint_fit"] = self.joint
+        f = self.calibration.field
+        if "fit" in f.columns:
+            payload["fit_excluded"] = {
+                "note": "samples calibrated but left out of every fit (calibrate_elfin_day "
+                        "fit_exclude; [spin] disturbed): a natural field there is kept",
+                "n_samples": int(((f["used"] == 1) & (f["fit"] == 0)).sum())}
         if "spin_harmonic_correction" in self.steps:
             payload["spin_harmonic_correction"] = self.steps[
                 "spin_harmonic_correction"].to_dict(orient="records")
@@ -365,6 +371,30 @@ class ElfinDay:
         payload["timing_scan"] = {"shifts_s": list(SHIFTS_S), "note": "IGRF evaluated at t + "
                                   "shift; the per-zone RMS for each shift", "by_shift": self.scan}
         return payload
+
+
+def disturbed_rows(index, intervals) -> np.ndarray:
+    """Rows of a UTC time index inside any ``(start, end)`` interval (inclusive).
+
+    For ``fit_exclude`` of :func:`calibrate_elfin_day`: intervals with a natural field
+    known from elsewhere (particle precipitation, ground stations, a first look) are
+    left out of every fit, so that no step fitted against the model absorbs it.
+
+    Examples
+    --------
+    >>> idx = pd.date_range("2022-01-12T05:00:00", periods=5, freq="1min", tz="UTC")
+    >>> disturbed_rows(idx, [("2022-01-12T05:01:00", "2022-01-12T05:02:30")]).tolist()
+    [False, True, True, False, False]
+    """
+    times = pd.DatetimeIndex(index)
+    out = np.zeros(len(times), bool)
+    for start, end in intervals:
+        lo, hi = pd.Timestamp(start), pd.Timestamp(end)
+        if times.tz is not None:
+            lo = lo.tz_localize("UTC") if lo.tz is None else lo
+            hi = hi.tz_localize("UTC") if hi.tz is None else hi
+        out |= (times >= lo) & (times <= hi)
+    return out
 
 
 def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
