@@ -165,7 +165,7 @@ def test_a_disturbed_interval_left_out_of_the_fits_comes_back_whole(day):
     last = tab["product"].iloc[-1]
     for kind in ("gauss_along", "pulse_b"):
         r = _row(tab, kind, last)
-        # measured on zone 1: 0.98 and 0.91 of the energy, distortion 0.01 and 0.03
+        # measured on zone 1: 0.97 and 0.91 of the energy, distortion 0.02 and 0.03
         assert r["energy_kept"] >= 0.90, kind
         assert r["distortion"] <= 0.10, kind
 
