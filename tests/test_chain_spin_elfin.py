@@ -13,7 +13,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
-from dataclasses import replace
+from dataclasses import asdict, replace
 
 import numpy as np
 import pandas as pd
@@ -23,7 +23,7 @@ from numpy.testing import assert_allclose
 from conftest import REPO_ROOT, real_data_path
 from magcal.cli import main
 from magcal.errors import InputError
-from magcal.missions.elfin.pipeline import ElfinDay, ElfinSettings
+from magcal.missions.elfin.pipeline import SIGNAL_TRADE, ElfinDay, ElfinSettings
 
 CONFIG = REPO_ROOT / "data_samples" / "chain" / "ELFIN.toml"
 FGS = "ela_l1_fgs_20220112_v01.cdf"
@@ -238,6 +238,19 @@ def test_settings_steps_and_checks():
         ElfinSettings.from_mapping({"tilt_bound_deg": -0.1})
     with pytest.raises(InputError, match="vector_knot_s must not be negative"):
         ElfinSettings.from_mapping({"vector_knot_s": -30})
+    # whole-number settings take 1 or 1.0, not 1.5, True or a negative degree
+    assert ElfinSettings.from_mapping({"linear_axis_degree": 1.0}).linear_axis_degree == 1
+    assert isinstance(ElfinSettings.from_mapping({"linear_axis_degree": 1}).linear_axis_degree,
+                      int)
+    for bad in (1.5, True, "2"):
+        with pytest.raises(InputError, match="linear_axis_degree must be a whole number"):
+            ElfinSettings.from_mapping({"linear_axis_degree": bad})
+    with pytest.raises(InputError, match="linear_phase_degree must not be negative"):
+        ElfinSettings.from_mapping({"linear_phase_degree": -1})
+    with pytest.raises(InputError, match="gain_drift_robust_c must not be negative"):
+        ElfinSettings.from_mapping({"gain_drift_robust_c": -3.0})
+    # every switch that trades kept signal for residual is a setting (and so in the JSON)
+    assert set(SIGNAL_TRADE) <= set(asdict(ElfinSettings()))
 
 
 @pytest.mark.realdata
