@@ -15,7 +15,7 @@ Three runs of the table, so that each step's share can be read:
   check: only the per-zone linear fit can absorb, and it takes the zone mean);
 * ``delivered``: :class:`~magcal.missions.elfin.pipeline.ElfinSettings` defaults;
 * ``--settings KEY=VALUE ...``: any other settings (e.g. ``linear_phase_knot_s=30
-  phase_refit=true``, the phase splines of before);
+  refit_knot_s=60``, the phase splines of before);
 * ``--mask-signal 0.05``: the delivered settings with the samples where the signal
   exceeds 5 % of its peak left out of every fit (``fit_exclude``): what the pipeline
   keeps when the disturbed interval is known from elsewhere.
