@@ -8,7 +8,7 @@ A configuration such as::
     units = "counts"
     reference = "igrf"
     state = "ela_l1_state_defn_20220112_v01.cdf"
-    disturbed = [["2022-01-12T05:10:00", "2022-01-12T05:12:00"]]  # optional, UTC: left
+    disturbed = [["2022-01-12T06:30:00", "2022-01-12T06:31:30"]]  # optional, UTC: left
                              # out of every fit (a natural field known from elsewhere)
     [spin.pipeline]          # optional: magcal.missions.elfin.pipeline.ElfinSettings
     vector_step = true
@@ -100,6 +100,8 @@ def _calibrate(data, settings, inputs, disturbed=()):
         flag = ", ".join(label for col, label in _LABELS if col in worse.get(name, ()))
         lines.append(f"{name:22s} " + " ".join(f"{m[col]:10.1f}" for col, _ in _LABELS)
                      + (f"   WORSE than the step before: {flag}" if flag else ""))
+    empty = [f"[spin] disturbed interval {a} - {b} holds no FGS sample" for a, b in disturbed
+             if not disturbed_rows(fgs.index, [(a, b)]).any()]
     if disturbed:
         lines.append(f"{int(skip.sum())} samples in {len(disturbed)} disturbed interval(s) "
                      "left out of every fit and calibrated")
@@ -108,7 +110,7 @@ def _calibrate(data, settings, inputs, disturbed=()):
                "settings": asdict(settings)}
     return day, StageProduct(stage="spin", summary=summary, lines=tuple(lines),
                              documents={"ELFIN_CAL.json": day.to_json()},
-                             provenance=prov, warnings=tuple(day.worse_steps()))
+                             provenance=prov, warnings=tuple(empty + day.worse_steps()))
 
 
 def _calibrated(day, probe: str):
@@ -118,7 +120,9 @@ def _calibrated(day, probe: str):
     date = f"{table.index[0]:%Y-%m-%d}"
     title = f"ELFIN-{probe[-1:].upper()} {date}: calibrated minus IGRF"
     n_used = int(table["used"].sum())
-    line = (f"{len(table)} samples ({n_used} used in the fit) in "
+    f = day.calibration.field
+    n_fit = int((f["fit"] == 1).sum()) if "fit" in f.columns else n_used
+    line = (f"{len(table)} samples ({n_fit} used in the fit) in "
             f"{table['zone'].nunique()} zones: time,zone,used,bx_gei,by_gei,bz_gei (nT)")
     return table, StageProduct(
         stage="calibrated", summary={"n_samples": len(table), "n_used": n_used,
