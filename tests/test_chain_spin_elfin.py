@@ -3,7 +3,7 @@
 The run of ``data_samples/chain/ELFIN.toml`` on the real ELFIN-A day is checked against
 the issue's targets (zone medians of ``|B| - |IGRF|`` at most 30 nT, its fast part at
 most 10 nT, every zone calibrated) and against the library call on the same inputs
-(:func:`magcal.missions.elfin_pipeline.calibrate_elfin_day`): the chain must write what
+(:func:`magcal.missions.elfin.pipeline.calibrate_elfin_day`): the chain must write what
 the library computes. Configuration errors are one line and exit status 2; the
 "worse than the step before" bookkeeping is checked on constructed scores.
 """
@@ -13,7 +13,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
-from dataclasses import replace
+from dataclasses import asdict, replace
 
 import numpy as np
 import pandas as pd
@@ -23,7 +23,7 @@ from numpy.testing import assert_allclose
 from conftest import REPO_ROOT, real_data_path
 from magcal.cli import main
 from magcal.errors import InputError
-from magcal.missions.elfin_pipeline import ElfinDay, ElfinSettings
+from magcal.missions.elfin.pipeline import SIGNAL_TRADE, ElfinDay, ElfinSettings
 
 CONFIG = REPO_ROOT / "data_samples" / "chain" / "ELFIN.toml"
 FGS = "ela_l1_fgs_20220112_v01.cdf"
@@ -53,8 +53,8 @@ def chain(tmp_path_factory):
 @pytest.fixture(scope="module")
 def library(chain):
     """The library call on the same files with the same (default) settings."""
-    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
-    from magcal.missions.elfin_pipeline import calibrate_elfin_day
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.pipeline import calibrate_elfin_day
 
     fgs = read_elfin_fgs(real_data_path("elfin", FGS))
     state = read_elfin_state(real_data_path("elfin", STATE))
@@ -158,6 +158,13 @@ def _config(tmp_path, spin: str, fgs: str = "fgs.cdf") -> str:
     ('reference = "igrf"\n', "fgs.cdf", 'applies only to units = "counts"'),
     ('units = "counts"\nreference = "igrf"\nstate = "state.cdf"\n[spin.pipeline]\ntilt = 1\n',
      "fgs.cdf", "[spin] pipeline: unknown key 'tilt'"),
+    ('units = "counts"\nreference = "igrf"\nstate = "state.cdf"\n'
+     'disturbed = [["2022-01-12T05:12:00", "2022-01-12T05:10:00"]]\n', "fgs.cdf",
+     "[spin] disturbed: ['2022-01-12T05:12:00', '2022-01-12T05:10:00'] is not [start, end]"),
+    ('units = "counts"\nreference = "igrf"\nstate = "state.cdf"\ndisturbed = [["noon"]]\n',
+     "fgs.cdf", "[spin] disturbed: ['noon'] is not [start, end]"),
+    ('disturbed = [["2022-01-12T05:10:00", "2022-01-12T05:12:00"]]\n', "fgs.cdf",
+     'disturbed applies only to units = "counts"'),
     ('units = "counts"\nreference = "igrf"\nstate = "state.cdf"\n', "data.csv", "data.csv"),
     ('units = "counts"\nreference = "igrf"\nstate = "state.cdf"\n', "fgs.cdf", "fgs.cdf"),
 ])
@@ -231,6 +238,19 @@ def test_settings_steps_and_checks():
         ElfinSettings.from_mapping({"tilt_bound_deg": -0.1})
     with pytest.raises(InputError, match="vector_knot_s must not be negative"):
         ElfinSettings.from_mapping({"vector_knot_s": -30})
+    # whole-number settings take 1 or 1.0, not 1.5, True or a negative degree
+    assert ElfinSettings.from_mapping({"linear_axis_degree": 1.0}).linear_axis_degree == 1
+    assert isinstance(ElfinSettings.from_mapping({"linear_axis_degree": 1}).linear_axis_degree,
+                      int)
+    for bad in (1.5, True, "2"):
+        with pytest.raises(InputError, match="linear_axis_degree must be a whole number"):
+            ElfinSettings.from_mapping({"linear_axis_degree": bad})
+    with pytest.raises(InputError, match="linear_phase_degree must not be negative"):
+        ElfinSettings.from_mapping({"linear_phase_degree": -1})
+    with pytest.raises(InputError, match="gain_drift_robust_c must not be negative"):
+        ElfinSettings.from_mapping({"gain_drift_robust_c": -3.0})
+    # every switch that trades kept signal for residual is a setting (and so in the JSON)
+    assert set(SIGNAL_TRADE) <= set(asdict(ElfinSettings()))
 
 
 @pytest.mark.realdata

@@ -1,11 +1,11 @@
-"""Spin-harmonic vector correction (magcal.missions.elfin_correction): injected truth."""
+"""Spin-harmonic vector correction (magcal.missions.elfin.harmonic): injected truth."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from magcal.missions.elfin_correction import harmonic_vector_correction
-from magcal.missions.elfin_scalar import rms
+from magcal.missions.elfin.harmonic import harmonic_vector_correction
+from magcal.missions.elfin.scalar import rms
 from magcal.spin.despin import spin
 
 

@@ -1,7 +1,7 @@
 """Slow part of the ELFIN scalar residual: spin-plane gain drift and reference screening.
 
-Injected truth on a simulated spinner (magcal.missions.elfin_drift), a closed-form check
-of the reference screening (magcal.missions.elfin_reference), and the real ELFIN-A passes
+Injected truth on a simulated spinner (magcal.missions.elfin.drift), a closed-form check
+of the reference screening (magcal.missions.elfin.diagnostics.reference), and the real ELFIN-A passes
 of 2022-01-12 (ELFIN SOC, PI V. Angelopoulos, UCLA; Open Data for Scientific Use),
 skipped when ../shared/real-data is absent.
 """
@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from magcal.missions.elfin_drift import drift_shape_agreement, fit_gain_drift
-from magcal.missions.elfin_reference import screen_slow_part
-from magcal.missions.elfin_scalar import fast_part, rms
+from magcal.missions.elfin.drift import drift_shape_agreement, fit_gain_drift
+from magcal.missions.elfin.diagnostics.reference import screen_slow_part
+from magcal.missions.elfin.scalar import fast_part, rms
 from magcal.spin.despin import despin, spin
 
 SPIN_S = 2.85
@@ -44,6 +44,37 @@ def test_injected_isotropic_gain_drift_is_recovered():
     assert info["scalar_slow_before_nT"] > 50.0
     assert info["scalar_slow_after_nT"] < 0.5
     assert rms(fixed - truth) < 0.5
+
+
+def test_pulse_along_b_is_a_gain_drift_to_a_cubic_and_kept_by_the_robust_fit():
+    """What |B| alone cannot tell apart, in closed form: a 100 nT pulse along B of 90 s
+    FWHM in a 360 s pass projects mostly onto a cubic gain drift; a fit weighted by the
+    residual the reference-free (2x-spin) shape leaves keeps most of it."""
+    rng = np.random.default_rng(7)
+    t, T, truth = _pass()
+    mag = np.linalg.norm(truth, axis=1)
+    pulse = 100.0 * np.exp(-4 * np.log(2) * (t - t.mean()) ** 2 / 90.0 ** 2)
+    g = 1e-3 * (0.5 * T + T ** 3)
+    measured = truth * (1 + pulse / mag)[:, None] * np.c_[1 + g, 1 + g, np.ones_like(t)]
+    measured += rng.normal(scale=3.0, size=measured.shape)
+    h = (measured[:, 0] ** 2 + measured[:, 1] ** 2) / np.linalg.norm(measured, axis=1)
+    shape = g * h - np.mean(g * h)                 # the drift's own shape in |B| (nT)
+
+    def kept(**kw):
+        fixed, info = fit_gain_drift(t, measured, mag, **kw)
+        rec = np.linalg.norm(fixed, axis=1) - mag
+        return float(rec @ pulse / (pulse @ pulse)), info
+
+    plain, _ = kept()
+    robust, info = kept(robust_c=3.0, shape=shape)
+    # measured: 0.27 of the pulse's amplitude kept by the plain cubic, 0.83 robust
+    assert plain < 0.4
+    assert robust > 0.75
+    assert 0.2 < info["weighted_out_fraction"] < 0.5     # about the pulse's FWHM / pass
+    # and without a pulse the robust fit still takes the whole drift
+    clean = truth * np.c_[1 + g, 1 + g, np.ones_like(t)]
+    fixed, info = fit_gain_drift(t, clean, mag, robust_c=3.0, shape=shape)
+    assert rms(np.linalg.norm(fixed, axis=1) - mag) < 1.0
 
 
 def test_single_direction_gain_drift_gives_matching_2x_and_isotropic_shapes():
@@ -101,8 +132,8 @@ def real_zones():
     from tests.conftest import real_data_path
 
     folder = real_data_path("elfin")
-    from magcal.missions.elfin import calibrate_elfin
-    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.linear import calibrate_elfin
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
 
     fgs = read_elfin_fgs(folder / "ela_l1_fgs_20220112_v01.cdf")
     state = read_elfin_state(folder / "ela_l1_state_defn_20220112_v01.cdf")
@@ -111,9 +142,9 @@ def real_zones():
 
 @pytest.mark.realdata
 def test_real_gain_drift_removes_the_slow_part(real_zones):
-    from magcal.missions.elfin_correction import correct_elfin_calibration
-    from magcal.missions.elfin_drift import correct_gain_drift, drift_agreement_table
-    from magcal.missions.elfin_joint import score_field
+    from magcal.missions.elfin.harmonic import correct_elfin_calibration
+    from magcal.missions.elfin.drift import correct_gain_drift, drift_agreement_table
+    from magcal.missions.elfin.joint import score_field
 
     harmonic, _ = correct_elfin_calibration(real_zones)
     drifted, table = correct_gain_drift(harmonic)
@@ -135,7 +166,7 @@ def test_real_gain_drift_removes_the_slow_part(real_zones):
 @pytest.mark.realdata
 def test_real_slow_part_is_in_the_spin_plane_magnitude(real_zones):
     """The spin-axis component adds < 5 nT to the slow part: not an attitude error."""
-    from magcal.missions.elfin_correction import correct_elfin_calibration
+    from magcal.missions.elfin.harmonic import correct_elfin_calibration
 
     harmonic, _ = correct_elfin_calibration(real_zones)
     f = harmonic.field
@@ -153,7 +184,7 @@ def test_real_slow_part_is_in_the_spin_plane_magnitude(real_zones):
 
 def test_vector_step_removes_body_fixed_terms_and_keeps_natural_fields():
     """Body-fixed spin harmonics and a tilt go; an inertial (natural) field stays."""
-    from magcal.missions.elfin_vector import correct_vector_zone
+    from magcal.missions.elfin.vector import correct_vector_zone
 
     rng = np.random.default_rng(9)
     t, T, _ = _pass()
@@ -182,7 +213,7 @@ def test_vector_step_removes_body_fixed_terms_and_keeps_natural_fields():
 
 
 def test_tilt_is_recovered_inside_the_bound_and_clipped_outside():
-    from magcal.missions.elfin_vector import refine_tilt
+    from magcal.missions.elfin.vector import refine_tilt
 
     t, T, _ = _pass()
     ang = np.radians(-30 - 40 * (T + 1) / 2)
@@ -200,10 +231,10 @@ def test_tilt_is_recovered_inside_the_bound_and_clipped_outside():
 
 @pytest.mark.realdata
 def test_real_vector_step_lowers_the_vector_residual(real_zones):
-    from magcal.missions.elfin_correction import correct_elfin_calibration
-    from magcal.missions.elfin_drift import correct_gain_drift
-    from magcal.missions.elfin_joint import score_field
-    from magcal.missions.elfin_vector import correct_vector
+    from magcal.missions.elfin.harmonic import correct_elfin_calibration
+    from magcal.missions.elfin.drift import correct_gain_drift
+    from magcal.missions.elfin.joint import score_field
+    from magcal.missions.elfin.vector import correct_vector
 
     drifted, _ = correct_gain_drift(correct_elfin_calibration(real_zones)[0])
     final, table = correct_vector(drifted)
@@ -218,7 +249,7 @@ def test_real_vector_step_lowers_the_vector_residual(real_zones):
 
 
 def test_drift_pair_tells_one_direction_from_isotropic_gain_drift():
-    from magcal.missions.elfin_drift import drift_pair
+    from magcal.missions.elfin.drift import drift_pair
 
     rng = np.random.default_rng(10)
     t, T, truth = _pass()
@@ -238,7 +269,7 @@ def test_drift_pair_tells_one_direction_from_isotropic_gain_drift():
 def test_instrument_candidates_closed_form():
     import pandas as pd
 
-    from magcal.missions.elfin_reference import instrument_candidates
+    from magcal.missions.elfin.diagnostics.reference import instrument_candidates
 
     idx = pd.date_range("2022-01-12", periods=4000, freq="1s", tz="UTC").as_unit("ns")
     sun = np.r_[np.zeros(2000), np.ones(2000)]                     # eclipse, then sunlight

@@ -1,7 +1,7 @@
-"""What the ELFIN vector residual is made of (magcal.missions.elfin_evidence).
+"""What the ELFIN vector residual is made of (magcal.missions.elfin.diagnostics.evidence).
 
 Injected truth on a simulated pass, the spline-drift option of the vector step
-(magcal.missions.elfin_vector), and the real ELFIN-A zones 6 and 9 of 2022-01-12 (ELFIN
+(magcal.missions.elfin.vector), and the real ELFIN-A zones 6 and 9 of 2022-01-12 (ELFIN
 SOC, PI V. Angelopoulos, UCLA; Open Data for Scientific Use), skipped when
 ../shared/real-data is absent.
 """
@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from magcal.missions.elfin_evidence import (
+from magcal.missions.elfin.diagnostics.evidence import (
     axial_coupling_line,
     natural_field_intervals,
     residual_split,
     spin_average,
     transverse_test,
 )
-from magcal.missions.elfin_scalar import rms
+from magcal.missions.elfin.scalar import rms
 from magcal.spin.despin import despin, spin
 
 SPIN_S = 2.85
@@ -101,7 +101,7 @@ def test_axial_coupling_line_tells_a_one_direction_coupling_from_coning():
 
 def test_vector_step_with_spline_drift_removes_a_fast_changing_axial_coupling():
     """The vector step's knot_s follows it; the cubic cannot; a natural field stays."""
-    from magcal.missions.elfin_vector import correct_vector_zone
+    from magcal.missions.elfin.vector import correct_vector_zone
 
     rng = np.random.default_rng(24)
     t, _, ref = _pass()
@@ -126,12 +126,12 @@ def test_vector_step_with_spline_drift_removes_a_fast_changing_axial_coupling():
 @pytest.mark.realdata
 def test_real_zones_within_spin_meet_the_target_and_the_excess_is_slow_and_across():
     from conftest import real_data_path
-    from magcal.missions.elfin import calibrate_elfin
-    from magcal.missions.elfin_correction import correct_elfin_calibration
-    from magcal.missions.elfin_drift import correct_gain_drift
-    from magcal.missions.elfin_evidence import field_latitude, vector_evidence
-    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
-    from magcal.missions.elfin_vector import correct_vector
+    from magcal.missions.elfin.linear import calibrate_elfin
+    from magcal.missions.elfin.harmonic import correct_elfin_calibration
+    from magcal.missions.elfin.drift import correct_gain_drift
+    from magcal.missions.elfin.diagnostics.evidence import field_latitude, vector_evidence
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.vector import correct_vector
 
     folder = real_data_path("elfin")
     fgs = read_elfin_fgs(folder / "ela_l1_fgs_20220112_v01.cdf")
@@ -156,7 +156,7 @@ def test_real_zones_within_spin_meet_the_target_and_the_excess_is_slow_and_acros
     # with the spin phase refitted last, the spin plane is within 1.5x of the scalar
     # (measured 1.11 and 0.89); the excess is the spin-axis slow part, which |B| hardly
     # sees (|B_Z| / |B| 0.04 and 0.06): 38.3 and 11.2 nT
-    from magcal.missions.elfin_vector import correct_phase
+    from magcal.missions.elfin.vector import correct_phase
 
     final, table = correct_phase(cal)
     assert (table["phase_pp_deg"] < 0.1).all()               # measured 0.06-0.07 deg

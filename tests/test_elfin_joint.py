@@ -1,4 +1,4 @@
-"""Joint ELFIN calibration across zones (magcal.missions.elfin_joint): injected truth."""
+"""Joint ELFIN calibration across zones (magcal.missions.elfin.joint): injected truth."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from magcal.missions.elfin_joint import B0_NT, JointZone, _rot, fit_joint
-from magcal.missions.elfin_scalar import rms
+from magcal.missions.elfin.joint import B0_NT, JointZone, _rot, fit_joint
+from magcal.missions.elfin.scalar import rms
 from magcal.spin.despin import despin, spin
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "real-data" / "elfin"
@@ -91,9 +91,9 @@ def test_shared_sensor_per_zone_offsets_and_attitude_are_recovered():
 @pytest.mark.skipif(not (DATA / "ela_l1_fgs_20220112_v01.cdf").is_file(),
                     reason="ELFIN-A files not in ../shared/real-data/elfin")
 def test_real_zones_joint_fit_measured_against_the_linear_floor():
-    from magcal.missions.elfin import calibrate_elfin
-    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
-    from magcal.missions.elfin_joint import calibrate_joint, score_field
+    from magcal.missions.elfin.linear import calibrate_elfin
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.joint import calibrate_joint, score_field
     from magcal.offline import configure_offline
 
     configure_offline()

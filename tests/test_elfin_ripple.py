@@ -1,11 +1,11 @@
-"""Spin-ripple cross-check of the ELFIN IGRF calibration (magcal.missions.elfin_ripple)."""
+"""Spin-ripple cross-check of the ELFIN IGRF calibration (magcal.missions.elfin.diagnostics.ripple)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from magcal.missions.elfin_ripple import ripple_zone
+from magcal.missions.elfin.diagnostics.ripple import ripple_zone
 from magcal.spin.despin import spin
 
 
@@ -29,9 +29,9 @@ def test_real_elfin_ripple_agrees_with_igrf_on_an_eclipse_pass():
     from tests.conftest import real_data_path
 
     folder = real_data_path("elfin")
-    from magcal.missions.elfin import calibrate_elfin
-    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
-    from magcal.missions.elfin_ripple import ripple_crosscheck
+    from magcal.missions.elfin.linear import calibrate_elfin
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.diagnostics.ripple import ripple_crosscheck
 
     fgs = read_elfin_fgs(folder / "ela_l1_fgs_20220112_v01.cdf")
     cal = calibrate_elfin(fgs, read_elfin_state(folder / "ela_l1_state_defn_20220112_v01.cdf"),

@@ -1,4 +1,4 @@
-"""Scalar residual of ELFIN counts against |IGRF| (magcal.missions.elfin_scalar).
+"""Scalar residual of ELFIN counts against |IGRF| (magcal.missions.elfin.scalar).
 
 Simulated spinner with a known 4x-spin non-linearity and drifting spin-plane offsets and
 gain ratio; and the real ELFIN-A passes of 2022-01-12 (ELFIN SOC, PI V. Angelopoulos,
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from magcal.missions.elfin_scalar import (
+from magcal.missions.elfin.scalar import (
     fast_part,
     fit_spin_harmonics,
     harmonic_amplitudes,
@@ -85,8 +85,8 @@ def elfin_zones():
     from tests.conftest import real_data_path
 
     folder = real_data_path("elfin")
-    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
-    from magcal.missions.elfin_scalar import scalar_zones
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.scalar import scalar_zones
 
     zones = scalar_zones(read_elfin_fgs(folder / "ela_l1_fgs_20220112_v01.cdf"),
                          read_elfin_state(folder / "ela_l1_state_defn_20220112_v01.cdf"))

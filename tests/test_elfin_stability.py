@@ -1,4 +1,4 @@
-"""Which ELFIN parameters are stable across zones (magcal.missions.elfin_stability).
+"""Which ELFIN parameters are stable across zones (magcal.missions.elfin.diagnostics.stability).
 
 Injected truth: a simulated multi-zone spinner whose sensor (gains, coupling) is shared
 and whose offsets differ from zone to zone, with autocorrelated noise; and a real-data
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from magcal.missions.elfin_stability import LINEAR_NAMES, linear_zone_parameters, spread
+from magcal.missions.elfin.diagnostics.stability import LINEAR_NAMES, linear_zone_parameters, spread
 from magcal.spin.despin import spin
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "real-data" / "elfin"
@@ -128,9 +128,9 @@ def test_spread_threshold_is_the_chi2_quantile():
 @pytest.mark.skipif(not (DATA / "ela_l1_fgs_20220112_v01.cdf").is_file(),
                     reason=f"ELFIN data not found under {DATA}")
 def test_real_zone_reproduces_the_delivered_linear_fit():
-    from magcal.missions.elfin import calibrate_elfin
-    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
-    from magcal.missions.elfin_stability import parameter_stability
+    from magcal.missions.elfin.linear import calibrate_elfin
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.diagnostics.stability import parameter_stability
 
     fgs = read_elfin_fgs(DATA / "ela_l1_fgs_20220112_v01.cdf")
     state = read_elfin_state(DATA / "ela_l1_state_defn_20220112_v01.cdf")

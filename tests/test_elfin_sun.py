@@ -1,7 +1,7 @@
 """Sun-locked or drifting? The fast part of the sunlit ELFIN passes.
 
-Injected truth for magcal.missions.elfin_sun and the fast-drift correction
-(magcal.missions.elfin_correction.drifting_harmonic_correction), and the real sunlit
+Injected truth for magcal.missions.elfin.diagnostics.sun and the fast-drift correction
+(magcal.missions.elfin.harmonic.drifting_harmonic_correction), and the real sunlit
 zone 7 of ELFIN-A 2022-01-12 (ELFIN SOC, PI V. Angelopoulos, UCLA; Open Data for
 Scientific Use), skipped when ../shared/real-data is absent.
 """
@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from magcal.missions.elfin_correction import drifting_harmonic_correction
-from magcal.missions.elfin_scalar import fast_part, rms
-from magcal.missions.elfin_sun import sun_locked_zone
+from magcal.missions.elfin.harmonic import drifting_harmonic_correction
+from magcal.missions.elfin.scalar import fast_part, rms
+from magcal.missions.elfin.diagnostics.sun import sun_locked_zone
 from magcal.spin.despin import spin
 
 SPIN_S = 2.85
@@ -74,13 +74,13 @@ def test_fast_drift_correction_removes_a_minute_scale_gain_ratio_and_keeps_the_s
 @pytest.mark.realdata
 def test_real_sunlit_zone7_is_a_drift_not_a_sun_locked_term():
     from conftest import real_data_path
-    from magcal.missions.elfin import calibrate_elfin
-    from magcal.missions.elfin_correction import correct_elfin_calibration, correct_fast_drift
-    from magcal.missions.elfin_drift import correct_gain_drift
-    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
-    from magcal.missions.elfin_joint import score_field
-    from magcal.missions.elfin_sun import sun_locked_test
-    from magcal.missions.elfin_vector import correct_vector
+    from magcal.missions.elfin.linear import calibrate_elfin
+    from magcal.missions.elfin.harmonic import correct_elfin_calibration, correct_fast_drift
+    from magcal.missions.elfin.drift import correct_gain_drift
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.joint import score_field
+    from magcal.missions.elfin.diagnostics.sun import sun_locked_test
+    from magcal.missions.elfin.vector import correct_vector
 
     folder = real_data_path("elfin")
     fgs = read_elfin_fgs(folder / "ela_l1_fgs_20220112_v01.cdf")

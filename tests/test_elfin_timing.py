@@ -1,4 +1,4 @@
-"""Time-stamp irregularities found in the counts (magcal.missions.elfin_timing).
+"""Time-stamp irregularities found in the counts (magcal.missions.elfin.timing).
 
 Injected truth on a simulated spinner; then the unpaired jump of ELFIN-A 2022-01-12
 (zone 4, 14:16:50.85; ELFIN SOC, PI V. Angelopoulos, UCLA).
@@ -9,9 +9,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.testing import assert_allclose
 
-from magcal.missions.elfin import fit_zone
-from magcal.missions.elfin_phase import repair_timestamps
-from magcal.missions.elfin_timing import check_timing
+from magcal.missions.elfin.linear import fit_zone
+from magcal.missions.elfin.phase import repair_timestamps
+from magcal.missions.elfin.timing import check_timing
 from magcal.spin.despin import spin
 
 PERIOD_S = 2.85
@@ -84,8 +84,8 @@ def test_flagged_samples_are_left_out_of_the_fit_and_counted():
 
 def test_elfin_zone4_unpaired_jump_repaired_from_the_counts():
     from conftest import real_data_path
-    from magcal.missions.elfin_files import read_elfin_fgs
-    from magcal.missions.elfin_phase import split_zones
+    from magcal.missions.elfin.files import read_elfin_fgs
+    from magcal.missions.elfin.phase import split_zones
 
     fgs = read_elfin_fgs(real_data_path("elfin") / "ela_l1_fgs_20220112_v01.cdf")
     t_all = (fgs.index.asi8 - fgs.index.asi8[0]) / 1e9
@@ -101,7 +101,7 @@ def test_elfin_zone4_unpaired_jump_repaired_from_the_counts():
     assert np.flatnonzero(out.bad).tolist() == [1949]
     # after the repair the block fits the spin like its neighbours (< 30x median; it
     # was 300x: 1240 nT)
-    from magcal.missions.elfin_timing import spin_model_residuals
+    from magcal.missions.elfin.timing import spin_model_residuals
 
     res, _ = spin_model_residuals(out.t_s, counts, mask=(t >= t[0] + 2.0) & ~out.bad)
     size = np.linalg.norm(res, axis=1)

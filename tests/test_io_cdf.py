@@ -18,7 +18,7 @@ from magcal.io.cdf import (
     read_cdf,
     write_cdf_product,
 )
-from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
+from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
 
 GLOBALS = {"Project": "ISTP>International Solar-Terrestrial Physics",
            "Source_name": "GK2A>Geo-KOMPSAT-2A", "Data_type": "L2>Level 2",

@@ -119,8 +119,8 @@ def test_counts_need_a_scale(files, tmp_path, capsys):
 def _elfin_zone(tmp_path):
     from conftest import real_data_path
 
-    from magcal.missions.elfin_files import read_elfin_fgs
-    from magcal.missions.elfin_phase import split_zones
+    from magcal.missions.elfin.files import read_elfin_fgs
+    from magcal.missions.elfin.phase import split_zones
 
     fgs = read_elfin_fgs(real_data_path("elfin", "ela_l1_fgs_20220112_v01.cdf"))
     t = (fgs.index - fgs.index[0]).total_seconds().to_numpy()

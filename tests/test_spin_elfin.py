@@ -1,4 +1,4 @@
-"""ELFIN-A fluxgate counts calibrated against IGRF (magcal.missions.elfin).
+"""ELFIN-A fluxgate counts calibrated against IGRF (magcal.missions.elfin.linear).
 
 Real-data numbers measured on 2022-01-12 (ELFIN SOC, PI V. Angelopoulos, UCLA).
 """
@@ -10,8 +10,8 @@ import pytest
 from numpy.testing import assert_allclose
 
 from magcal.spin.despin import spin
-from magcal.missions.elfin import calibrate_elfin, fit_zone
-from magcal.missions.elfin_phase import repair_timestamps, split_zones, unwrap_predictive, wrap
+from magcal.missions.elfin.linear import calibrate_elfin, fit_zone
+from magcal.missions.elfin.phase import repair_timestamps, split_zones, unwrap_predictive, wrap
 
 
 def test_synthetic_counts_recover_gains_offsets_and_period():
@@ -49,7 +49,7 @@ def test_timing_helpers():
 @pytest.fixture(scope="module")
 def elfin_cal():
     from conftest import real_data_path
-    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
 
     base = real_data_path("elfin")
     fgs = read_elfin_fgs(base / "ela_l1_fgs_20220112_v01.cdf")

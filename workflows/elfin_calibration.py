@@ -24,7 +24,7 @@ across zones (about 60 s; scored, delivered only if no worse). It writes
 * ``elfin_residuals.png``: calibrated minus IGRF per zone.
 
 The steps, the scores and the JSON document are
-:func:`magcal.missions.elfin_pipeline.calibrate_elfin_day`; this script parses, prints
+:func:`magcal.missions.elfin.pipeline.calibrate_elfin_day`; this script parses, prints
 and writes. ``magcal run data_samples/chain/ELFIN.toml -o OUT`` runs the same pipeline
 through the chain (``[spin] units = "counts"``).
 
@@ -43,8 +43,8 @@ from magcal.errors import InputError
 from magcal.io.jsonio import write_json
 from magcal.offline import configure_offline
 from magcal.provenance import make_provenance
-from magcal.missions.elfin import CREDIT
-from magcal.missions.elfin_pipeline import ElfinSettings, calibrate_elfin_day, plot_residuals
+from magcal.missions.elfin.linear import CREDIT
+from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day, plot_residuals
 
 #: The repository holding this script (as called, and with symbolic links resolved).
 REPO_ROOTS = (Path(__file__).absolute().parents[1], Path(__file__).resolve().parents[1])
@@ -106,7 +106,7 @@ def _run(argv=None) -> int:
                     help="accepted for older scripts: the joint fit is off unless --joint")
     args = ap.parse_args(argv)
     configure_offline()
-    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
     from magcal.io.csv import write_csv_frame
 
     fgs_path, state_path = args.data / FGS_FILE, args.data / STATE_FILE

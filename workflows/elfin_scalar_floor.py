@@ -11,7 +11,7 @@ left in it (angle of the field in the sensor's spin plane), and what the harmoni
 (constant 4x + drifting 1x, 2x) leaves. ``--vector-evidence`` splits the delivered
 vector residual (along/across B, spin-averaged/within-spin, inside/outside auroral
 current-sheet signatures) and tests attitude beyond the 0.2 deg bound
-(:mod:`magcal.missions.elfin_evidence`). The measuring code is in the library; this
+(:mod:`magcal.missions.elfin.diagnostics.evidence`). The measuring code is in the library; this
 script only reads, calls and prints.
 
 Data: ELFIN SOC (PI V. Angelopoulos, UCLA), "Open Data for Scientific Use".
@@ -34,9 +34,9 @@ KP_FILE = "celestrak_SW_2017-2023_subset.txt"
 
 
 def _mechanisms(data: Path, tab) -> None:
-    from magcal.missions.elfin import calibrate_elfin
-    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
-    from magcal.missions.elfin_mechanisms import locking_table, power_law, timestamp_effect
+    from magcal.missions.elfin.linear import calibrate_elfin
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.diagnostics.mechanisms import locking_table, power_law, timestamp_effect
 
     fgs, state = read_elfin_fgs(data / FGS_FILE), read_elfin_state(data / STATE_FILE)
     cal = calibrate_elfin(fgs, state)
@@ -57,11 +57,11 @@ def _mechanisms(data: Path, tab) -> None:
 
 def _slow(data: Path) -> None:
     from magcal.indices.kp import read_kp
-    from magcal.missions.elfin import calibrate_elfin
-    from magcal.missions.elfin_correction import correct_elfin_calibration
-    from magcal.missions.elfin_drift import drift_agreement_table
-    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
-    from magcal.missions.elfin_reference import screen_slow_part, zone_slow_parts
+    from magcal.missions.elfin.linear import calibrate_elfin
+    from magcal.missions.elfin.harmonic import correct_elfin_calibration
+    from magcal.missions.elfin.drift import drift_agreement_table
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.diagnostics.reference import screen_slow_part, zone_slow_parts
 
     fgs, state = read_elfin_fgs(data / FGS_FILE), read_elfin_state(data / STATE_FILE)
     linear = calibrate_elfin(fgs, state)
@@ -83,25 +83,23 @@ def _slow(data: Path) -> None:
 
 
 def _product(data: Path, knot_s: float | None):
-    """The calibration chain; with ``knot_s`` the vector step drifts on splines, the fast
-    drift (spin harmonics of |B| on ``knot_s`` splines) follows it, and the spin phase is
-    refitted last (60 s knots)."""
-    from magcal.missions.elfin import calibrate_elfin
-    from magcal.missions.elfin_correction import correct_elfin_calibration, correct_fast_drift
-    from magcal.missions.elfin_drift import correct_gain_drift
-    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
-    from magcal.missions.elfin_vector import correct_phase, correct_vector
+    """The delivered calibration (:func:`magcal.missions.elfin.pipeline.calibrate_elfin_day`);
+    with ``knot_s`` the vector step drifts on splines, the fast drift (spin harmonics of
+    |B| on ``knot_s`` splines) follows it and the phase is refitted last; without, the
+    vector step's drift is a cubic and neither follows."""
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
 
     fgs, state = read_elfin_fgs(data / FGS_FILE), read_elfin_state(data / STATE_FILE)
-    cal, _ = correct_gain_drift(correct_elfin_calibration(calibrate_elfin(fgs, state))[0])
-    cal = correct_vector(cal, knot_s=knot_s)[0]
-    if knot_s is not None:
-        cal = correct_phase(correct_fast_drift(cal, knot_s=knot_s)[0])[0]
-    return cal, state
+    splines = knot_s is not None
+    settings = ElfinSettings(vector_knot_s=knot_s if splines else 0.0,
+                             fast_knot_s=knot_s if splines else 30.0,
+                             fast_drift=splines, phase_refit=splines)
+    return calibrate_elfin_day(fgs, state, settings, diagnostics=False).calibration, state
 
 
 def _sun(data: Path) -> None:
-    from magcal.missions.elfin_sun import sun_locked_test
+    from magcal.missions.elfin.diagnostics.sun import sun_locked_test
 
     cal, state = _product(data, None)
     print("fast part of |B| - |IGRF| (nT) left by: Sun-locked harmonics (1x, 2x of the Sun's "
@@ -111,7 +109,7 @@ def _sun(data: Path) -> None:
 
 
 def _vector_evidence(data: Path, knot_s: float | None) -> None:
-    from magcal.missions.elfin_evidence import evidence_verdict, field_latitude, vector_evidence
+    from magcal.missions.elfin.diagnostics.evidence import evidence_verdict, field_latitude, vector_evidence
 
     cal, state = _product(data, knot_s)
     ev = vector_evidence(cal, field_latitude(cal, state))
@@ -163,9 +161,9 @@ def main(argv=None) -> int:
                     help="degree of the drifting 1x/2x coefficients (default 3)")
     args = ap.parse_args(argv)
     configure_offline()
-    from magcal.missions.elfin import CREDIT
-    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
-    from magcal.missions.elfin_scalar import scalar_floor_table, scalar_zones
+    from magcal.missions.elfin.linear import CREDIT
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.scalar import scalar_floor_table, scalar_zones
 
     try:
         for name in (FGS_FILE, STATE_FILE):

@@ -48,7 +48,7 @@ SCHEMA: dict[str, dict[str, tuple]] = {
     "qc": QCSettings.schema(),  # sample quality control (magcal.qc; README "[qc]")
     "spin": {"spin_period_s": ((int, float), None), "flipper": (bool, True),
              "units": (str, "nT"), "reference": (str, None), "state": (str, None),
-             "pipeline": (dict, {})},
+             "pipeline": (dict, {}), "disturbed": (list, [])},
 }
 #: Sections a spinning-spacecraft chain may hold.
 SPIN_SECTIONS = ("input", "spin", "report", "truth")
@@ -247,6 +247,7 @@ def _check_spin(sp: dict, path: Path) -> None:
     if sp["units"] == "nT":
         given = [k for k in ("reference", "state") if sp[k] is not None]
         given += ["pipeline"] if sp["pipeline"] else []
+        given += ["disturbed"] if sp["disturbed"] else []
         if given:
             raise InputError(f"[spin] {given[0]} applies only to units = \"counts\" (the "
                              "ELFIN chain)", file=path, column=f"spin.{given[0]}")
@@ -258,10 +259,30 @@ def _check_spin(sp: dict, path: Path) -> None:
     if not sp["state"]:
         raise InputError("[spin] units = \"counts\" needs state = <ELFIN state file> (orbit "
                          "and attitude)", file=path, column="spin.state")
+    _check_intervals(sp["disturbed"], path)
     if sp["spin_period_s"] is not None:
         raise InputError("[spin] spin_period_s does not apply to units = \"counts\": the "
                          "spin phase is derived from the counts", file=path,
                          column="spin.spin_period_s")
+
+
+def _check_intervals(intervals: list, path: Path) -> None:
+    """``[spin] disturbed``: pairs of UTC times, each start before its end."""
+    import pandas as pd
+
+    for item in intervals:
+        ok = isinstance(item, list) and len(item) == 2 and all(isinstance(v, str) for v in item)
+        if ok:
+            try:
+                start, end = (pd.Timestamp(v) for v in item)
+            except ValueError:
+                ok = False
+            else:
+                ok = start < end
+        if not ok:
+            raise InputError(f"[spin] disturbed: {item!r} is not [start, end] in UTC with "
+                             "start before end (e.g. [\"2022-01-12T05:10:00\", "
+                             "\"2022-01-12T05:12:00\"])", file=path, column="spin.disturbed")
 
 
 def _is_matrix(spec) -> bool:

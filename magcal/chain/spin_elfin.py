@@ -8,10 +8,12 @@ A configuration such as::
     units = "counts"
     reference = "igrf"
     state = "ela_l1_state_defn_20220112_v01.cdf"
-    [spin.pipeline]          # optional: magcal.missions.elfin_pipeline.ElfinSettings
+    disturbed = [["2022-01-12T06:30:00", "2022-01-12T06:31:30"]]  # optional, UTC: left
+                             # out of every fit (a natural field known from elsewhere)
+    [spin.pipeline]          # optional: magcal.missions.elfin.pipeline.ElfinSettings
     vector_step = true
 
-runs :func:`magcal.missions.elfin_pipeline.calibrate_elfin_day` in three stages::
+runs :func:`magcal.missions.elfin.pipeline.calibrate_elfin_day` in three stages::
 
     read (FGS counts + state file) -> calibrate (spin/ELFIN_CAL.json: the workflow's
     calibration document; spin/SPIN.json: zone medians per product) -> calibrated
@@ -45,7 +47,7 @@ def elfin_inputs(cfg: ChainConfig, files) -> tuple:
         Not exactly one input file, a missing state file, a ``[truth]`` file (no truth
         is known for real counts) or a bad ``[spin.pipeline]`` table.
     """
-    from magcal.missions.elfin_pipeline import ElfinSettings
+    from magcal.missions.elfin.pipeline import ElfinSettings
 
     if len(files) != 1:
         raise InputError(f"the ELFIN chain takes one FGS file; [input] files matches "
@@ -57,11 +59,11 @@ def elfin_inputs(cfg: ChainConfig, files) -> tuple:
     if not state.is_file():
         raise InputError("[spin] state: ELFIN state file not found", file=state)
     settings = ElfinSettings.from_mapping(cfg["spin"]["pipeline"], where="[spin] pipeline")
-    return files[0], state, settings
+    return files[0], state, settings, [tuple(i) for i in cfg["spin"]["disturbed"]]
 
 
 def _read(fgs_path, state_path):
-    from magcal.missions.elfin_files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
 
     fgs, state = read_elfin_fgs(fgs_path), read_elfin_state(state_path)
     if fgs.attrs.get("probe") != state.attrs.get("probe"):
@@ -79,14 +81,16 @@ def _read(fgs_path, state_path):
                                           "read", {}, inputs=[fgs_path, state_path]))
 
 
-def _calibrate(data, settings, inputs):
-    from magcal.missions.elfin_pipeline import calibrate_elfin_day
+def _calibrate(data, settings, inputs, disturbed=()):
+    from magcal.missions.elfin.pipeline import calibrate_elfin_day, disturbed_rows
 
     fgs, state = data
     prov = make_provenance("elfin calibration against IGRF",
-                           {"model": "IGRF (IRBEM)", "settings": asdict(settings)},
+                           {"model": "IGRF (IRBEM)", "settings": asdict(settings),
+                            "disturbed": [list(i) for i in disturbed]},
                            inputs=inputs)
-    day = calibrate_elfin_day(fgs, state, settings, provenance=prov)
+    skip = disturbed_rows(fgs.index, disturbed) if disturbed else None
+    day = calibrate_elfin_day(fgs, state, settings, provenance=prov, fit_exclude=skip)
     medians = day.medians()
     n = len(day.calibration.zones)
     worse = day.worse_measures()
@@ -96,22 +100,29 @@ def _calibrate(data, settings, inputs):
         flag = ", ".join(label for col, label in _LABELS if col in worse.get(name, ()))
         lines.append(f"{name:22s} " + " ".join(f"{m[col]:10.1f}" for col, _ in _LABELS)
                      + (f"   WORSE than the step before: {flag}" if flag else ""))
+    empty = [f"[spin] disturbed interval {a} - {b} holds no FGS sample" for a, b in disturbed
+             if not disturbed_rows(fgs.index, [(a, b)]).any()]
+    if disturbed:
+        lines.append(f"{int(skip.sum())} samples in {len(disturbed)} disturbed interval(s) "
+                     "left out of every fit and calibrated")
     lines.append(f"delivered: {day.delivered}")
     summary = {"n_zones": n, "delivered": day.delivered, "zone_medians_nT": medians,
                "settings": asdict(settings)}
     return day, StageProduct(stage="spin", summary=summary, lines=tuple(lines),
                              documents={"ELFIN_CAL.json": day.to_json()},
-                             provenance=prov, warnings=tuple(day.worse_steps()))
+                             provenance=prov, warnings=tuple(empty + day.worse_steps()))
 
 
 def _calibrated(day, probe: str):
-    from magcal.missions.elfin_pipeline import plot_residuals
+    from magcal.missions.elfin.pipeline import plot_residuals
 
     table = day.calibrated_table()
     date = f"{table.index[0]:%Y-%m-%d}"
     title = f"ELFIN-{probe[-1:].upper()} {date}: calibrated minus IGRF"
     n_used = int(table["used"].sum())
-    line = (f"{len(table)} samples ({n_used} used in the fit) in "
+    f = day.calibration.field
+    n_fit = int((f["fit"] == 1).sum()) if "fit" in f.columns else n_used
+    line = (f"{len(table)} samples ({n_fit} used in the fit) in "
             f"{table['zone'].nunique()} zones: time,zone,used,bx_gei,by_gei,bz_gei (nT)")
     return table, StageProduct(
         stage="calibrated", summary={"n_samples": len(table), "n_used": n_used,
@@ -127,9 +138,10 @@ def elfin_stages(run, cfg: ChainConfig, files, extras: dict) -> None:
 
     The state file joins the run's inputs (its SHA-256 is recorded with every product).
     """
-    fgs_path, state_path, settings = elfin_inputs(cfg, files)
+    fgs_path, state_path, settings, disturbed = elfin_inputs(cfg, files)
     run.inputs.append({"path": str(state_path), "sha256": file_sha256(state_path)})
     data = run.stage("read", _read, fgs_path, state_path)
-    day = run.stage("calibrate", _calibrate, data, settings, [fgs_path, state_path])
+    day = run.stage("calibrate", _calibrate, data, settings, [fgs_path, state_path],
+                    disturbed)
     extras["calibrated"] = run.stage("calibrated", _calibrated, day, data[0].attrs["probe"])
     extras["elfin"] = day

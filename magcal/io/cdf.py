@@ -1,5 +1,5 @@
 """CDF files (NASA Common Data Format) through cdflib: a generic reader and an
-ISTP-compliant product writer (the ELFIN file readers are in :mod:`magcal.missions.elfin_files`).
+ISTP-compliant product writer (the ELFIN file readers are in :mod:`magcal.missions.elfin.files`).
 
 Reading: :func:`read_cdf` returns every (or the chosen) variable as a NumPy array with
 ISTP ``FILLVAL`` values replaced by NaN (counted) and epochs (``CDF_EPOCH``,

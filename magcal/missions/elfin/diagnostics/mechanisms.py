@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from magcal.missions.elfin_scalar import (
+from magcal.missions.elfin.scalar import (
     _harmonics,
     _unit_time,
     fast_part,
@@ -96,7 +96,7 @@ def timestamp_effect(fgs, state) -> pd.DataFrame:
     through the reference's change along the orbit (tens of nT/s), so a repair that
     matters shows here only if the stamps or the axes are wrong by much more.
     """
-    from magcal.missions.elfin_phase import repair_timestamps, split_zones
+    from magcal.missions.elfin.phase import repair_timestamps, split_zones
 
     t_all = (fgs.index.asi8 - fgs.index.asi8[0]) / 1e9
     n_jumps = [len(repair_timestamps(t_all[a:b])[1]) for a, b in split_zones(t_all)]

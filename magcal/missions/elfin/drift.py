@@ -1,7 +1,7 @@
 """Spin-plane gain drift within an ELFIN pass: the slow part of the scalar residual.
 
 After the linear calibration and the spin-harmonic correction
-(:mod:`magcal.missions.elfin_correction`) the ELFIN-A scalar residual ``|B| - |IGRF|``
+(:mod:`magcal.missions.elfin.harmonic`) the ELFIN-A scalar residual ``|B| - |IGRF|``
 keeps a *slow part* of about 60 nT RMS per science zone (quadratic to cubic in time
 over the ~6 min pass). What the data say about it (2022-01-12, see
 ``workflows/elfin_scalar_floor.py --slow``):
@@ -9,7 +9,7 @@ over the ~6 min pass). What the data say about it (2022-01-12, see
 * it lives in the magnitude of the spin-plane field (the spin-axis component adds
   < 3 nT to it), which a constant-gain calibration fixes to ``G |counts_perp|`` whatever
   the attitude: it is not an attitude error;
-* reference errors do not explain it (:mod:`magcal.missions.elfin_reference`): a time
+* reference errors do not explain it (:mod:`magcal.missions.elfin.diagnostics.reference`): a time
   offset, a rotated position frame or the external field would need one coefficient
   for the day, and the coefficients they need differ in sign from zone to zone or are
   unphysical;
@@ -43,7 +43,7 @@ from dataclasses import replace
 import numpy as np
 import pandas as pd
 
-from magcal.missions.elfin_scalar import fast_part, fit_spin_harmonics, rms
+from magcal.missions.elfin.scalar import fast_part, fit_spin_harmonics, rms
 
 
 def unit_time(t, use) -> np.ndarray:
@@ -53,8 +53,48 @@ def unit_time(t, use) -> np.ndarray:
     return 2.0 * (t - t0) / max(t1 - t0, 1e-12) - 1.0
 
 
+def tukey_weights(t_s, resid, use, c: float, smooth_s: float = 3.0) -> np.ndarray:
+    """Tukey biweights of a residual smoothed over ``smooth_s`` seconds (about a spin).
+
+    ``w = (1 - (r / (c sigma))^2)^2`` for ``|r| < c sigma``, else 0, with ``r`` the
+    residual's running mean over ``smooth_s`` (so that the spin harmonics left in it do
+    not count as outliers) and ``sigma`` 1.4826 times its median absolute deviation on
+    ``use``. A localised natural field (tens of seconds of tens of nT on a few-nT floor)
+    is weighted out instead of fitted.
+
+    Examples
+    --------
+    >>> t = np.arange(0.0, 300.0, 0.1)
+    >>> r = np.random.default_rng(0).normal(0, 3, t.size)
+    >>> r[(t > 140) & (t < 160)] += 100.0
+    >>> w = tukey_weights(t, r, t >= 0, 4.685)
+    >>> float(w[(t > 142) & (t < 158)].max()), bool(np.median(w[t < 100]) > 0.9)
+    (0.0, True)
+    """
+    from scipy.ndimage import uniform_filter1d
+
+    t = np.asarray(t_s, dtype=float)
+    use = np.asarray(use, bool)
+    dt = float(np.median(np.diff(t[use]))) if use.sum() > 1 else 1.0
+    width = max(1, int(round(smooth_s / max(dt, 1e-9))))
+    r = uniform_filter1d(np.asarray(resid, dtype=float), width, mode="nearest")
+    sigma = 1.4826 * float(np.median(np.abs(r[use] - np.median(r[use]))))
+    u = r / max(c * sigma, 1e-12)
+    return np.where(np.abs(u) < 1.0, (1.0 - u ** 2) ** 2, 0.0)
+
+
+def _shape_residual(b, r0, a, use) -> np.ndarray:
+    """Scalar residual left by the two-number drift ``g_0 + sign * shape`` (first order;
+    ``g_0`` the median, so that a natural field does not move it)."""
+    h = (b[:, 0] ** 2 + b[:, 1] ** 2) / np.linalg.norm(b, axis=1)
+    sign = 1.0 if float(a[use] @ r0[use]) >= 0 else -1.0
+    e = r0 - sign * a
+    return e - float(np.median(e[use] / h[use])) * h     # robust g_0: a pulse does not move it
+
+
 def fit_gain_drift(t_s, b_body, ref_magnitude_nT, *, degree: int = 3, fit_mask=None,
-                   n_iter: int = 2) -> tuple[np.ndarray, dict]:
+                   n_iter: int = 2, shape=None, robust_c: float = 0.0,
+                   robust_iter: int = 5) -> tuple[np.ndarray, dict]:
     """Remove a slowly drifting isotropic spin-plane gain from body-frame vectors.
 
     Model: the measured spin-plane components are ``(1 + g(T))`` times the true ones,
@@ -76,6 +116,23 @@ def fit_gain_drift(t_s, b_body, ref_magnitude_nT, *, degree: int = 3, fit_mask=N
         Samples used in the fit (default all); the correction is applied to all.
     n_iter : int
         Refits (the second removes what the first leaves at second order).
+    shape : array_like (n,), optional
+        A reference-free time shape of the drift (:func:`harmonic_shape`, the 2x-spin
+        harmonic's drift): then ``g(T) = g_0 + g_1 shape`` (two numbers per zone)
+        with ``g_1`` fixed by the gain's geometry (a one-direction gain change has equal
+        isotropic and 2x halves, so the drift of ``|B|`` is ``+-shape``; only the sign
+        and ``g_0`` are fitted), so that a natural field along B, which changes ``|B|``
+        but makes no 2x-spin harmonic, is not fitted away as a gain drift.
+    robust_c : float
+        If positive, the polynomial drift is fitted by iteratively reweighted least
+        squares with Tukey biweights of this many robust sigmas
+        (:func:`tukey_weights`, ``robust_iter`` passes): a localised natural field
+        along B (a pulse of a minute or two on the few-nT floor the drift leaves) is
+        weighted out instead of taken as a gain change. A drift as slow as the pass
+        is still fitted (it is what the robust scale measures against). With
+        ``shape`` too, the first weights come from the residual the reference-free
+        shape leaves (which a natural field along B stands out of, as the shape does
+        not follow it) and the drift is the weighted cubic.
 
     Returns
     -------
@@ -101,15 +158,48 @@ def fit_gain_drift(t_s, b_body, ref_magnitude_nT, *, degree: int = 3, fit_mask=N
     ref = np.asarray(ref_magnitude_nT, dtype=float)
     use = np.ones(t.size, bool) if fit_mask is None else np.asarray(fit_mask, bool)
     T = unit_time(t, use)
-    powers = np.column_stack([T ** d for d in range(degree + 1)])
     r0 = np.linalg.norm(b, axis=1) - ref
+    start = None
+    if robust_c > 0 and shape is not None:
+        # the reference-free shape is the robust fit's start, not its model
+        start, shape = _shape_residual(b, r0, np.asarray(shape, dtype=float), use), None
+    if shape is None:
+        powers = np.column_stack([T ** d for d in range(degree + 1)])
+    else:
+        # isotropic and 2x halves of a one-direction gain change are equal: the drift is
+        # +-shape in |B| (nT); only its sign and a constant gain are fitted
+        a = np.asarray(shape, dtype=float)
+        h = (b[:, 0] ** 2 + b[:, 1] ** 2) / np.linalg.norm(b, axis=1)
+        sign = 1.0 if float(a[use] @ r0[use]) >= 0 else -1.0
+        powers = np.column_stack([np.ones_like(t), sign * a / h])
+        degree = 0
     total = np.ones(t.size)
-    coef = np.zeros(degree + 1)
+    coef = np.zeros(powers.shape[1])
+    weight = np.ones(t.size)
+    if robust_c > 0 and shape is None:
+        mag = np.linalg.norm(b, axis=1)
+        design = powers * ((b[:, 0] ** 2 + b[:, 1] ** 2) / mag)[:, None]
+        first = np.ones(t.size) if start is None else tukey_weights(t, start, use, robust_c)
+        weight = first
+        for _ in range(max(1, robust_iter)):
+            sw = np.sqrt(weight[use])[:, None]
+            w = np.linalg.lstsq(design[use] * sw, (mag - ref)[use] * sw[:, 0], rcond=None)[0]
+            # what the start weighted out stays out: the cubic cannot take it back
+            weight = np.minimum(first, tukey_weights(t, mag - ref - design @ w, use, robust_c))
+    sw = np.sqrt(weight[use])
     for _ in range(max(1, n_iter)):
         mag = np.linalg.norm(b, axis=1)
         design = powers * ((b[:, 0] ** 2 + b[:, 1] ** 2) / mag)[:, None]
-        w = np.linalg.lstsq(design[use], (mag - ref)[use], rcond=None)[0]
-        g = powers @ w
+        if shape is None:
+            w = np.linalg.lstsq(design[use] * sw[:, None], (mag - ref)[use] * sw,
+                                rcond=None)[0]
+            g = powers @ w
+        else:
+            fixed = powers[:, 1] if not coef.any() else 0.0 * powers[:, 1]
+            g0 = np.linalg.lstsq(design[use, :1], (mag - ref - fixed * design[:, 0])[use],
+                                 rcond=None)[0]
+            w = np.r_[g0, 0.0 if coef.any() else 1.0]
+            g = g0[0] + fixed
         b[:, :2] /= (1.0 + g)[:, None]
         total *= 1.0 + g
         coef += w
@@ -118,6 +208,7 @@ def fit_gain_drift(t_s, b_body, ref_magnitude_nT, *, degree: int = 3, fit_mask=N
     info = {"gain_coefficients": coef.tolist(),
             "gain_drift_pp": float(np.ptp(gain[use])),
             "gain_mid": float(np.interp(0.0, T[use], gain[use])),
+            "weighted_out_fraction": float(np.mean(weight[use] < 0.5)),
             "scalar_rms_before_nT": rms(r0[use]), "scalar_rms_after_nT": rms(r1[use]),
             "scalar_fast_before_nT": rms(fast_part(t[use], r0[use])),
             "scalar_fast_after_nT": rms(fast_part(t[use], r1[use])),
@@ -145,7 +236,7 @@ def drift_shape_agreement(t_s, b_body, ref_magnitude_nT, *, fit_mask=None,
     t_s, b_body, ref_magnitude_nT, fit_mask :
         As in :func:`fit_gain_drift`; ``b_body`` from the linear calibration.
     drift_degree, poly_degree :
-        Passed to :func:`~magcal.missions.elfin_scalar.fit_spin_harmonics` (slow part:
+        Passed to :func:`~magcal.missions.elfin.scalar.fit_spin_harmonics` (slow part:
         the polynomial of ``poly_degree``).
 
     Returns
@@ -184,6 +275,34 @@ def drift_shape_agreement(t_s, b_body, ref_magnitude_nT, *, fit_mask=None,
             "slow_rms_nT": rms(slow), "slow_unabsorbed_nT": rms(s_p),
             "correlation": float(np.corrcoef(s_p, a_p)[0, 1]),
             "ratio": abs(ratio), "slow_left_nT": rms(s_p - ratio * a_p)}
+
+
+def harmonic_shape(t_s, b_body, ref_magnitude_nT, *, fit_mask=None,
+                   drift_degree: int = 3, poly_degree: int = 5) -> np.ndarray:
+    """Time shape of the 2x-spin harmonic's drift in the scalar residual, at all samples.
+
+    The amplitude ``a(t)`` of :func:`drift_shape_agreement` (the drift of the complex 2x
+    coefficient along its principal direction), fitted on ``fit_mask`` and interpolated
+    to every sample. Reference-free: a natural field changes ``|B|`` at twice the spin
+    frequency only at second order, a spin-plane gain change at first order.
+
+    Returns
+    -------
+    ndarray (n,)
+        ``a(t)`` (nT, sign arbitrary) with its mean removed.
+    """
+    t = np.asarray(t_s, dtype=float)
+    b = np.asarray(b_body, dtype=float)
+    ref = np.asarray(ref_magnitude_nT, dtype=float)
+    use = np.ones(t.size, bool) if fit_mask is None else np.asarray(fit_mask, bool)
+    r = np.linalg.norm(b[use], axis=1) - ref[use]
+    psi = np.angle(b[use, 0] + 1j * b[use, 1])
+    model = fit_spin_harmonics(t[use], r, psi, fixed=(4,), drifting=(1, 2),
+                               drift_degree=drift_degree, poly_degree=poly_degree)
+    c2 = model.coefficients[2]
+    xy = np.column_stack([c2.real - c2.real.mean(), c2.imag - c2.imag.mean()])
+    vt = np.linalg.svd(xy, full_matrices=False)[2]
+    return np.interp(t, t[use], xy @ vt[0])
 
 
 def drift_pair(t_s, b_body, ref_body, *, fit_mask=None, degree: int = 3) -> dict:
@@ -227,6 +346,13 @@ def _zone_body(z):
     return t, spin(desp, phase), np.linalg.norm(ref, axis=1), phase, desp, ref
 
 
+def fit_samples(z) -> np.ndarray:
+    """Samples a step fits on: ``used`` and, where the field has it, ``fit`` (0/1, rows
+    left out of every fit but kept in the product)."""
+    use = z["used"].to_numpy() == 1
+    return use & (z["fit"].to_numpy() == 1) if "fit" in z.columns else use
+
+
 def map_zones(cal, step, note: str, params: dict):
     """Run ``step`` on each zone of an ElfinCalibration and write back its vectors.
 
@@ -249,7 +375,7 @@ def map_zones(cal, step, note: str, params: dict):
     table : DataFrame
         One row per zone: ``zone`` and the step's ``info``.
     """
-    from magcal.missions.elfin_phase import despun_basis
+    from magcal.missions.elfin.phase import despun_basis
 
     f = cal.field.copy()
     rows = []
@@ -257,7 +383,7 @@ def map_zones(cal, step, note: str, params: dict):
         sel = (f["zone"] == k).to_numpy()
         z = f.loc[sel]
         t = (z.index.asi8 - z.index.asi8[0]) / 1e9
-        new_d, info = step(t, z, z["used"].to_numpy() == 1)
+        new_d, info = step(t, z, fit_samples(z))
         basis = despun_basis(z[["spin_axis_gei_x", "spin_axis_gei_y",
                                 "spin_axis_gei_z"]].to_numpy(float))
         f.loc[sel, ["bx_despun", "by_despun", "bz_despun"]] = new_d
@@ -267,13 +393,19 @@ def map_zones(cal, step, note: str, params: dict):
     return replace(cal, field=f, parameters=out), pd.DataFrame(rows)
 
 
-def correct_gain_drift(cal, **kw):
+def correct_gain_drift(cal, *, shape_from=None, robust_start_from=None, **kw):
     """Apply :func:`fit_gain_drift` zone by zone to an ElfinCalibration.
 
     Parameters
     ----------
     cal : magcal.missions.elfin.ElfinCalibration
-        Usually after :func:`~magcal.missions.elfin_correction.correct_elfin_calibration`.
+        Usually after :func:`~magcal.missions.elfin.harmonic.correct_elfin_calibration`.
+    shape_from : ElfinCalibration, optional
+        The *linear* calibration of the same rows: the drift then follows each zone's
+        2x-spin harmonic (:func:`harmonic_shape`) instead of a cubic in time.
+    robust_start_from : ElfinCalibration, optional
+        The linear calibration whose 2x-spin shape starts a robust cubic fit
+        (``robust_c`` in ``kw``; see :func:`fit_gain_drift`).
     **kw
         Passed to :func:`fit_gain_drift`.
 
@@ -289,12 +421,19 @@ def correct_gain_drift(cal, **kw):
 
     def step(t, z, used):
         _, body, ref_mag, phase, desp, ref = _zone_body(z)
-        fixed, info = fit_gain_drift(t, body, ref_mag, fit_mask=used, **kw)
+        shape = None
+        if shape_from is not None or robust_start_from is not None:
+            shape_from_ = shape_from if shape_from is not None else robust_start_from
+            lin = shape_from_.field.loc[shape_from_.field["zone"] == z["zone"].iloc[0]]
+            _, lbody, lref, *_ = _zone_body(lin)
+            shape = harmonic_shape(t, lbody, lref, fit_mask=used)
+        fixed, info = fit_gain_drift(t, body, ref_mag, fit_mask=used, shape=shape, **kw)
         new_d = despin(fixed, phase)
         return new_d, {**info, "vector_rms_before_nT": rms((desp - ref)[used]),
                        "vector_rms_after_nT": rms((new_d - ref)[used])}
 
-    return map_zones(cal, step, "gain_drift", kw)
+    return map_zones(cal, step, "gain_drift",
+                     {**kw, "shape": "2x-spin harmonic" if shape_from is not None else "cubic"})
 
 
 def drift_agreement_table(cal, **kw) -> pd.DataFrame:
@@ -308,7 +447,7 @@ def drift_agreement_table(cal, **kw) -> pd.DataFrame:
     for k in sorted(cal.field["zone"].unique()):
         z = cal.field[cal.field["zone"] == k]
         t, body, ref_mag, phase, _, ref = _zone_body(z)
-        used = z["used"].to_numpy() == 1
+        used = fit_samples(z)
         rows.append({"zone": int(k),
                      **drift_shape_agreement(t, body, ref_mag, fit_mask=used, **kw),
                      **drift_pair(t, body, spin(ref, phase), fit_mask=used)})

@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from magcal.missions.elfin_phase import split_zones
+from magcal.missions.elfin.phase import split_zones
 from magcal.spin.ripple import PARAM_NAMES, fit_spin_ripple
 
 
@@ -109,7 +109,7 @@ def ripple_crosscheck(cal, fgs: pd.DataFrame, *, scale: float = 0.01) -> pd.Data
     Parameters
     ----------
     cal : magcal.missions.elfin.ElfinCalibration
-        From :func:`~magcal.missions.elfin.calibrate_elfin` on ``fgs`` (all zones).
+        From :func:`~magcal.missions.elfin.linear.calibrate_elfin` on ``fgs`` (all zones).
     fgs : DataFrame
         The counts it was made from.
 

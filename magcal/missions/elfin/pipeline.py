@@ -4,16 +4,16 @@ The steps live in their own modules; this one orchestrates them for one day of F
 counts and its state file (``workflows/elfin_calibration.py`` and ``magcal run`` with
 ``[spin] units = "counts"`` both call :func:`calibrate_elfin_day`)::
 
-    linear per-zone fit against IGRF (magcal.missions.elfin)
-    -> spin-ripple cross-check, no model field (elfin_ripple)
-    -> spin-harmonic correction of |B| (elfin_correction)        "harmonic"
-    -> spin-plane gain drift within each pass (elfin_drift)      "harmonic + gain drift"
-    -> vector-only body-fixed harmonics and tilt (elfin_vector)  "+ vector step"
-    -> 1x/2x terms of |B| drifting within a minute (elfin_correction) "+ fast drift"
-    -> spin phase refitted on the calibrated field (elfin_vector) "+ phase refit"
-    -> optional joint fit across zones, delivered only if no worse (elfin_joint)
+    linear per-zone fit against IGRF (magcal.missions.elfin.linear)
+    -> spin-ripple cross-check, no model field (diagnostics.ripple)
+    -> spin-harmonic correction of |B| (harmonic)        "harmonic"
+    -> spin-plane gain drift within each pass (drift)      "harmonic + gain drift"
+    -> vector-only body-fixed harmonics and tilt (vector)  "+ vector step"
+    -> 1x/2x terms of |B| drifting within a minute (harmonic) "+ fast drift"
+    -> spin phase refitted on the calibrated field (vector) "+ phase refit"
+    -> optional joint fit across zones, delivered only if no worse (joint)
 
-Every product is scored with :func:`magcal.missions.elfin_joint.score_field`; the last
+Every product is scored with :func:`magcal.missions.elfin.joint.score_field`; the last
 step run is delivered (or the joint fit when it wins), and a step that makes a zone
 median worse than the step before is named in :meth:`ElfinDay.worse_steps` so that a
 caller can warn rather than stay silent.
@@ -36,6 +36,11 @@ CALIBRATED_COLUMNS = ("zone", "used", "bx_gei", "by_gei", "bz_gei", "bx_despun",
                       "bz_despun", "igrf_x_gei", "igrf_y_gei", "igrf_z_gei", "phase")
 #: Zone medians compared from one step to the next (:meth:`ElfinDay.worse_steps`).
 SCORED = ("scalar_rms_nT", "scalar_fast_nT", "scalar_slow_nT", "vector_rms_nT")
+#: Settings that buy a smaller residual against the model with natural signal lost
+#: (each is a time-varying fit against IGRF; see :mod:`magcal.missions.elfin.injection`).
+SIGNAL_TRADE = ("linear_phase_knot_s", "linear_phase_degree", "linear_axis_degree",
+                "gain_drift", "gain_drift_2x", "gain_drift_robust_c", "vector_step",
+                "vector_knot_s", "fast_drift", "fast_knot_s", "phase_refit", "refit_knot_s")
 #: Relative (and absolute, nT) growth of a zone median below which it is rounding.
 ROUNDING = 1e-9
 
@@ -52,6 +57,11 @@ class ElfinSettings:
     gain_drift : bool
         The spin-plane gain drift after the harmonic correction (False also skips the
         vector step, which corrects what the drift leaves).
+    gain_drift_2x : bool
+        The gain drift follows the time shape of the 2x-spin harmonic's drift (a
+        reference-free gain signature; two numbers per zone) instead of a free cubic
+        against the model. Signal trade: the cubic also fits a natural field along B
+        (which changes ``|B|``) as a gain drift.
     vector_step : bool
         The vector-only step: body-fixed spin harmonics and a spin-axis tilt.
     tilt_bound_deg : float
@@ -67,8 +77,41 @@ class ElfinSettings:
         minute). Harmonics of ``|B|`` are instrumental: a natural field changes ``|B|``
         at the spin frequency only to second order.
     phase_refit : bool
-        Last, the spin phase refitted on the calibrated field (60 s knots, no finer than
-        the first phase fit, which was made on the linear calibration).
+        Last, the spin phase refitted on the calibrated field (``refit_knot_s`` knots).
+        It makes no difference to ``|B|``; it removes the smooth phase error that the
+        quadratic phase of the linear fit leaves (vector residual 74 -> 16 nT, zone
+        median of zones 1, 4, 7, 10) and takes part of an along-track natural field
+        with it (a 200 nT 40 s pulse: 42 -> 26 % of its energy kept).
+    linear_phase_knot_s : float
+        Knot spacing (s) of the spin-phase spline fitted with the linear calibration
+        against IGRF (0: a quadratic phase only). Signal trade: a spline phase fitted
+        against a model turns an along-track (spin-plane) natural field into a phase error
+        and removes it (measured: ``workflows/elfin_preservation.py``). Default 0: the
+        scalar residual does not depend on it (zones 1, 4, 7, 10: 7.19 nT, 7.12 with
+        30 s knots); an along-track 200 nT 40 s pulse keeps 26 % of its energy after
+        the refit instead of 0.2 %.
+    linear_phase_degree : int
+        With ``linear_phase_knot_s = 0``: the degree of the spin phase in time over the
+        zone (2: the spin rate may change linearly; 1: a constant spin rate). Signal
+        trade: every degree of freedom of the phase fitted against the model turns
+        part of an along-track field into a phase error.
+    linear_axis_degree : int
+        Degree of the slow spin-axis tilt in the linear fit's spin-axis row (the
+        calibrated spin-plane components times ``T^1..T^d``; 0: no tilt). Signal trade:
+        with 45000 nT in the spin plane a tilt of 0.4 deg over the pass is 300 nT along
+        the spin axis, so the tilt terms fit an east-west field (a current sheet) away.
+    gain_drift_robust_c : float
+        Tukey biweight (in robust sigmas) of the gain drift's fit
+        (:func:`~magcal.missions.elfin.drift.fit_gain_drift`, ``robust_c``); 0: plain
+        least squares. Signal trade: the plain cubic takes a natural field along B that
+        lasts a minute or two as a gain drift.
+    fast_knot_s : float
+        Knot spacing (s) of the fast drift's B-splines.
+    refit_knot_s : float
+        Knot spacing (s) of the last phase refit. Default 240 s: about one cubic over a
+        pass (zones 1, 4, 7, 10, after the quadratic linear phase: 120 s knots 16.3 nT
+        vector residual and 25 % of the along-track pulse kept, 240 s 16.4 nT and 26 %;
+        the 30 s linear splines and 60 s refit of before: 14.0 nT and 0.2 %).
     joint : bool
         Also the joint fit across zones (about 60 s); delivered only if no worse.
     scan : bool
@@ -78,11 +121,18 @@ class ElfinSettings:
 
     harmonic: bool = True
     gain_drift: bool = True
+    gain_drift_2x: bool = False
     vector_step: bool = True
     tilt_bound_deg: float = 0.2
     vector_knot_s: float = 30.0
     fast_drift: bool = True
     phase_refit: bool = True
+    linear_phase_knot_s: float = 0.0
+    linear_phase_degree: int = 2
+    linear_axis_degree: int = 2
+    gain_drift_robust_c: float = 0.0
+    fast_knot_s: float = 30.0
+    refit_knot_s: float = 240.0
     joint: bool = False
     scan: bool = False
 
@@ -102,7 +152,7 @@ class ElfinSettings:
         >>> ElfinSettings.from_mapping({"tilt": 1})
         Traceback (most recent call last):
         ...
-        magcal.errors.InputError: settings: unknown key 'tilt' (known: harmonic, gain_drift, vector_step, tilt_bound_deg, vector_knot_s, fast_drift, phase_refit, joint, scan)
+        magcal.errors.InputError: settings: unknown key 'tilt' (known: harmonic, gain_drift, gain_drift_2x, vector_step, tilt_bound_deg, vector_knot_s, fast_drift, phase_refit, linear_phase_knot_s, linear_phase_degree, linear_axis_degree, gain_drift_robust_c, fast_knot_s, refit_knot_s, joint, scan)
         """
         known = {f.name: f for f in fields(cls)}
         out = {}
@@ -112,17 +162,28 @@ class ElfinSettings:
             default = known[key].default
             if isinstance(default, bool):
                 ok = isinstance(value, bool)
+            elif isinstance(default, int):
+                ok = float(value) == int(value) if isinstance(value, (int, float)) \
+                    and not isinstance(value, bool) else False
+                value = int(value) if ok else value
             else:
                 ok = isinstance(value, (int, float)) and not isinstance(value, bool)
             if not ok:
-                kind = "true or false" if isinstance(default, bool) else "a number"
+                kind = ("true or false" if isinstance(default, bool) else
+                        "a whole number" if isinstance(default, int) else "a number")
                 raise InputError(f"{where}: {key} must be {kind}, got {value!r}")
             out[key] = float(value) if isinstance(default, float) else value
         settings = cls(**out)
         if settings.tilt_bound_deg < 0:
             raise InputError(f"{where}: tilt_bound_deg must not be negative")
-        if settings.vector_knot_s < 0:
-            raise InputError(f"{where}: vector_knot_s must not be negative")
+        for key in ("vector_knot_s", "linear_phase_knot_s", "linear_axis_degree",
+                    "linear_phase_degree",
+                    "gain_drift_robust_c"):
+            if getattr(settings, key) < 0:
+                raise InputError(f"{where}: {key} must not be negative")
+        for key in ("fast_knot_s", "refit_knot_s"):
+            if getattr(settings, key) <= 0:
+                raise InputError(f"{where}: {key} must be positive")
         return settings
 
     def steps(self) -> tuple:
@@ -158,7 +219,7 @@ class ElfinDay:
         Step name -> its per-zone table (``spin_harmonic_correction``, ``gain_drift``,
         ``drift_agreement``, ``vector_correction``) for the steps that ran.
     scores : dict
-        Product name -> :func:`~magcal.missions.elfin_joint.score_field` table, in step
+        Product name -> :func:`~magcal.missions.elfin.joint.score_field` table, in step
         order (``joint`` last when it ran).
     joint : dict or None
         The joint fit's record (without its product) when it ran.
@@ -166,7 +227,10 @@ class ElfinDay:
         Shift (``"+0.1"``) -> per-zone RMS of the linear calibration, when scanned.
     stability : dict
         Which parameters are stable across zones, with block-sandwich errors
-        (:func:`magcal.missions.elfin_stability.parameter_stability`).
+        (:func:`magcal.missions.elfin.diagnostics.stability.parameter_stability`).
+    products : dict
+        Product name -> its calibration, in step order (what each step made; the
+        injection tests compare them step by step).
     """
 
     calibration: object
@@ -178,6 +242,7 @@ class ElfinDay:
     joint: dict | None = None
     scan: dict = field(default_factory=dict)
     stability: dict = field(default_factory=dict)
+    products: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def delivered(self) -> str:
@@ -231,8 +296,17 @@ class ElfinDay:
 
     def to_json(self) -> dict:
         """The calibration document (the keys of ``elfin_calibration.json``)."""
+        from dataclasses import asdict
+
         s = self.settings
         payload = self.calibration.to_json()
+        payload["settings"] = asdict(s)
+        payload["signal_trade"] = {
+            "note": "steps fitted against IGRF with time-varying freedom can absorb a "
+                    "natural field; measured by injecting synthetic signals into the raw "
+                    "counts (workflows/elfin_preservation.py, magcal.missions.elfin."
+                    "injection). Settings that trade kept signal for residual:",
+            "switches": {k: getattr(s, k) for k in SIGNAL_TRADE}}
         payload["table"] = self.linear.table().to_dict(orient="records")
         payload["ripple_crosscheck"] = {
             "note": "spin-ripple calibration (Kivelson et al. 1992, no model field) on the "
@@ -241,6 +315,12 @@ class ElfinDay:
             "zones": self.ripple.to_dict(orient="records")}
         if self.joint is not None:
             payload["joint_fit"] = self.joint
+        f = self.calibration.field
+        if "fit" in f.columns:
+            payload["fit_excluded"] = {
+                "note": "samples calibrated but left out of every fit (calibrate_elfin_day "
+                        "fit_exclude; [spin] disturbed): a natural field there is kept",
+                "n_samples": int(((f["used"] == 1) & (f["fit"] == 0)).sum())}
         if "spin_harmonic_correction" in self.steps:
             payload["spin_harmonic_correction"] = self.steps[
                 "spin_harmonic_correction"].to_dict(orient="records")
@@ -252,7 +332,10 @@ class ElfinDay:
                         "gain ratio change no smooth reference error can make) drifts with "
                         "the same time shape (agreement: correlation and ratio per zone, on "
                         "the linear calibration), reference errors screened in workflows/"
-                        "elfin_scalar_floor.py --slow",
+                        "elfin_scalar_floor.py --slow"
+                        + (f"; Tukey-weighted (c = {s.gain_drift_robust_c:g}) from the "
+                           "residual of the 2x-spin shape" if s.gain_drift_robust_c > 0
+                           else ""),
                 "zones": self.steps["gain_drift"].to_dict(orient="records"),
                 "agreement": self.steps["drift_agreement"].to_dict(orient="records")}
         if "vector_correction" in self.steps:
@@ -266,7 +349,8 @@ class ElfinDay:
                 "zones": self.steps["vector_correction"].to_dict(orient="records")}
         if "fast_drift" in self.steps:
             payload["fast_drift"] = {
-                "note": "1x/2x spin harmonics of |B| with coefficients on 30 s B-splines, "
+                "note": f"1x/2x spin harmonics of |B| with coefficients on {s.fast_knot_s:g} s "
+                        "B-splines, "
                         "removed as vectors (the sunlit zones' terms change within a minute; "
                         "a Sun-locked term is not what the data support: workflows/"
                         "elfin_scalar_floor.py --sun)",
@@ -274,10 +358,11 @@ class ElfinDay:
         if "phase_refit" in self.steps:
             payload["phase_refit"] = {
                 "note": "spin phase refitted last against IGRF's spin-plane angle on the "
-                        "calibrated field (cubic B-spline, 60 s knots; the first phase fit, "
-                        "30 s knots, was made on the linear calibration)",
+                        f"calibrated field (cubic B-spline, {s.refit_knot_s:g} s knots; the first "
+                        f"phase fit, {s.linear_phase_knot_s:g} s knots (0: quadratic), was "
+                        "made on the linear calibration)",
                 "zones": self.steps["phase_refit"].to_dict(orient="records")}
-        payload["scores"] = {"note": "zone medians of magcal.missions.elfin_joint.score_field "
+        payload["scores"] = {"note": "zone medians of magcal.missions.elfin.joint.score_field "
                                      "(nT) for each product; the last one before 'joint' is "
                                      "delivered unless joint_fit says otherwise",
                              "medians": self.medians()}
@@ -288,20 +373,54 @@ class ElfinDay:
         return payload
 
 
+def disturbed_rows(index, intervals) -> np.ndarray:
+    """Rows of a UTC time index inside any ``(start, end)`` interval (inclusive).
+
+    For ``fit_exclude`` of :func:`calibrate_elfin_day`: intervals with a natural field
+    known from elsewhere (particle precipitation, ground stations, a first look) are
+    left out of every fit, so that no step fitted against the model absorbs it.
+
+    Examples
+    --------
+    >>> idx = pd.date_range("2022-01-12T05:00:00", periods=5, freq="1min", tz="UTC")
+    >>> disturbed_rows(idx, [("2022-01-12T05:01:00", "2022-01-12T05:02:30")]).tolist()
+    [False, True, True, False, False]
+    """
+    times = pd.DatetimeIndex(index)
+    out = np.zeros(len(times), bool)
+    for start, end in intervals:
+        lo, hi = pd.Timestamp(start), pd.Timestamp(end)
+        if times.tz is not None:
+            lo = lo.tz_localize("UTC") if lo.tz is None else lo
+            hi = hi.tz_localize("UTC") if hi.tz is None else hi
+        out |= (times >= lo) & (times <= hi)
+    return out
+
+
 def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
                         settings: ElfinSettings | None = None, *,
-                        provenance: dict | None = None) -> ElfinDay:
+                        provenance: dict | None = None, hold_phase=None,
+                        fit_exclude=None, diagnostics: bool = True) -> ElfinDay:
     """Calibrate one day of ELFIN FGS counts against IGRF through the configured steps.
 
     Parameters
     ----------
     fgs, state : DataFrame
-        From :func:`~magcal.missions.elfin_files.read_elfin_fgs` and
-        :func:`~magcal.missions.elfin_files.read_elfin_state`.
+        From :func:`~magcal.missions.elfin.files.read_elfin_fgs` and
+        :func:`~magcal.missions.elfin.files.read_elfin_state`.
     settings : ElfinSettings, optional
         Which steps run (default: every step except the joint fit and the scan).
     provenance : dict, optional
         Carried by the delivered calibration (and so by :meth:`ElfinDay.to_json`).
+    hold_phase : array_like (len(fgs),), optional
+        Spin phase per FGS row held by the linear fit instead of fitted (see
+        :func:`~magcal.missions.elfin.linear.calibrate_elfin`); for the injection tests.
+    fit_exclude : array_like (len(fgs),) of bool, optional
+        FGS rows left out of every step's fit but calibrated (intervals with a natural
+        field the model lacks; see :func:`~magcal.missions.elfin.linear.calibrate_elfin`).
+    diagnostics : bool
+        Also the spin-ripple cross-check and the parameter stability (False: the
+        calibration only, e.g. for repeated injection runs).
 
     Returns
     -------
@@ -312,47 +431,54 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
     InputError
         Frames without the ELFIN columns, or a zone without orbit and attitude.
     """
-    from magcal.missions.elfin import calibrate_elfin
-    from magcal.missions.elfin_joint import score_field
-    from magcal.missions.elfin_ripple import ripple_crosscheck
+    from magcal.missions.elfin.linear import calibrate_elfin
+    from magcal.missions.elfin.joint import score_field
+    from magcal.missions.elfin.diagnostics.ripple import ripple_crosscheck
 
     s = settings or ElfinSettings()
-    linear = calibrate_elfin(fgs, state, provenance=provenance)
-    ripple = ripple_crosscheck(linear, fgs)
+    knot = s.linear_phase_knot_s or None
+    linear = calibrate_elfin(fgs, state, provenance=provenance, hold_phase=hold_phase,
+                             fit_exclude=fit_exclude, phase_knot_s=knot,
+                             axis_degree=s.linear_axis_degree,
+                             phase_degree=s.linear_phase_degree)
+    ripple = ripple_crosscheck(linear, fgs) if diagnostics else pd.DataFrame()
     products, steps = {"linear": linear}, {}
     cal = linear
     if s.harmonic:
-        from magcal.missions.elfin_correction import correct_elfin_calibration
+        from magcal.missions.elfin.harmonic import correct_elfin_calibration
 
         cal, steps["spin_harmonic_correction"] = correct_elfin_calibration(cal)
         products["harmonic"] = cal
         if s.gain_drift:
-            from magcal.missions.elfin_drift import correct_gain_drift, drift_agreement_table
+            from magcal.missions.elfin.drift import correct_gain_drift, drift_agreement_table
 
-            cal, steps["gain_drift"] = correct_gain_drift(cal)
+            cal, steps["gain_drift"] = correct_gain_drift(
+                cal, shape_from=linear if s.gain_drift_2x else None,
+                robust_start_from=linear if s.gain_drift_robust_c > 0 else None,
+                robust_c=s.gain_drift_robust_c)
             steps["drift_agreement"] = drift_agreement_table(linear)
             products["harmonic + gain drift"] = cal
             if s.vector_step:
-                from magcal.missions.elfin_vector import correct_vector
+                from magcal.missions.elfin.vector import correct_vector
 
                 knot = s.vector_knot_s or None
                 cal, steps["vector_correction"] = correct_vector(cal, bound_deg=s.tilt_bound_deg,
                                                                  knot_s=knot)
                 products["+ vector step"] = cal
                 if s.fast_drift:
-                    from magcal.missions.elfin_correction import correct_fast_drift
+                    from magcal.missions.elfin.harmonic import correct_fast_drift
 
-                    cal, steps["fast_drift"] = correct_fast_drift(cal, knot_s=30.0)
+                    cal, steps["fast_drift"] = correct_fast_drift(cal, knot_s=s.fast_knot_s)
                     products["+ fast drift"] = cal
                 if s.phase_refit:
-                    from magcal.missions.elfin_vector import correct_phase
+                    from magcal.missions.elfin.vector import correct_phase
 
-                    cal, steps["phase_refit"] = correct_phase(cal, knot_s=60.0)
+                    cal, steps["phase_refit"] = correct_phase(cal, knot_s=s.refit_knot_s)
                     products["+ phase refit"] = cal
     scores = {name: score_field(p.field) for name, p in products.items()}
-    from magcal.missions.elfin_stability import parameter_stability
+    from magcal.missions.elfin.diagnostics.stability import parameter_stability
 
-    stability = parameter_stability(linear, products, steps)
+    stability = parameter_stability(linear, products, steps) if diagnostics else {}
     joint = None
     if s.joint:
         cal, joint, scores["joint"] = _joint(linear, cal, scores)
@@ -363,13 +489,14 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
             scan[f"{shift:+.1f}"] = {"rms_vector_nT": t["rms_vector_nT"].tolist(),
                                      "rms_scalar_nT": t["rms_scalar_nT"].tolist()}
     return ElfinDay(calibration=cal, linear=linear, settings=s, ripple=ripple, steps=steps,
-                    scores=scores, joint=joint, scan=scan, stability=stability)
+                    scores=scores, joint=joint, scan=scan, stability=stability,
+                    products=products)
 
 
 def _joint(linear, incumbent, scores: dict) -> tuple:
     """Joint fit across zones, scored against the linear and incumbent products; returns
     the delivered calibration, the fit's record and the joint product's scores."""
-    from magcal.missions.elfin_joint import calibrate_joint, choose_product, score_field
+    from magcal.missions.elfin.joint import calibrate_joint, choose_product, score_field
 
     product, fit = calibrate_joint(linear)
     names = list(scores)
@@ -401,7 +528,7 @@ def plot_residuals(path: str | Path, cal, title: str = "ELFIN: calibrated minus 
     """
     import matplotlib
 
-    from magcal.missions.elfin import CREDIT
+    from magcal.missions.elfin.linear import CREDIT
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from magcal.missions.elfin_scalar import fast_part, rms
+from magcal.missions.elfin.scalar import fast_part, rms
 
 
 def sun_direction_gei(times) -> np.ndarray:
@@ -89,7 +89,7 @@ def sun_locked_zone(t_s, b_body, ref_magnitude_nT, sun_body, *, harmonics: int =
         ``fast_nT`` and ``sun_nT``, ``control_nT``, ``field_nT``, ``drift_nT`` (RMS of the
         fast part each leaves) and ``chi_minus_psi_range_deg``.
     """
-    from magcal.missions.elfin_vector import drift_basis
+    from magcal.missions.elfin.vector import drift_basis
 
     t = np.asarray(t_s, dtype=float)
     b = np.asarray(b_body, dtype=float)
@@ -117,7 +117,7 @@ def sun_locked_test(cal, state: pd.DataFrame, **kw) -> pd.DataFrame:
     cal : magcal.missions.elfin.ElfinCalibration
         The delivered product.
     state : DataFrame
-        From :func:`~magcal.missions.elfin_files.read_elfin_state` (the ``sun`` flag).
+        From :func:`~magcal.missions.elfin.files.read_elfin_state` (the ``sun`` flag).
     **kw
         Passed to :func:`sun_locked_zone`.
 
@@ -126,7 +126,7 @@ def sun_locked_test(cal, state: pd.DataFrame, **kw) -> pd.DataFrame:
     DataFrame
         One row per zone: ``zone``, ``sun_fraction`` and the :func:`sun_locked_zone` numbers.
     """
-    from magcal.missions.elfin_phase import despun_basis
+    from magcal.missions.elfin.phase import despun_basis
     from magcal.spin.despin import spin
 
     f = cal.field

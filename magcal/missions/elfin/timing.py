@@ -1,6 +1,6 @@
 """Time-stamp irregularities that the paired repair leaves: find them in the counts.
 
-:func:`~magcal.missions.elfin_phase.repair_timestamps` undoes *paired* jumps (a block
+:func:`~magcal.missions.elfin.phase.repair_timestamps` undoes *paired* jumps (a block
 stamped late, with a jump out and one back). ELFIN-A also has an *unpaired* jump
 (2022-01-12, zone 4, 14:16:50.85: +12.5 ms) whose block has no visible start: the seven
 samples before it are stamped 12.5 ms early, which rotates them by 1.6 deg of spin, a
@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from magcal.missions.elfin_phase import phase_from_counts
+from magcal.missions.elfin.phase import phase_from_counts
 
 
 def _design(tau, w, harmonics):
@@ -72,7 +72,7 @@ def spin_model_residuals(t_s, counts, *, mask=None, harmonics: int = 4,
         Share of a window kept in the concentration steps.
     rate_rad_s : float, optional
         Spin rate; default the mean rate of
-        :func:`~magcal.missions.elfin_phase.phase_from_counts` over the screened samples.
+        :func:`~magcal.missions.elfin.phase.phase_from_counts` over the screened samples.
 
     Returns
     -------
@@ -191,11 +191,11 @@ def check_timing(t_s, counts, anomalies=(), *, mask=None, flag_factor: float = 3
     Parameters
     ----------
     t_s : array_like (n,)
-        Times after :func:`~magcal.missions.elfin_phase.repair_timestamps`, seconds.
+        Times after :func:`~magcal.missions.elfin.phase.repair_timestamps`, seconds.
     counts : array_like (n, 3)
         Raw sensor readings.
     anomalies : sequence of dict
-        The jumps :func:`~magcal.missions.elfin_phase.repair_timestamps` reported; the
+        The jumps :func:`~magcal.missions.elfin.phase.repair_timestamps` reported; the
         ``"unpaired"`` ones are examined (``index``: first sample after the jump,
         ``jump_s``: the excess step).
     mask : array_like of bool, optional

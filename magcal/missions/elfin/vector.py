@@ -1,7 +1,7 @@
 """Vector-only ELFIN errors: body-fixed spin harmonics the scalar cannot see, and tilt.
 
 After the linear calibration, the spin-harmonic correction and the gain drift
-(:mod:`magcal.missions.elfin_drift`) the ELFIN-A scalar residual is about 8 nT but the
+(:mod:`magcal.missions.elfin.drift`) the ELFIN-A scalar residual is about 8 nT but the
 vector residual against IGRF about 38 nT per component (2022-01-12). Almost all of it is
 perpendicular to the field (6-17 nT along it), and most of that sits *within* the spin
 in the spinning frame (``z`` = spin axis, ``beta = Bx + i By``, ``psi = arg beta``):
@@ -29,8 +29,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from magcal.missions.elfin_drift import map_zones, unit_time
-from magcal.missions.elfin_scalar import fast_part, rms
+from magcal.missions.elfin.drift import map_zones, unit_time
+from magcal.missions.elfin.scalar import fast_part, rms
 
 
 def drift_basis(t_s, use, *, degree: int = 3, knot_s: float | None = None) -> np.ndarray:
@@ -39,7 +39,8 @@ def drift_basis(t_s, use, *, degree: int = 3, knot_s: float | None = None) -> np
     ``T`` runs from -1 to 1 over the samples selected by ``use``. With ``knot_s`` the
     columns are cubic B-splines with knots every ``knot_s`` seconds over the same span
     (each column is zero outside its four knot intervals; times outside the span are
-    clipped to it), otherwise ``1, T, .., T^degree``.
+    clipped to it; no knot where ``use`` has no samples:
+    :func:`~magcal.missions.elfin.phase.spline_knots`), otherwise ``1, T, .., T^degree``.
 
     Examples
     --------
@@ -54,12 +55,10 @@ def drift_basis(t_s, use, *, degree: int = 3, knot_s: float | None = None) -> np
         return np.column_stack([unit_time(t, use) ** d for d in range(degree + 1)])
     from scipy.interpolate import BSpline
 
-    t0, t1 = t[use][0], t[use][-1]
-    inner = np.arange(t0, t1, float(knot_s))[1:]
-    if inner.size and t1 - inner[-1] < 0.5 * knot_s:
-        inner = inner[:-1]                       # no sliver of an interval at the end
-    knots = np.r_[[t0] * 4, inner, [t1] * 4]
-    return BSpline.design_matrix(np.clip(t, t0, t1), knots, 3).toarray()
+    from magcal.missions.elfin.phase import spline_knots
+
+    knots = spline_knots(t[use], knot_s)        # none where ``use`` has no samples
+    return BSpline.design_matrix(np.clip(t, knots[0], knots[-1]), knots, 3).toarray()
 
 
 def vector_harmonic_correction(t_s, b_body, ref_body, *, plane=(-1, 3), axial=(1,),
@@ -88,7 +87,7 @@ def vector_harmonic_correction(t_s, b_body, ref_body, *, plane=(-1, 3), axial=(1
         Drift as cubic B-splines with knots every ``knot_s`` seconds instead of the
         polynomial (:func:`drift_basis`). On ELFIN-A the spin-axis 1x coefficient moves
         along one body direction and changes sign every ~100 s in the eclipse zones
-        (:func:`magcal.missions.elfin_evidence.axial_coupling_line`), faster than a cubic
+        (:func:`magcal.missions.elfin.diagnostics.evidence.axial_coupling_line`), faster than a cubic
         follows; 30 s knots keep it far (> 10x) from the slow band where reference,
         attitude and natural fields live.
     fit_mask : array_like of bool, optional
@@ -239,7 +238,7 @@ def correct_vector(cal, *, bound_deg: float = 0.2, **kw):
     Parameters
     ----------
     cal : magcal.missions.elfin.ElfinCalibration
-        Usually after the gain drift (:func:`magcal.missions.elfin_drift.correct_gain_drift`).
+        Usually after the gain drift (:func:`magcal.missions.elfin.drift.correct_gain_drift`).
     bound_deg : float
         Bound of the spin-axis tilt (0: no tilt fitted).
     **kw
@@ -268,7 +267,7 @@ def refine_phase(t_s, b_despun, ref_despun, *, knot_s: float = 60.0,
                  fit_mask=None) -> tuple[np.ndarray, np.ndarray]:
     """Refit the spin phase at the end: a smooth turn about the spin axis.
 
-    The phase of :func:`~magcal.missions.elfin.fit_zone` is fitted (a spline, 30 s knots)
+    The phase of :func:`~magcal.missions.elfin.linear.fit_zone` is fitted (a spline, 30 s knots)
     against IGRF's spin-plane angle on the *linear* calibration, while the spin-plane
     field is still off by the 60 nT that the later steps remove; the in-plane angle then
     moves by a few hundredths of a degree. Here the angle between the calibrated and the
@@ -294,7 +293,7 @@ def refine_phase(t_s, b_despun, ref_despun, *, knot_s: float = 60.0,
     >>> bool(np.abs(fixed - ref).max() < 1e-6), bool(np.allclose(corr, -err, atol=1e-12))
     (True, True)
     """
-    from magcal.missions.elfin_phase import wrap
+    from magcal.missions.elfin.phase import wrap
 
     t = np.asarray(t_s, dtype=float)
     b = np.asarray(b_despun, dtype=float)

@@ -30,7 +30,7 @@ import numpy as np
 import pandas as pd
 
 from magcal.errors import InputError
-from magcal.missions.elfin_phase import repair_timestamps, split_zones
+from magcal.missions.elfin.phase import repair_timestamps, split_zones
 
 _TRIU = np.triu_indices(3)
 
@@ -347,7 +347,7 @@ def scalar_zones(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float = 6
     Parameters
     ----------
     fgs, state : DataFrame
-        From :mod:`magcal.missions.elfin_files`.
+        From :mod:`magcal.missions.elfin.files`.
     min_gap_s : float
         Gaps longer than this separate zones.
     skip_s : float
@@ -357,7 +357,7 @@ def scalar_zones(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float = 6
     """
     from scipy.interpolate import CubicSpline
 
-    from magcal.missions.elfin import igrf_gei
+    from magcal.missions.elfin.linear import igrf_gei
 
     if not {"b1", "b2", "b3"} <= set(fgs.columns):
         raise InputError("FGS frame needs columns b1, b2, b3")

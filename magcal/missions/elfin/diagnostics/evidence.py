@@ -20,7 +20,7 @@ an instrument offset along the spin axis changes it by ``dZ B_Z / |B|``
 (:func:`transverse_test`). What it then tries on the rest, outside the flags (printed by
 ``workflows/elfin_scalar_floor.py --vector-evidence``): the spin-axis 1x coupling drifting
 faster than a cubic (:func:`axial_coupling_line`; removed by
-:func:`~magcal.missions.elfin_vector.correct_vector` with ``knot_s``), a tilt of the
+:func:`~magcal.missions.elfin.vector.correct_vector` with ``knot_s``), a tilt of the
 spin axis free of the 0.2 deg bound, and a tilt drifting linearly within the pass.
 
 What it measured on 2022-01-12 (zone medians; product: the default chain with the vector
@@ -46,7 +46,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from magcal.missions.elfin_scalar import fast_part, rms
+from magcal.missions.elfin.scalar import fast_part, rms
 
 
 def dipole_latitude(times, pos_gei_km) -> np.ndarray:
@@ -191,7 +191,7 @@ def axial_coupling_line(t_s, b_body, ref_body, *, knot_s: float = 30.0) -> dict:
         along its principal direction), ``direction_deg`` (that direction, body frame,
         mod 180) and ``sign_changes`` (of ``d`` along it).
     """
-    from magcal.missions.elfin_vector import drift_basis
+    from magcal.missions.elfin.vector import drift_basis
 
     t = np.asarray(t_s, dtype=float)
     b, ref = np.asarray(b_body, float), np.asarray(ref_body, float)

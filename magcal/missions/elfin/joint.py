@@ -1,6 +1,6 @@
 """One ELFIN calibration across science zones: shared sensor, per-zone offsets and attitude.
 
-The per-zone linear fit (:mod:`magcal.missions.elfin`) gives every zone its own 12
+The per-zone linear fit (:mod:`magcal.missions.elfin.linear`) gives every zone its own 12
 parameters; on ELFIN-A it trades the poorly sampled spin-axis direction against gains
 and offsets (spin-axis "turns" of 1-5 deg within a pass, two zones with the mirrored
 sensor triad). Here the sensor is one instrument for the whole day:
@@ -9,7 +9,7 @@ sensor triad). Here the sensor is one instrument for the whole day:
   ``U`` times a fixed start ``M0``), the tilt ``theta`` of the sensor triad from the
   spin axis (two angles; the rotation about the spin axis is the spin phase's), and the
   complex cubic non-linearity ``e`` of the spin-plane field found in the scalar residual
-  (:mod:`magcal.missions.elfin_scalar`): ``beta -> beta - e conj(beta)^3 / B0^2`` with
+  (:mod:`magcal.missions.elfin.scalar`): ``beta -> beta - e conj(beta)^3 / B0^2`` with
   ``beta = Bx + i By`` in the spinning frame and ``B0 = 45000 nT``;
 * per zone: offsets in the spinning frame (spin plane: polynomial of degree
   ``offset_degree`` in the zone time ``T`` in [-1, 1]; spin axis: constant), a drifting
@@ -58,7 +58,7 @@ import numpy as np
 import pandas as pd
 
 from magcal.errors import InputError
-from magcal.missions.elfin_phase import despun_basis, unwrap_predictive, wrap
+from magcal.missions.elfin.phase import despun_basis, unwrap_predictive, wrap
 from magcal.spin.despin import despin, spin
 
 B0_NT = 45000.0
@@ -551,7 +551,7 @@ def score_field(field: pd.DataFrame, *, poly_degree: int = 5) -> pd.DataFrame:
         ``zone, scalar_rms_nT, scalar_fast_nT, scalar_slow_nT, vector_rms_x_nT ..z,
         vector_rms_nT`` (RMS over the three components).
     """
-    from magcal.missions.elfin_scalar import fast_part, rms
+    from magcal.missions.elfin.scalar import fast_part, rms
 
     rows = []
     for k in sorted(field["zone"].unique()):

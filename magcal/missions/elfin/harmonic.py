@@ -1,7 +1,7 @@
 """Spin-harmonic correction of calibrated ELFIN vectors (beyond the linear floor).
 
 The scalar residual of any linear ELFIN calibration holds (see
-:mod:`magcal.missions.elfin_scalar`) a 4x-spin harmonic fixed in the sensor (a cubic
+:mod:`magcal.missions.elfin.scalar`) a 4x-spin harmonic fixed in the sensor (a cubic
 non-linearity of the spin-plane sensors: amplitude about 8e-4 of |B|, growing as
 |B|^2.7 across zones) and 1x/2x harmonics whose coefficients drift within a pass
 (spin-plane offsets and gain ratio/non-orthogonality changing over the ~6 min of a
@@ -27,8 +27,8 @@ from dataclasses import replace
 import numpy as np
 import pandas as pd
 
-from magcal.missions.elfin_phase import despun_basis
-from magcal.missions.elfin_scalar import fast_part, fit_spin_harmonics, rms
+from magcal.missions.elfin.phase import despun_basis
+from magcal.missions.elfin.scalar import fast_part, fit_spin_harmonics, rms
 from magcal.spin.despin import despin, spin
 
 
@@ -46,7 +46,7 @@ def harmonic_vector_correction(t_s, b_body, ref_magnitude_nT, *, fixed=(4,), dri
     ref_magnitude_nT : array_like (n,)
         Reference magnitude (|IGRF|).
     fixed, drifting, drift_degree, poly_degree :
-        Passed to :func:`~magcal.missions.elfin_scalar.fit_spin_harmonics`.
+        Passed to :func:`~magcal.missions.elfin.scalar.fit_spin_harmonics`.
     fixed_power : float
         The fixed harmonics scale as ``|beta|^fixed_power`` (3: a cubic non-linearity;
         across the ELFIN zones the 4x amplitude grows as |B|^2.7).
@@ -107,7 +107,7 @@ def correct_elfin_calibration(cal, **kw):
     Parameters
     ----------
     cal : magcal.missions.elfin.ElfinCalibration
-        From :func:`~magcal.missions.elfin.calibrate_elfin`.
+        From :func:`~magcal.missions.elfin.linear.calibrate_elfin`.
     **kw
         Passed to :func:`harmonic_vector_correction`.
 
@@ -120,13 +120,15 @@ def correct_elfin_calibration(cal, **kw):
         Per zone: scalar and vector RMS against IGRF before and after, fast parts, the
         4x amplitude and the drifting 1x/2x RMS.
     """
+    from magcal.missions.elfin.drift import fit_samples
+
     f = cal.field.copy()
     rows = []
     for k in sorted(f["zone"].unique()):
         sel = (f["zone"] == k).to_numpy()
         z = f.loc[sel]
         t = (z.index.asi8 - z.index.asi8[0]) / 1e9
-        used = z["used"].to_numpy() == 1
+        used = fit_samples(z)
         phase = z["phase"].to_numpy()
         desp = z[["bx_despun", "by_despun", "bz_despun"]].to_numpy()
         ref_d = z[["igrf_x_despun", "igrf_y_despun", "igrf_z_despun"]].to_numpy()
@@ -153,9 +155,9 @@ def drifting_harmonic_correction(t_s, b_body, ref_magnitude_nT, *, harmonics=(1,
 
     As :func:`harmonic_vector_correction` with ``drifting`` only, but the coefficients
     ``c_k(t)`` are cubic B-splines with knots every ``knot_s`` seconds
-    (:func:`~magcal.missions.elfin_vector.drift_basis`) instead of cubics over the zone:
+    (:func:`~magcal.missions.elfin.vector.drift_basis`) instead of cubics over the zone:
     in the sunlit ELFIN-A passes (zones 7 and 8 of 2022-01-12) the 1x/2x terms change
-    within a minute (:mod:`magcal.missions.elfin_sun`: this, not a Sun-locked term, is
+    within a minute (:mod:`magcal.missions.elfin.diagnostics.sun`: this, not a Sun-locked term, is
     what the data support). The slow part (a polynomial of ``poly_degree``) is fitted
     alongside and left alone.
 
@@ -197,7 +199,7 @@ def drifting_harmonic_correction(t_s, b_body, ref_magnitude_nT, *, harmonics=(1,
     >>> info["scalar_fast_before_nT"] > 5, info["scalar_fast_after_nT"] < 0.1
     (True, True)
     """
-    from magcal.missions.elfin_vector import drift_basis
+    from magcal.missions.elfin.vector import drift_basis
 
     t = np.asarray(t_s, dtype=float)
     b = np.array(b_body, dtype=float)
@@ -248,7 +250,7 @@ def correct_fast_drift(cal, **kw):
         Per zone: the :func:`drifting_harmonic_correction` numbers and the vector RMS
         before/after (despun, nT).
     """
-    from magcal.missions.elfin_drift import map_zones
+    from magcal.missions.elfin.drift import map_zones
 
     def step(t, z, used):
         phase = z["phase"].to_numpy(float)

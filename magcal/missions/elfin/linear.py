@@ -9,7 +9,7 @@ with ``b`` the raw counts, extended by slow drifts that the real data need:
   the offsets ``o(T)`` drift; ``T`` runs from -1 to 1 over the zone and the drifts are
   polynomials of degree ``axis_degree`` and ``offset_degree`` (0 gives the plain
   12-parameter model);
-* despun frame (rows of :func:`~magcal.missions.elfin_phase.despun_basis`, ``Z`` = spin
+* despun frame (rows of :func:`~magcal.missions.elfin.phase.despun_basis`, ``Z`` = spin
   axis from the attitude file): ``B_despun = despin(B_body, p)`` (CONTRACTS §4 sense),
   with the spin phase ``p`` = a quadratic in time plus a cubic spline with knots every
   ``phase_knot_s``;
@@ -19,7 +19,7 @@ Given the phase, the model is linear in the calibration parameters (ordinary lea
 squares, per component); given the calibration, the phase correction is the spline fit
 of the angle between the calibrated and the IGRF spin-plane field. The two steps
 alternate. The first phase comes from the counts alone
-(:func:`~magcal.missions.elfin_phase.phase_from_counts`); its sense is chosen by the fit.
+(:func:`~magcal.missions.elfin.phase.phase_from_counts`); its sense is chosen by the fit.
 """
 
 from __future__ import annotations
@@ -31,15 +31,16 @@ import pandas as pd
 
 from magcal.errors import InputError
 from magcal.io.jsonio import product_dict
-from magcal.missions.elfin_phase import (
+from magcal.missions.elfin.phase import (
     TWO_PI,
     despun_basis,
     phase_from_counts,
     repair_timestamps,
+    spline_knots,
     split_zones,
     wrap,
 )
-from magcal.missions.elfin_timing import check_timing
+from magcal.missions.elfin.timing import check_timing
 from magcal.spin.despin import despin, spin
 
 CREDIT = "ELFIN SOC (PI V. Angelopoulos, UCLA); data: Open Data for Scientific Use"
@@ -93,8 +94,8 @@ class ZoneCalibration:
     rms_by_sense_nT : list of float
         Overall vector RMS with the phase sense +1 and -1 (the smaller one is kept).
     timestamp_anomalies : list of dict
-        From :func:`~magcal.missions.elfin_phase.repair_timestamps` and
-        :func:`~magcal.missions.elfin_timing.check_timing` (repaired and flagged blocks).
+        From :func:`~magcal.missions.elfin.phase.repair_timestamps` and
+        :func:`~magcal.missions.elfin.timing.check_timing` (repaired and flagged blocks).
     n_timing_repaired, n_timing_flagged : int
         Samples moved next to an unpaired time-stamp jump, and samples left out
         (``used = 0``) because the counts do not fit the spin where they are stamped.
@@ -139,6 +140,7 @@ class _ZoneFit:
     phase: np.ndarray
     used: np.ndarray
     summary: ZoneCalibration
+    fit: np.ndarray | None = None
 
 
 def _powers(T, degree: int, first: int = 0) -> np.ndarray:
@@ -147,7 +149,7 @@ def _powers(T, degree: int, first: int = 0) -> np.ndarray:
 
 
 def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, n_iter,
-             fit_attitude=False):
+             fit_attitude=False, hold=False, phase_degree=2):
     """Alternate calibration (linear) and phase steps; return weights, body field, phase.
 
     Spin-plane rows: ``[counts, 1, T, .., T^offset_degree]``. Spin-axis row:
@@ -156,16 +158,15 @@ def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, 
     spin-axis offset does not drift in the model: with the small range of the
     spin-axis field in one pass a drifting ``o3`` would trade off against the
     spin-axis gain. The phase correction is a cubic spline (``knots``) or, without
-    knots, a quadratic.
+    knots, such that the whole phase is a polynomial of ``phase_degree`` (2: the
+    base's quadratic plus a quadratic). ``hold``: the phase stays ``base`` (no phase step).
     """
     from scipy.interpolate import make_lsq_spline
 
     xy = np.column_stack([x, _powers(T, offset_degree)])
     corr = np.zeros_like(t)
-    spline_knots = None
-    if knots is not None:
-        inner = knots[(knots > t[used][0]) & (knots < t[used][-1])]
-        spline_knots = np.r_[[t[used][0]] * 4, inner, [t[used][-1]] * 4]
+    knot_vector = None if knots is None else spline_knots(t[used], knots, origin=t[0],
+                                                          trim_end=False)
     tu = t[used] - t[used][0]
 
     def calibrate(phase):
@@ -182,14 +183,16 @@ def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, 
         # the last two columns are the attitude correction: not part of the data
         return (wx, wy, wz), np.column_stack([bx, by, z[:, :-2] @ wz[:-2]]), tgt
 
-    for _ in range(max(1, n_iter)):
+    for _ in range(0 if hold else max(1, n_iter)):
         _, b_body, tgt = calibrate(base + corr)
         dphi = wrap(np.arctan2(tgt[:, 1], tgt[:, 0]) - np.arctan2(b_body[:, 1], b_body[:, 0]))
-        if spline_knots is not None:
-            spl = make_lsq_spline(t[used], dphi[used], spline_knots, k=3)
+        if knot_vector is not None:
+            spl = make_lsq_spline(t[used], dphi[used], knot_vector, k=3)
             corr = corr + spl(np.clip(t, t[used][0], t[used][-1]))
         else:
-            corr = corr + np.polyval(np.polyfit(tu, dphi[used], 2), t - t[used][0])
+            # the whole phase (base + correction) a polynomial of phase_degree
+            total = base + corr + dphi
+            corr = np.polyval(np.polyfit(tu, total[used], phase_degree), t - t[used][0]) - base
     phase = base + corr
     w, b_body, _ = calibrate(phase)
     eps = w[2][-2:]
@@ -213,7 +216,7 @@ def _phase_jumps(t, resid_angle, used, period_s, min_gap_s=1.0) -> list:
 def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: int = 2,
              axis_degree: int = 2, phase_knot_s: float | None = 30.0, n_iter: int = 8,
              fit_attitude: bool = False, times_iso=("", ""), timestamp_anomalies=(),
-             exclude=None) -> _ZoneFit:
+             exclude=None, phase=None, fit_exclude=None, phase_degree: int = 2) -> _ZoneFit:
     """Calibrate one zone of raw counts against a reference field in the despun frame.
 
     Parameters
@@ -231,14 +234,25 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
         Polynomial degrees of the offset drift and of the spin-axis row (0, 0: plain
         12-parameter model).
     phase_knot_s : float or None
-        Knot spacing of the spline phase correction; None for the quadratic phase only.
+        Knot spacing of the spline phase correction; None for a polynomial phase only.
+    phase_degree : int
+        Without knots, the degree of the whole spin phase in time (2: a spin rate that
+        changes linearly; 1: a constant spin rate, so that a spin-plane natural field
+        cannot turn the phase within the pass).
     n_iter : int
         Alternations of the calibration and phase steps.
     fit_attitude : bool
         Also fit a constant tilt of the attitude file's spin axis (two angles).
     exclude : array_like of bool, optional
         Samples never used (e.g. flagged by
-        :func:`~magcal.missions.elfin_timing.check_timing`); they stay in the output.
+        :func:`~magcal.missions.elfin.timing.check_timing`); they stay in the output.
+    phase : array_like (n,), optional
+        Hold the spin phase at this solution (rad) and fit only the linear calibration:
+        the injection tests' reference run (:mod:`magcal.missions.elfin.injection`),
+        where a phase fitted against the model cannot absorb an injected field.
+    fit_exclude : array_like of bool, optional
+        Samples left out of the fit but kept in the output (``used`` stays 1): e.g.
+        intervals with a natural field the model lacks, so that the fit cannot absorb it.
 
     Returns
     -------
@@ -252,6 +266,9 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
     used = (t >= t[0] + skip_s) & np.all(np.isfinite(c), axis=1) & np.all(np.isfinite(ref), axis=1)
     if exclude is not None:
         used &= ~np.asarray(exclude, bool)
+    out_used = used.copy()
+    if fit_exclude is not None:
+        used &= ~np.asarray(fit_exclude, bool)
     if used.sum() < 200:
         raise InputError(f"zone {times_iso[0]}: only {int(used.sum())} usable samples")
     c_mean = c[used].mean(axis=0)
@@ -260,15 +277,20 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
     T = 2.0 * (t - t[used][0]) / span - 1.0
     raw_phase, _ = phase_from_counts(t[used], c[used])
     raw = np.interp(t, t[used], raw_phase)
-    knots = None if phase_knot_s is None else np.arange(t[0], t[-1], float(phase_knot_s))
+    knots = None if phase_knot_s is None else float(phase_knot_s)
 
     best, tried = None, []
-    for sense in (1.0, -1.0):
-        coef = np.polyfit(t[used] - t[0], sense * raw[used], 2)
-        base = np.polyval(coef, t - t[0])
+    held = phase is not None
+    for sense in ((1.0,) if held else (1.0, -1.0)):
+        if held:
+            base = np.asarray(phase, dtype=float)
+            coef = np.polyfit(t[used] - t[0], base[used], 2)
+        else:
+            coef = np.polyfit(t[used] - t[0], sense * raw[used], 2)
+            base = np.polyval(coef, t - t[0])
         out = _iterate(t, x, T, ref, base, used, offset_degree=offset_degree,
                        axis_degree=axis_degree, knots=knots, n_iter=n_iter,
-                       fit_attitude=fit_attitude)
+                       fit_attitude=fit_attitude, hold=held, phase_degree=phase_degree)
         fitted = out[4]
         rms = float(np.sqrt(np.mean((fitted - ref)[used] ** 2)))
         tried.append(rms)
@@ -332,7 +354,8 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
         n_timing_repaired=sum(a["n_samples"] for a in timestamp_anomalies
                               if a["kind"] == "unpaired_repaired"),
         n_timing_flagged=int(np.sum(exclude)) if exclude is not None else 0)
-    return _ZoneFit(b_despun=fitted, phase=phase, used=used, summary=summary)
+    return _ZoneFit(b_despun=fitted, phase=phase, used=out_used, summary=summary,
+                    fit=used)
 
 
 def igrf_gei(times, pos_gei_km) -> np.ndarray:
@@ -362,7 +385,7 @@ class ElfinCalibration:
     ``igrf_x_gei ...`` and ``igrf_x_despun ...``, the spin ``phase`` (rad) and the
     attitude file's spin axis ``spin_axis_gei_x ..`` (despun Z, defines the despun frame)
     and the raw counts ``b1, b2, b3`` (for fits that start again from the counts, e.g.
-    :func:`magcal.missions.elfin_joint.calibrate_joint`).
+    :func:`magcal.missions.elfin.joint.calibrate_joint`).
     """
 
     zones: tuple
@@ -423,29 +446,36 @@ class ElfinCalibration:
 def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float = 60.0,
                     time_shift_s: float = 0.0, repair_times: bool = True,
                     check_times: bool = True, zones=None, provenance=None,
-                    **fit_kw) -> ElfinCalibration:
+                    hold_phase=None, fit_exclude=None, **fit_kw) -> ElfinCalibration:
     """Calibrate ELFIN FGS counts zone by zone against IGRF at the spacecraft.
 
     Parameters
     ----------
     fgs : DataFrame
-        From :func:`magcal.missions.elfin_files.read_elfin_fgs` (``b1, b2, b3`` counts, UTC index).
+        From :func:`magcal.missions.elfin.files.read_elfin_fgs` (``b1, b2, b3`` counts, UTC index).
     state : DataFrame
-        From :func:`magcal.missions.elfin_files.read_elfin_state` (GEI position km, spin axis).
+        From :func:`magcal.missions.elfin.files.read_elfin_state` (GEI position km, spin axis).
     min_gap_s : float
         Gaps longer than this separate science zones.
     time_shift_s : float
         The reference is evaluated at ``t + time_shift_s`` (to scan for a timing
         offset between the counts and the orbit).
     repair_times : bool
-        Undo paired time-stamp jumps (:func:`~magcal.missions.elfin_phase.repair_timestamps`).
+        Undo paired time-stamp jumps (:func:`~magcal.missions.elfin.phase.repair_timestamps`).
     check_times : bool
         Then check the stamps against the spin in the counts
-        (:func:`~magcal.missions.elfin_timing.check_timing`): repair blocks next to
+        (:func:`~magcal.missions.elfin.timing.check_timing`): repair blocks next to
         unpaired jumps, mark what still does not fit ``used = 0`` (counted in
         ``n_timing_flagged``).
     zones : sequence of int, optional
         Only these zone numbers (0-based).
+    hold_phase : array_like (len(fgs),), optional
+        Spin phase (rad) per FGS row, held instead of fitted (``phase`` of
+        :func:`fit_zone`); e.g. the ``phase`` column of an earlier calibration of the
+        same rows.
+    fit_exclude : array_like (len(fgs),) of bool, optional
+        Rows left out of every fit but kept in the product (``fit_exclude`` of
+        :func:`fit_zone`); the field's ``fit`` column (0/1) carries it to the later steps.
     **fit_kw
         Passed to :func:`fit_zone`.
 
@@ -457,6 +487,8 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
 
     if not {"b1", "b2", "b3"} <= set(fgs.columns):
         raise InputError("FGS frame needs columns b1, b2, b3")
+    if hold_phase is not None and len(hold_phase) != len(fgs):
+        raise InputError(f"hold_phase has {len(hold_phase)} values for {len(fgs)} FGS rows")
     t_all = (fgs.index.asi8 - fgs.index.asi8[0]) / 1e9
     t_ref = fgs.index[0]
     ts = (state.index.asi8 - fgs.index.asi8[0]) / 1e9
@@ -486,12 +518,16 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
         basis = despun_basis(ax)
         ref = np.einsum("nij,nj->ni", basis, ref_gei)
         iso = (str(fgs.index[a].tz_convert(None)), str(fgs.index[b - 1].tz_convert(None)))
+        held = None if hold_phase is None else np.asarray(hold_phase, float)[a:b]
+        skip = None if fit_exclude is None else np.asarray(fit_exclude, bool)[a:b]
         fit = fit_zone(t, fgs[["b1", "b2", "b3"]].to_numpy()[a:b], ref, times_iso=iso,
-                       timestamp_anomalies=anomalies, exclude=bad, **fit_kw)
+                       timestamp_anomalies=anomalies, exclude=bad, phase=held,
+                       fit_exclude=skip, **fit_kw)
         results.append(fit.summary)
         cal_gei = np.einsum("nji,nj->ni", basis, fit.b_despun)
         idx = t_ref + pd.to_timedelta(np.round(t * 1e9).astype("int64"), unit="ns")
-        data = {"zone": np.full(t.size, k), "used": fit.used.astype(int)}
+        data = {"zone": np.full(t.size, k), "used": fit.used.astype(int),
+                "fit": fit.fit.astype(int)}
         for name, arr in (("{}_gei", cal_gei), ("{}_despun", fit.b_despun)):
             for j, c in enumerate("xyz"):
                 data["b" + name.format(c)] = arr[:, j]

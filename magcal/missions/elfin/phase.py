@@ -6,6 +6,7 @@
 * :func:`unwrap_predictive` - unwrap an angle across data gaps using a known rate.
 * :func:`phase_from_counts` - a first spin phase from raw, uncalibrated counts.
 * :func:`despun_basis` - a despun frame (rows X, Y, Z) from the spin-axis direction.
+* :func:`spline_knots` - cubic-spline knots every so many seconds where there are data.
 
 Times are float seconds from any epoch; angles in radians.
 """
@@ -28,6 +29,38 @@ def wrap(angle):
     -1.570796
     """
     return (np.asarray(angle, dtype=float) + np.pi) % TWO_PI - np.pi
+
+
+def spline_knots(t_used, knot_s: float, *, origin: float | None = None,
+                 trim_end: bool = True, min_samples: int = 20) -> np.ndarray:
+    """Full knot vector of a cubic spline over the samples ``t_used`` (increasing).
+
+    Interior knots every ``knot_s`` seconds from the first sample, none that would
+    leave fewer than ``min_samples`` samples between it and its neighbours: a stretch
+    left out of a fit (a gap, or a disturbance kept out of the fit) is bridged by one
+    cubic piece instead of a basis function with no data under it (singular, or pulled
+    to zero by a minimum-norm solution). Knots sit at ``origin + n knot_s`` (default:
+    the first sample); ``trim_end``: no sliver of an interval (under half a spacing) at
+    the end.
+
+    Examples
+    --------
+    >>> t = np.r_[np.arange(0.0, 100.0, 0.5), np.arange(200.0, 300.0, 0.5)]
+    >>> spline_knots(t, 30.0)[4:-4].tolist()          # none inside the gap 100-200 s
+    [30.0, 60.0, 90.0, 210.0, 240.0, 270.0]
+    """
+    t = np.asarray(t_used, dtype=float)
+    t0, t1 = t[0], t[-1]
+    start = t0 if origin is None else float(origin)
+    inner, last = [], t0
+    for k in np.arange(start, t1, float(knot_s)):
+        if k > t0 and np.count_nonzero((t > last) & (t <= k)) >= min_samples:
+            inner.append(k)
+            last = k
+    while inner and ((trim_end and t1 - inner[-1] < 0.5 * knot_s)
+                     or np.count_nonzero(t > inner[-1]) < min_samples):
+        inner.pop()
+    return np.r_[[t0] * 4, inner, [t1] * 4]
 
 
 def split_zones(t_s, min_gap_s: float = 60.0) -> list[tuple[int, int]]:

@@ -6,7 +6,7 @@ physical parameter of the per-zone calibration it gives
 
 * a per-zone value and a standard error that accounts for the autocorrelated residuals
   (the Jacobian sandwich with residuals summed over blocks of ``block_s`` seconds within
-  the zone, :func:`magcal.missions.elfin_joint._sandwich`; conditional on the spin phase
+  the zone, :func:`magcal.missions.elfin.joint._sandwich`; conditional on the spin phase
   and, for the spin-axis row, on the fitted spin-plane components);
 * the spread across zones (standard deviation, minimum, maximum) and ``chi2/dof`` of the
   zone values about their inverse-variance weighted mean;
@@ -16,15 +16,15 @@ physical parameter of the per-zone calibration it gives
 
 Parameters, all reconstructed from the products the pipeline keeps:
 
-* linear per-zone fit (:func:`magcal.missions.elfin.fit_zone`, refitted here on its own
+* linear per-zone fit (:func:`magcal.missions.elfin.linear.fit_zone`, refitted here on its own
   phase, which reproduces it exactly): sensor gains (column norms of ``C``), the
   non-orthogonality angles (90 deg minus the angle between two columns of ``C``; both
   are invariant under the turn about the spin axis that the phase absorbs), body-frame
   offsets at mid-zone and the spin-axis turn over the zone;
 * the cubic non-linearity (the 4x amplitude of ``|B|`` at ``|B_perp|`` = 45000 nT,
-  :mod:`magcal.missions.elfin_correction`), the spin-plane gain drift peak-to-peak
-  (:mod:`magcal.missions.elfin_drift`) and the spin-axis tilt of the vector step
-  (:mod:`magcal.missions.elfin_vector`).
+  :mod:`magcal.missions.elfin.harmonic`), the spin-plane gain drift peak-to-peak
+  (:mod:`magcal.missions.elfin.drift`) and the spin-axis tilt of the vector step
+  (:mod:`magcal.missions.elfin.vector`).
 
 A large spread can be a degeneracy rather than physics. The spin-axis field changes by
 only 240-3300 nT over an ELFIN pass, smoothly, so a multiple of the spin-axis row of
@@ -40,8 +40,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from magcal.missions.elfin import _SCALE
-from magcal.missions.elfin_joint import _sandwich
+from magcal.missions.elfin.linear import _SCALE
+from magcal.missions.elfin.joint import _sandwich
 from magcal.spin.despin import spin
 
 #: Block length (s) of the sandwich: the residuals are correlated over tens of seconds.
@@ -127,7 +127,7 @@ def linear_zone_parameters(t_s, counts, ref_despun, phase, used, *, offset_degre
                            axis_degree: int = 2, block_s: float = BLOCK_S) -> dict:
     """Physical parameters of one zone's linear fit with block-sandwich uncertainties.
 
-    Refits :func:`magcal.missions.elfin.fit_zone`'s last calibration step on its final
+    Refits :func:`magcal.missions.elfin.linear.fit_zone`'s last calibration step on its final
     phase (same design: spin-plane rows ``[counts, 1, T, .., T^offset_degree]``,
     spin-axis row ``[counts, 1, bx T^d, by T^d]``), so the weights are the delivered ones;
     the three rows share blocks, so their cross-covariance is kept.
@@ -183,8 +183,8 @@ def cubic_zone(t_s, b_body, ref_magnitude_nT, used, *, drifting=(1, 2), drift_de
                block_s: float = BLOCK_S) -> tuple[float, float]:
     """4x amplitude of ``|B| - |IGRF|`` scaled to ``|B_perp| = at_nT``, with its
     block-sandwich standard error (the first pass of
-    :func:`magcal.missions.elfin_correction.harmonic_vector_correction`, same design)."""
-    from magcal.missions.elfin_scalar import _harmonics
+    :func:`magcal.missions.elfin.harmonic.harmonic_vector_correction`, same design)."""
+    from magcal.missions.elfin.scalar import _harmonics
 
     use = np.asarray(used, bool)
     t = np.asarray(t_s, dtype=float)[use]
@@ -211,7 +211,7 @@ def cubic_zone(t_s, b_body, ref_magnitude_nT, used, *, drifting=(1, 2), drift_de
 def gain_drift_zone(t_s, b_body, ref_magnitude_nT, used, *, degree: int = 3,
                     block_s: float = BLOCK_S) -> tuple[float, float]:
     """Peak-to-peak of the spin-plane gain drift ``g(T)`` and its block-sandwich error
-    (the first pass of :func:`magcal.missions.elfin_drift.fit_gain_drift`)."""
+    (the first pass of :func:`magcal.missions.elfin.drift.fit_gain_drift`)."""
     use = np.asarray(used, bool)
     t = np.asarray(t_s, dtype=float)[use]
     b = np.asarray(b_body, dtype=float)[use]
@@ -233,7 +233,7 @@ def gain_drift_zone(t_s, b_body, ref_magnitude_nT, used, *, degree: int = 3,
 
 def tilt_zone(b_despun, ref_despun, used, t_s, *, block_s: float = BLOCK_S):
     """Spin-axis tilt (deg, about despun X and Y) and its block-sandwich errors, at the
-    solution of :func:`magcal.missions.elfin_vector.refine_tilt` (``b_despun`` is its
+    solution of :func:`magcal.missions.elfin.vector.refine_tilt` (``b_despun`` is its
     output: the design ``w x b`` is the same to first order in the tiny angles, and
     ``b - ref`` is the residual it leaves)."""
     use = np.asarray(used, bool)

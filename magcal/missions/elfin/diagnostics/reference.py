@@ -33,7 +33,7 @@ import warnings
 import numpy as np
 import pandas as pd
 
-from magcal.missions.elfin_scalar import fast_part, rms
+from magcal.missions.elfin.scalar import fast_part, rms
 
 CANDIDATES = ("along_1s", "rot_x_1mrad", "rot_y_1mrad", "rot_z_1mrad", "radial_1km",
               "cross_1km", "t89", "ring_1nT", "sun_lowpass", "warm_up")
@@ -109,7 +109,7 @@ def zone_slow_parts(cal, state: pd.DataFrame, kp=None, *, poly_degree: int = 5,
     cal : magcal.missions.elfin.ElfinCalibration
         The calibration whose scalar residual is screened.
     state : DataFrame
-        From :func:`magcal.missions.elfin_files.read_elfin_state`.
+        From :func:`magcal.missions.elfin.files.read_elfin_state`.
     kp : pandas.Series, optional
         3-hourly Kp (:func:`magcal.indices.kp.read_kp`), for the ``t89`` candidate.
     poly_degree : int
