@@ -207,3 +207,33 @@ def test_running_median_equals_pandas_truncated_rolling_median(n, window):
     a = np.round(np.random.default_rng(n).normal(0, 1, n), 2)  # ties
     ref = pd.Series(a).rolling(window, center=True, min_periods=1).median().to_numpy()
     np.testing.assert_array_equal(running_median(a, window), ref)
+
+
+def test_a_pulse_two_sensors_see_is_a_field_a_glitch_of_one_is_a_spike():
+    """A spacecraft pulse is larger near its source: the near sensor's part passes the
+    spike test, the far one's not, but the far sensor departs from its neighbours by
+    far more than its noise. PiCoG must see it, so it is not flagged; one sensor's
+    glitch, and a corrupt packet spoiling both (over max_model_deviation_nT), are."""
+    rng = np.random.default_rng(11)
+    n = 8640
+    t = np.arange(n, dtype=np.int64) * 10 * 10**9
+    amb = 100 + np.cumsum(rng.normal(0, 0.05, (n, 3)), axis=0)
+    inner = amb + rng.normal(0, 0.1, (n, 3))
+    outer = amb + rng.normal(0, 0.1, (n, 3))
+    pulses = np.arange(500, n - 100, 700)
+    for i in pulses:  # four samples, 6 nT at the inner sensor, 1.4 nT at the outer
+        inner[i:i + 4] += [6.0, -6.0, 4.0]
+        outer[i:i + 4] += [1.4, -1.4, 0.9]
+    glitches = pulses + 350
+    outer[glitches, 1] += 50.0
+    packet = pulses[:3] + 200
+    inner[packet] += 5e4
+    outer[packet] += 5e4
+    vec = {"fgmo": outer, "fgmi": inner}
+    res = flag_samples(t, vec, 10.0, independent=("fgmo", "fgmi"))
+    spike = (res.flags & 1) != 0  # bit 1: spike
+    assert not spike[np.add.outer(pulses, np.arange(4)).ravel()].any()
+    assert spike[glitches].all() and spike[packet].all()
+    # without the sensors declared distinct (frames of one sensor), pulses are spikes
+    alone = flag_samples(t, vec, 10.0)
+    assert ((alone.flags & 1) != 0)[pulses].all()

@@ -70,9 +70,10 @@ def quality_control(series: VectorSeries, config: ChainConfig):
     ref = config["frames"]["reference"]
     if ref and ref in series.sensors and ref not in names:
         names.append(ref)
+    sensors = list(_sensors(series, config))  # distinct sensors (the reference is not)
     return flag_samples(series.times.as_unit("ns").asi8, {s: series[s] for s in names},
-                        series.cadence_s,
-                        QCSettings.from_mapping(config["qc"]))
+                        series.cadence_s, QCSettings.from_mapping(config["qc"]),
+                        independent=sensors)
 
 
 def mask_series(series: VectorSeries, qc) -> VectorSeries:

@@ -19,7 +19,10 @@ def register(subparsers) -> None:
     p.add_argument("-o", "--output", required=True, help="output CSV: time,quality")
     p.add_argument("--config", metavar="CHAIN.toml",
                    help="take the thresholds from this configuration's [qc] section")
-    p.add_argument("--sensors", help="comma-separated sensors to check (default: all)")
+    p.add_argument("--sensors", help="comma-separated, physically distinct sensors to check "
+                                      "(default: all, frames of one sensor included); a "
+                                      "spike that two of them show at once is a field "
+                                      "(a spacecraft pulse), not flagged")
     p.add_argument("--range-nt", type=float, default=None, metavar="NT",
                    help="declared instrument range in nT: |component| >= NT is saturated")
     p.add_argument("--format", choices=("auto",) + FORMATS, default="auto",

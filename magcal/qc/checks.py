@@ -342,3 +342,76 @@ def implausible_mask(b_nT, model_nT, *, max_deviation_nT: float = 1000.0,
     mm = np.linalg.norm(_as_2d(model_nT), axis=1)
     with np.errstate(invalid="ignore"):
         return np.abs(bm - mm) > np.maximum(max_deviation_nT, max_relative * mm)
+
+
+def coincident_field_mask(spikes: dict, values: dict, *, window: int = 11,
+                          max_deviation_nT: float = 1000.0, seen_k: float = 5.0) -> np.ndarray:
+    """Spike runs that another independent sensor sees too: a field (a spacecraft pulse,
+    which PiCoG must see, or a natural one), not a sensor glitch.
+
+    A run of one sensor's spikes is seen by another sensor when that sensor departs
+    from the median of its neighbours over the run (one sample either side) by more
+    than ``seen_k`` robust sigmas of its local first differences; a spacecraft pulse is
+    larger near its source, so the far sensor's part is often under the spike test.
+
+    Parameters
+    ----------
+    spikes : dict
+        ``sensor -> (n,) bool`` spike masks of physically distinct sensors (not the
+        same sensor in other frames: those show every glitch at once).
+    values : dict
+        ``sensor -> (n, 3)`` readings (nT), same keys.
+    window : int
+        Samples on each side whose median is the reference of a departure.
+    max_deviation_nT : float
+        A run departing more than this in any sensor stays a glitch (a corrupt packet
+        spoils every sensor at once).
+    seen_k : float
+        Departure, in robust sigmas, that counts as seen.
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> va, vb = rng.normal(0, 0.1, (200, 3)), rng.normal(0, 0.1, (200, 3))
+    >>> va[100:102] += 8.0; vb[100:102] += 2.0      # a pulse, larger near sensor a
+    >>> va[150] += 8.0                               # a glitch of sensor a alone
+    >>> a = np.zeros(200, dtype=bool); a[[100, 101, 150]] = True
+    >>> b = np.zeros(200, dtype=bool)
+    >>> np.flatnonzero(coincident_field_mask({"a": a, "b": b}, {"a": va, "b": vb})).tolist()
+    [100, 101]
+    """
+    names = list(spikes)
+    if len(names) < 2:
+        return np.zeros(np.asarray(spikes[names[0]]).size if names else 0, dtype=bool)
+    vals = {k: np.asarray(values[k], dtype=float) for k in names}
+    n = vals[names[0]].shape[0]
+    keep = np.zeros(n, dtype=bool)
+    for name in names:
+        starts, ends = _runs(np.asarray(spikes[name], dtype=bool))
+        for a, e in zip(starts, ends):
+            lo, hi = max(a - window, 0), min(e + window, n)
+            departs = {k: _departure(vals[k], a, e, lo, hi, window) for k in names}
+            if max(d for d, _ in departs.values()) >= max_deviation_nT:
+                continue
+            if any(z > seen_k for k, (_, z) in departs.items() if k != name):
+                keep[a:e] = True
+    return keep
+
+
+def _departure(v: np.ndarray, a: int, e: int, lo: int, hi: int, window: int):
+    """(nT, robust sigmas) by which ``v[a:e]`` departs from the median of its neighbours
+    ``v[lo:a]`` and ``v[e:hi]``; sigma from the first differences of a wider stretch."""
+    around = np.r_[v[lo:a], v[e:hi]]
+    if not around.size:
+        return 0.0, 0.0
+    dev = np.abs(v[a:e] - np.nanmedian(around, axis=0))
+    wide = v[max(a - 10 * window, 0):min(e + 10 * window, v.shape[0])]
+    d = np.diff(wide, axis=0)
+    with np.errstate(all="ignore"):
+        sigma = 1.4826 * np.nanmedian(np.abs(d - np.nanmedian(d, axis=0)), axis=0) / np.sqrt(2)
+        z = dev / np.where(sigma > 0, sigma, np.inf)
+    return float(np.nanmax(dev)), float(np.nanmax(z)) if np.isfinite(z).any() else 0.0

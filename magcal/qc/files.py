@@ -64,7 +64,9 @@ def check_files(paths, settings: QCSettings | None = None, sensors=None,
     settings : QCSettings, optional
         Thresholds (CHAIN.toml ``[qc]``); the documented defaults when omitted.
     sensors : sequence of str, optional
-        Sensors to check (default: every sensor of the files).
+        Sensors to check (default: every sensor of the files). Named sensors are taken
+        as physically distinct: a spike two of them see at once is a field, not flagged
+        (the default, every sensor, includes the same sensor in other frames).
     input_format : str
         ``auto`` (detected by content) or one of :data:`magcal.io.formats.FORMATS`.
 
@@ -99,8 +101,10 @@ def check_files(paths, settings: QCSettings | None = None, sensors=None,
     for s in names:
         series[s]  # a clear error naming a sensor the files do not have
     s = settings or QCSettings()
+    # the sensors named are taken as physically distinct (a pulse two of them see is a
+    # field); the default of every sensor includes the same sensor in other frames
     result = flag_samples(series.times.as_unit("ns").asi8, {n: series[n] for n in names},
-                          series.cadence_s, s)
+                          series.cadence_s, s, independent=tuple(sensors or ()))
     repairs = [dict(r, file=str(p)) for p, f in zip(files, frames)
                for r in f.attrs.get("repairs", []) if r.get("count", 1)]
     prov = {"files": [str(p) for p in files], "settings": s.__dict__.copy(),

@@ -130,7 +130,7 @@ class QCResult:
 
 
 def flag_samples(times_ns, vectors: dict, cadence_s: float,
-                 settings: QCSettings | None = None) -> QCResult:
+                 settings: QCSettings | None = None, independent=()) -> QCResult:
     """Run every check but the model's on one record.
 
     Parameters
@@ -142,6 +142,11 @@ def flag_samples(times_ns, vectors: dict, cadence_s: float,
     cadence_s : float
         The record's nominal cadence.
     settings : QCSettings, optional
+    independent : sequence of str
+        Physically distinct sensors among ``vectors`` (the chain's PiCoG sensors): a
+        spike that two of them show at the same samples, under
+        ``max_model_deviation_nT``, is a field (a spacecraft pulse PiCoG must see, or a
+        natural one), not flagged (:func:`~magcal.qc.checks.coincident_field_mask`).
 
     Returns
     -------
@@ -167,6 +172,7 @@ def flag_samples(times_ns, vectors: dict, cadence_s: float,
     if not np.isfinite(cadence_s) or cadence_s <= 0:  # one sample: no cadence, no run
         cadence_s = s.stuck_seconds
     stuck_run = max(s.stuck_samples, int(np.ceil(s.stuck_seconds / max(cadence_s, 1e-9))))
+    owns = {}
     for name, b in vectors.items():
         b = np.asarray(b, dtype=float)
         own = np.zeros(t.size, dtype=np.uint16)
@@ -180,6 +186,14 @@ def flag_samples(times_ns, vectors: dict, cadence_s: float,
                                    window=s.spike_window, k=s.spike_k,
                                    scale_window=s.spike_scale_window)
         own[spikes & ((own & STUCK) == 0)] |= SPIKE  # a stuck run's edge is not a spike
+        owns[name] = own
+    field = checks.coincident_field_mask(
+        {n: (owns[n] & SPIKE) != 0 for n in independent if n in owns},
+        {n: vectors[n] for n in independent if n in owns}, window=s.spike_window,
+        max_deviation_nT=s.max_model_deviation_nT)
+    for name, own in owns.items():
+        if field.any():
+            own[field] &= np.uint16(~int(SPIKE) & 0xFFFF)
         by_sensor[name] = counts(own)
         flags |= own
     flags[checks.time_mask(t, cadence_s, tolerance=s.time_tolerance)] |= TIME
