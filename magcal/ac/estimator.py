@@ -335,8 +335,20 @@ class PiCoG:
         self.steps_ = self.result_.steps
         self.target_ = plan.target
         raw = data[plan.target]
-        self.band_check_ = self._band_check(raw, self.result_.corrected + self.G_, grid.dt_s)
+        onboard = self.result_.corrected + self.G_
+        self.onboard_check_ = self._band_check(raw, onboard, grid.dt_s)
+        self.delivery_ = None
+        if self.check_bands:
+            from magcal.ac.bands import deliver
+
+            self.delivery_ = deliver(raw, onboard, grid.dt_s)
+            self.band_check_ = self.delivery_.check
+        else:
+            self.band_check_ = None
         self.warnings_ = product_warnings(self.band_check_, self.G_, raw, plan.target)
+        if self.delivery_ is not None and self.delivery_.kind != "on_board":
+            self.warnings_.insert(0, f"delivered product: {self.delivery_.kind} "
+                                     f"({self.delivery_.reason})")
         if self.check_bands and self.band_check_ is None:
             self.warnings_.append(f"no band check of the product: the record ({n_grid} "
                                   "samples) is too short to compare spectra")
@@ -354,6 +366,8 @@ class PiCoG:
         """What a user should see after a fit: the automatic choices (with ``auto``) and
         the power reduction per band and component of the cleaned target."""
         lines = list((self.auto_report_ or {}).get("choices", []))
+        if self.delivery_ is not None:
+            lines.append(f"delivered product: {self.delivery_.kind} ({self.delivery_.reason})")
         if self.band_check_ is not None:
             lines.append(f"power reduction of {self.target_} per band (raw / cleaned):")
             lines += ["  " + ln for ln in self.band_check_.lines()]
@@ -384,6 +398,17 @@ class PiCoG:
         }
         if self.band_check_ is not None:
             payload["band_check"] = self.band_check_.to_dict()
+        if self.onboard_check_ is not None:
+            payload["on_board"] = {
+                "M": payload["M"], "G": payload["G"],
+                "worse_than_raw": self.onboard_check_.worse_than_raw,
+                "band_check": self.onboard_check_.to_dict(),
+                "note": "constant matrices (Eq. 28, sum M = I) for an on-board upload; "
+                        "the same as the top-level M and G"}
+        if self.delivery_ is not None:
+            payload["ground"] = self.delivery_.to_dict()
+            payload["delivered"] = self.delivery_.kind
+            payload["delivered_reason"] = self.delivery_.reason
         if self.auto_report_ is not None:
             payload["auto"] = self.auto_report_
         if provenance is not None:
@@ -487,7 +512,47 @@ def apply_params(frame: pd.DataFrame, doc: dict, *, pure_ac: bool = False,
     M, G, target = params_from_json(doc, file=file)
     out = apply_upload(frame, M, G, pure_ac=pure_ac,
                        keep_correction_offset=keep_correction_offset)
-    return out, delivered_warnings(frame, target, out, G)
+    delivery = None
+    if doc.get("ground") and target in sensors_in_frame(frame) and len(frame) > 2:
+        out, delivery = deliver_frame(frame, target, out, doc["ground"],
+                                      G if keep_correction_offset else None)
+    warnings = delivered_warnings(frame, target, out, G)
+    if delivery is not None and delivery.kind != "on_board":
+        warnings.insert(0, f"delivered product: {delivery.kind} ({delivery.reason})")
+    return out, warnings
+
+
+def deliver_frame(frame: pd.DataFrame, target: str, out: pd.DataFrame, ground: dict,
+                  G=None):
+    """The band-selective product of PARAMS.json ``ground`` on ``frame`` with the
+    never-worse-than-raw rule re-checked on these data (:func:`magcal.ac.bands.deliver`).
+
+    ``out`` is the on-board product (:func:`apply_upload`); ``G`` is given when it was
+    left out of ``out`` (``--keep-correction-offset``): the check adds it back.
+    Returns ``(product frame, Delivery)``; the Delivery is None when the sample grid
+    cannot be fitted (then ``out`` is returned unchanged).
+    """
+    from magcal.ac.bands import deliver
+
+    raw = sensor_array(frame, target)
+    onboard = out[list(COMPONENTS)].to_numpy(dtype=float)
+    shift = np.zeros(3) if G is None else np.asarray(G, dtype=float)
+    try:
+        grid = fit_time_grid(epoch_seconds(frame.index))
+    except InputError:
+        return out, None
+    r = np.full((grid.n_grid, 3), np.nan)
+    o = np.full((grid.n_grid, 3), np.nan)
+    r[grid.slots], o[grid.slots] = raw, onboard + shift
+    res = deliver(r, o, grid.dt_s, bands_hz=[tuple(b) for b in ground.get("bands_hz", [])],
+                  weights=ground.get("weights"), kind=ground.get("delivered"))
+    new = out.copy()
+    vals = res.product[grid.slots] - shift
+    bad = ~np.all(np.isfinite(vals), axis=1)
+    new[list(COMPONENTS)] = vals
+    new["flag"] = np.maximum(new["flag"].to_numpy(), bad.astype(int))
+    new.attrs["delivery"] = res.to_dict()
+    return new, res
 
 
 def delivered_warnings(frame: pd.DataFrame, target: str, out: pd.DataFrame, G) -> list[str]:

@@ -93,7 +93,7 @@ def run_apply(args) -> int:
     from magcal.ac.estimator import apply_params
     from magcal.io.csv import write_csv_frame
     from magcal.io.formats import read_any
-    from magcal.io.jsonio import read_json
+    from magcal.io.jsonio import read_json, write_json
 
     src = existing_file(args.input)
     params_path = existing_file(args.params)
@@ -108,6 +108,18 @@ def run_apply(args) -> int:
             raise
         raise InputError(exc.message, file=src, column=exc.column) from None
     write_csv_frame(args.output, out, float_format="%.6f")
+    delivery = out.attrs.get("delivery")
+    if delivery is not None:
+        from pathlib import Path
+
+        from magcal.provenance import make_provenance
+
+        side = Path(args.output).with_suffix(".json")
+        write_json(side, {**delivery, "product": str(args.output),
+                          "provenance": make_provenance("picog apply", {
+                              "params": str(params_path)}, inputs=[src, params_path])})
+        print(f"magcal picog apply: delivered {delivery['delivered']} ({delivery['reason']}); "
+              f"per-band record in {side}", file=sys.stderr)
     for warning in warnings:
         print(f"magcal picog apply: warning: {warning}", file=sys.stderr)
     return 0
