@@ -114,7 +114,7 @@ def run_cli(frame: pd.DataFrame, target: str, tmp: Path, name: str):
 def report(name, raw, out, doc, dt) -> dict:
     chk = band_check(raw, out, dt)
     red = chk.reduction
-    onboard = doc.get("on_board", {}).get("band_check")
+    onboard = doc.get("band_check")   # the on-board product (top-level M, G)
     print(f"\n{name}: delivered {doc.get('delivered')} ({doc.get('delivered_reason')})")
     print("  band (Hz)              raw/delivered power  x y z")
     for ln in chk.lines():

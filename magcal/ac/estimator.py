@@ -336,15 +336,12 @@ class PiCoG:
         self.target_ = plan.target
         raw = data[plan.target]
         onboard = self.result_.corrected + self.G_
-        self.onboard_check_ = self._band_check(raw, onboard, grid.dt_s)
+        self.band_check_ = self._band_check(raw, onboard, grid.dt_s)
         self.delivery_ = None
         if self.check_bands:
             from magcal.ac.bands import deliver
 
             self.delivery_ = deliver(raw, onboard, grid.dt_s)
-            self.band_check_ = self.delivery_.check
-        else:
-            self.band_check_ = None
         self.warnings_ = product_warnings(self.band_check_, self.G_, raw, plan.target)
         if self.delivery_ is not None and self.delivery_.kind != "on_board":
             self.warnings_.insert(0, f"delivered product: {self.delivery_.kind} "
@@ -368,9 +365,12 @@ class PiCoG:
         lines = list((self.auto_report_ or {}).get("choices", []))
         if self.delivery_ is not None:
             lines.append(f"delivered product: {self.delivery_.kind} ({self.delivery_.reason})")
-        if self.band_check_ is not None:
-            lines.append(f"power reduction of {self.target_} per band (raw / cleaned):")
-            lines += ["  " + ln for ln in self.band_check_.lines()]
+        check = self.band_check_
+        if self.delivery_ is not None and self.delivery_.check is not None:
+            check = self.delivery_.check
+        if check is not None:
+            lines.append(f"power reduction of {self.target_} per band (raw / delivered):")
+            lines += ["  " + ln for ln in check.lines()]
         return lines
 
     def transform(self, frame: pd.DataFrame, *, pure_ac: bool = False,
@@ -398,17 +398,19 @@ class PiCoG:
         }
         if self.band_check_ is not None:
             payload["band_check"] = self.band_check_.to_dict()
-        if self.onboard_check_ is not None:
-            payload["on_board"] = {
-                "M": payload["M"], "G": payload["G"],
-                "worse_than_raw": self.onboard_check_.worse_than_raw,
-                "band_check": self.onboard_check_.to_dict(),
-                "note": "constant matrices (Eq. 28, sum M = I) for an on-board upload; "
-                        "the same as the top-level M and G"}
+        payload["on_board"] = {
+            "M": payload["M"], "G": payload["G"],
+            "note": "constant matrices (Eq. 28, sum M = I) for an on-board upload, the same "
+                    "as the top-level M and G; worse_than_raw and band_check describe "
+                    "their product"}
         if self.delivery_ is not None:
-            payload["ground"] = self.delivery_.to_dict()
-            payload["delivered"] = self.delivery_.kind
-            payload["delivered_reason"] = self.delivery_.reason
+            d = self.delivery_
+            payload["ground"] = {**d.to_dict(), "worse_than_raw": (
+                [] if d.check is None else d.check.worse_than_raw)}
+            if d.check is not None:
+                payload["ground"]["band_check"] = d.check.to_dict()
+            payload["delivered"] = d.kind
+            payload["delivered_reason"] = d.reason
         if self.auto_report_ is not None:
             payload["auto"] = self.auto_report_
         if provenance is not None:
@@ -503,23 +505,25 @@ def apply_upload(frame: pd.DataFrame, M: dict, G=None, *, pure_ac: bool = False,
 
 
 def apply_params(frame: pd.DataFrame, doc: dict, *, pure_ac: bool = False,
-                 keep_correction_offset: bool = False, file=None) -> tuple[pd.DataFrame, list]:
+                 keep_correction_offset: bool = False, on_board: bool = False,
+                 file=None) -> tuple[pd.DataFrame, list]:
     """Clean ``frame`` with a PARAMS.json document: (CLEAN frame, warnings).
 
-    See :func:`apply_upload` for the offset options; the warning says when ``G`` is
-    large against the target's field (:func:`offset_warning`).
+    By default the product is the band-selective "ground" one of ``doc["ground"]``,
+    re-checked on ``frame`` so that no band is worse than raw (:func:`deliver_frame`);
+    ``on_board=True`` (or a PARAMS.json without ``ground``) gives the constant matrices'
+    product, warned where it is worse than raw. See :func:`apply_upload` for the offset
+    options; the warning says when ``G`` is large against the target's field
+    (:func:`offset_warning`).
     """
     M, G, target = params_from_json(doc, file=file)
     out = apply_upload(frame, M, G, pure_ac=pure_ac,
                        keep_correction_offset=keep_correction_offset)
-    delivery = None
-    if doc.get("ground") and target in sensors_in_frame(frame) and len(frame) > 2:
-        out, delivery = deliver_frame(frame, target, out, doc["ground"],
-                                      G if keep_correction_offset else None)
-    warnings = delivered_warnings(frame, target, out, G)
-    if delivery is not None and delivery.kind != "on_board":
-        warnings.insert(0, f"delivered product: {delivery.kind} ({delivery.reason})")
-    return out, warnings
+    if (not on_board and doc.get("ground") and target in sensors_in_frame(frame)
+            and len(frame) > 2):
+        out, _ = deliver_frame(frame, target, out, doc["ground"],
+                               G if keep_correction_offset else None)
+    return out, delivered_warnings(frame, target, out, G)
 
 
 def deliver_frame(frame: pd.DataFrame, target: str, out: pd.DataFrame, ground: dict,

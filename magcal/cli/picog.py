@@ -43,6 +43,12 @@ def register(subparsers) -> None:
     offset.add_argument("--pure-ac", action="store_true",
                         help="add back the DC offset G of the correction (Eq. 32); now the "
                              "default, kept for compatibility")
+    a.add_argument("--on-board", action="store_true",
+                   help="deliver the on-board product (the constant matrices) even in bands "
+                        "where it is worse than raw (warned); by default the band-selective "
+                        "ground product is delivered, never above 1.1x the raw power in any "
+                        "band (else band-limited or the raw target, with the reason on "
+                        "stderr and in CLEAN.json next to the output)")
     add_output(a, help_text="CLEAN.csv (time,x,y,z,flag)")
     a.set_defaults(func=run_apply)
 
@@ -102,7 +108,7 @@ def run_apply(args) -> int:
     try:
         out, warnings = apply_params(frame, doc, pure_ac=args.pure_ac,
                                      keep_correction_offset=args.keep_correction_offset,
-                                     file=params_path)
+                                     on_board=args.on_board, file=params_path)
     except InputError as exc:
         if exc.file is not None:
             raise
