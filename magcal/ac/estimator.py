@@ -258,7 +258,11 @@ class PiCoG:
         Keep per-window scan results in ``result_.scans`` (for plots).
     check_bands : bool
         Compare raw and cleaned spectra per band and component after the fit
-        (:func:`magcal.ac.bandcheck.band_check`).
+        (:func:`magcal.ac.bandcheck.band_check`) and choose the delivered product
+        (:func:`magcal.ac.bands.deliver`: band-selective, never worse than raw).
+    robust : bool
+        Leave samples that are glitches of one sensor (spikes, stuck runs that passed
+        quality control) out of the fit (:mod:`magcal.ac.robust`).
 
     Attributes
     ----------
@@ -269,6 +273,8 @@ class PiCoG:
     time_grid_ : TimeGrid (fitted sample grid and the time-stamp jitter found)
     band_check_ : BandCheck or None (raw vs cleaned power per band and component)
     warnings_ : list of str (bands worse than raw, a large correction offset G)
+    delivery_ : Delivery or None (the product delivered, never worse than raw)
+    outliers_ : dict or None (samples left out of the fit as single-sensor glitches)
 
     Examples
     --------
@@ -285,13 +291,14 @@ class PiCoG:
 
     def __init__(self, plan: Plan | None = None, *, target: str | None = None,
                  auto: bool = False, alpha_method: str = "decorrelate",
-                 keep_scans: bool = False, check_bands: bool = True):
+                 keep_scans: bool = False, check_bands: bool = True, robust: bool = True):
         self.plan = plan
         self.target = target
         self.auto = auto
         self.alpha_method = alpha_method
         self.keep_scans = keep_scans
         self.check_bands = check_bands
+        self.robust = robust
 
     def fit(self, frame: pd.DataFrame) -> "PiCoG":
         """Fit the chain on ``frame`` (all rows; plan intervals select sub-ranges)."""
@@ -318,24 +325,30 @@ class PiCoG:
             data = {s: gridded(s) for s in names}
             require_common_frame(frame, names)
             _check_valid(data)
-            plan, report = auto_plan(data, grid_t, target, alpha_method=self.alpha_method)
+            fit_data = self._screen(data)
+            plan, report = auto_plan(fit_data, grid_t, target, alpha_method=self.alpha_method)
         else:
             if self.plan is None:
                 raise InputError("give a plan or use auto")
             plan, report = self.plan, None
             data = {s: gridded(s) for s in plan.sensors}
+            fit_data = None
         require_common_frame(frame, list(data))
         _check_valid(data)
+        if fit_data is None:
+            fit_data = self._screen(data)
         self.plan_ = plan
         self.auto_report_ = report
-        self.result_: ChainResult = run_chain(data, grid_t, plan, alpha_method=self.alpha_method,
+        self.result_: ChainResult = run_chain(fit_data, grid_t, plan,
+                                              alpha_method=self.alpha_method,
                                               keep_scans=self.keep_scans)
         self.M_ = self.result_.M
         self.G_ = self.result_.G
         self.steps_ = self.result_.steps
         self.target_ = plan.target
         raw = data[plan.target]
-        onboard = self.result_.corrected + self.G_
+        # on every sample, the glitches left out of the fit included
+        onboard = apply_weights(data, self.M_) + self.G_
         self.band_check_ = self._band_check(raw, onboard, grid.dt_s)
         self.delivery_ = None
         if self.check_bands:
@@ -351,6 +364,21 @@ class PiCoG:
                                   "samples) is too short to compare spectra")
         return self
 
+    def _screen(self, data: dict) -> dict:
+        """Leave glitches of single sensors out of the fit (:mod:`magcal.ac.robust`)."""
+        if not self.robust:
+            self.outliers_ = self.screen_note_ = None
+            return data
+        from magcal.ac.robust import screen
+
+        fit_data, self.outliers_ = screen(data)
+        self.screen_note_ = None
+        if self.outliers_["rows_left_out"]:
+            flagged = ", ".join(f"{s} {n}" for s, n in self.outliers_["flagged"].items() if n)
+            self.screen_note_ = (f"{self.outliers_['rows_left_out']} sample(s) left out of "
+                                 f"the fit as glitches of one sensor ({flagged})")
+        return fit_data
+
     def _band_check(self, raw, clean, dt_s) -> BandCheck | None:
         if not self.check_bands:
             return None
@@ -363,6 +391,8 @@ class PiCoG:
         """What a user should see after a fit: the automatic choices (with ``auto``) and
         the power reduction per band and component of the cleaned target."""
         lines = list((self.auto_report_ or {}).get("choices", []))
+        if getattr(self, "screen_note_", None):
+            lines.append(self.screen_note_)
         if self.delivery_ is not None:
             lines.append(f"delivered product: {self.delivery_.kind} ({self.delivery_.reason})")
         check = self.band_check_
@@ -396,6 +426,8 @@ class PiCoG:
                                else self.band_check_.worse_than_raw),
             "warnings": list(self.warnings_),
         }
+        if self.outliers_ is not None:
+            payload["outliers"] = self.outliers_
         if self.band_check_ is not None:
             payload["band_check"] = self.band_check_.to_dict()
         payload["on_board"] = {
