@@ -5,8 +5,9 @@ The on-board correction (constant matrices, Eq. 28) changes the target by
 the disturbers' fields minus the other sensors' noise scaled by the matrices (Eq. 22).
 Where no disturber is present the correction only adds that noise (Venus Express: the
 inboard sensor's floor at 40-64 Hz). The "ground" product splits ``delta`` into the
-log-spaced bands of :func:`magcal.ac.bandcheck.record_bands_hz` with FFT brick-wall
-filters (their sum is ``delta`` again) and weights each band and component:
+eighth-octave bands (:data:`WEIGHT_BAND_RATIO`; the check's bands are half-octave, see
+:func:`magcal.ac.bandcheck.record_bands_hz`) with FFT brick-wall filters (their sum is
+``delta`` again) and weights each band and component:
 
 - ``w = 1`` where the full correction does not raise the band's power by more than
   :data:`RISE_TOLERANCE` (the ambient field cancels in ``delta``, so power can only
@@ -43,6 +44,11 @@ from magcal.errors import InputError
 #: a band's weight is lowered only where the full correction raises its power by more
 #: than this factor (in-sample, over the record's Fourier coefficients)
 RISE_TOLERANCE = 1.02
+#: weights are chosen on bands finer than the check's (eighth-octave, at least this many
+#: Welch bins of the check): a disturber's band then holds little of the noise around
+#: it, and the step in noise density at its edges leaks less into the next checked band
+WEIGHT_BAND_RATIO = 2 ** 0.125
+WEIGHT_MIN_BINS = 4
 #: delivered kinds, best first
 KINDS = ("on_board", "ground", "band_limited", "raw")
 
@@ -107,7 +113,8 @@ def select_weights(raw: np.ndarray, onboard: np.ndarray, dt_s: float, bands_hz=N
     """
     raw = np.asarray(raw, dtype=float)
     if bands_hz is None:
-        bands_hz, _ = record_bands_hz(raw.shape[0], dt_s)
+        bands_hz, _ = record_bands_hz(raw.shape[0], dt_s, min_bins=WEIGHT_MIN_BINS,
+                                      ratio=WEIGHT_BAND_RATIO)
     bands_hz = [tuple(map(float, bd)) for bd in bands_hz]
     added_low = bands_hz[0][0] > 0
     if added_low:
@@ -212,7 +219,7 @@ def deliver(raw: np.ndarray, onboard: np.ndarray, dt_s: float, *, bands_hz=None,
                         "on-board product is delivered unchecked", (), np.ones((0, 3)),
                         None, None)
     if bands_hz is None or weights is None:
-        bands_hz, weights = select_weights(raw, onboard, dt_s, onboard_check.bands_hz)
+        bands_hz, weights = select_weights(raw, onboard, dt_s)
     weights = np.array(weights, dtype=float).reshape(-1, 3)
     if weights.size and not weights.any():
         return Delivery(raw.copy(), "raw", "the fit delivered the raw target (no band "

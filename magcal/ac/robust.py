@@ -10,8 +10,10 @@ same time (in a fixed ratio, which is what PiCoG fits), a glitch by one only.
 
 - **spikes**: samples whose residual to a running median (``median_n`` samples) is
   above ``threshold`` robust standard deviations (1.4826 MAD of that residual over the
-  record) in some component, while no other sensor is outlying at that sample
-  (nor next to it);
+  record) and above ``AC_FACTOR`` standard deviations of the sensor's AC variation in
+  some component, while no other sensor is more than ``SEEN_THRESHOLD`` robust std
+  off its running median at that sample or next to it (a disturber attenuated at the
+  other sensor still shows there);
 - **stuck runs**: ``stuck_n`` or more consecutive samples with all three components
   exactly repeated, while some other sensor varies; skipped for a sensor whose values
   repeat in more than ``max_stuck_fraction`` of its steps (coarse quantisation).
@@ -25,10 +27,16 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import median_filter
 
+from magcal.ac.filters import running_mean
 from magcal.ac.metrics import fill_nan
 
 #: robust standard deviations above which a sample is a spike candidate
 THRESHOLD = 8.0
+#: ... and this many standard deviations of the sensor's AC variation (running mean over
+#: a 48th of the record removed): small glitches cannot turn the fit
+AC_FACTOR = 0.0
+#: another sensor "sees" a spike when it is this many robust std off its running median
+SEEN_THRESHOLD = 5.5
 #: running-median length (samples)
 MEDIAN_N = 7
 #: consecutive repeated samples that make a stuck run
@@ -38,7 +46,7 @@ MAX_STUCK_FRACTION = 0.01
 
 
 def spike_candidates(b: np.ndarray, *, threshold: float = THRESHOLD,
-                     median_n: int = MEDIAN_N) -> np.ndarray:
+                     median_n: int = MEDIAN_N, ac_factor: float = AC_FACTOR) -> np.ndarray:
     """Samples more than ``threshold`` robust std from the running median (any component).
 
     Examples
@@ -57,7 +65,14 @@ def spike_candidates(b: np.ndarray, *, threshold: float = THRESHOLD,
     mad = np.median(np.abs(resid[ok]), axis=0) * 1.4826
     # a noiseless component (mad 0) cannot say what is outlying in it
     scale = np.where(mad > 0, mad, np.inf)
-    return ok & np.any(np.abs(resid) > threshold * scale, axis=1)
+    cand = ok & np.any(np.abs(resid) > threshold * scale, axis=1)
+    if not cand.any() or ac_factor <= 0:
+        return cand
+    # only what stands out of the sensor's own variation (disturbers included) can turn
+    # the variance analysis: the rest of the heavy tail stays in
+    ac = filled - running_mean(filled, max(10 * median_n, b.shape[0] // 48))
+    spread = np.std(ac[ok & ~cand], axis=0)
+    return cand & np.any(np.abs(resid) > ac_factor * spread, axis=1)
 
 
 def stuck_runs(b: np.ndarray, *, stuck_n: int = STUCK_N,
@@ -113,7 +128,8 @@ def sensor_outliers(data: dict) -> dict:
     """
     spikes = {s: spike_candidates(b) for s, b in data.items()}
     stuck = {s: stuck_runs(b) for s, b in data.items()}
-    near = {s: _grow(m) for s, m in spikes.items()}
+    near = {s: _grow(spike_candidates(b, threshold=SEEN_THRESHOLD, ac_factor=0.0))
+            for s, b in data.items()}
     out = {}
     for s in data:
         others = [o for o in data if o != s]
