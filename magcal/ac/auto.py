@@ -54,6 +54,10 @@ CANDIDATE_WINDOWS_S = (30.0, 100.0, 300.0, 700.0, 2000.0, 6000.0, 16000.0)
 #: fewer samples cannot support a choice of filters, windows and orders (nor the band
 #: check of the product, :func:`magcal.ac.bandcheck.record_bands_hz`)
 MIN_AUTO_SAMPLES = 256
+#: records at least this long get the joint pair fit (:func:`_pair_stage`): its event
+#: half-widths (120 s) and chance-level lags (up to 1500 s) are geostationary timescales
+#: that need hours of data to hold several events and many lags
+JOINT_MIN_RECORD_S = 21600.0
 
 
 def noise_sigma(b: np.ndarray) -> float:
@@ -175,12 +179,16 @@ def _reference_stage(data, t_s, target, partner, others, ctx, report):
     report["reference_candidates"] = ref_rows
     cur = {s: np.asarray(data[s], dtype=float) for s in (target, partner)}
     w = {s: {s: np.eye(3)} for s in (target, partner)}
-    usable = [row for row in ref_rows if row["usable"]]
-    best = max(usable, key=lambda row: row["gain"]) if usable else None
-    if best is None or best["gain"] < ctx["min_gain"] or best["reference"] == partner:
-        report["choices"].append("no reference stage: no other sensor removes at least "
-                                 f"{ctx['min_gain']:.0%} of the target variance as a "
-                                 "first-order reference, or the best one is the boom partner")
+    # the boom partner is cleaned by the reference, never used as one; a reference that
+    # injects more noise than the target carries is only taken when no quieter one pays
+    paying = [row for row in ref_rows if row["usable"] and row["reference"] != partner
+              and row["gain"] >= ctx["min_gain"]]
+    quiet = [row for row in paying if row["injected_noise_nT"] <= sigma[target]]
+    best = max(quiet or paying, key=lambda row: row["gain"]) if paying else None
+    if best is None:
+        report["choices"].append("no reference stage: no sensor besides the boom partner "
+                                 f"removes at least {ctx['min_gain']:.0%} of the target "
+                                 "variance as a first-order reference")
         return [], cur, w, base
     ref = best["reference"]
     noise = best["injected_noise_nT"]
@@ -322,10 +330,40 @@ def auto_plan(data: dict, t_s: np.ndarray, target: str, *, alpha_method: str = "
     report["timescales"] = timescales(cur[target] - cur[partner], dt)
     orders, picog_obj = _pair_orders(data, t_s, stages, cur, w, target, partner, current,
                                      ctx, report)
-    picog_stages = tuple(stages) + ((Stage("pair", (target, partner), orders=tuple(orders)),)
-                                    if orders else ())
+    pair, picog_obj = _pair_stage(data, t_s, stages, orders, target, partner, picog_obj,
+                                  scales["record_s"], ctx, report)
+    picog_stages = tuple(stages) + ((pair,) if pair is not None else ())
     return _choose_method(data, t_s, target, others, picog_stages, picog_obj, highpass_s,
                           ctx, report)
+
+
+def _pair_stage(data, t_s, stages, orders, target, partner, seq_obj, record_s, ctx, report):
+    """Step 3b: on records of at least :data:`JOINT_MIN_RECORD_S`, the pair's orders are
+    fitted jointly (one full 3x3 per sensor over the orders' windows plus the step and
+    pulse events of the difference, :mod:`magcal.ac.joint`) instead of one rank-one
+    order after another. Returns (stage or None, objective)."""
+    if not orders:
+        return None, seq_obj
+    seq = Stage("pair", (target, partner), orders=tuple(orders))
+    if record_s < JOINT_MIN_RECORD_S:
+        return seq, seq_obj
+    joint = Stage("pair", (target, partner), orders=tuple(orders), joint=True)
+    try:
+        obj = objective(run_chain(data, t_s, Plan(target, tuple(stages) + (joint,)),
+                                  alpha_method=ctx["alpha_method"]).corrected, ctx["hp"])
+    except InputError as exc:
+        report["choices"].append(f"pair orders one after another: the joint fit failed ({exc})")
+        return seq, seq_obj
+    report["objective_joint_nT2"] = obj
+    if obj > seq_obj * (1 + ctx["min_gain"]):
+        report["choices"].append(f"pair orders one after another: the joint fit's objective "
+                                 f"{obj:.4g} nT^2 is {obj / seq_obj - 1:.0%} above theirs")
+        return seq, seq_obj
+    report["choices"].append(
+        f"pair orders fitted jointly (one 3x3 per sensor over their windows and the step "
+        f"and pulse events of the difference): objective {obj:.4g} nT^2 vs {seq_obj:.4g} "
+        "one after another")
+    return joint, obj
 
 
 def _choose_method(data, t_s, target, others, picog_stages, picog_obj, highpass_s, ctx,
