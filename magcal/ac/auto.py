@@ -161,7 +161,7 @@ def _reference_stage(data, t_s, target, partner, others, ctx, report):
     """Step 1: the best first-order reference (if it pays), applied to target and
     partner. Returns (stages, cur, w, objective)."""
     dt, hp, sigma, base = ctx["dt"], ctx["hp"], ctx["sigma"], ctx["base"]
-    ref_order = Order(direction=ctx["direction"], highpass_s=ctx["fit_highpass_s"])
+    ref_order = Order(direction=ctx["direction"], highpass_s=ctx["fit_highpass_s"] / 2)
     ref_rows, ref_fits = [], {}
     for r in others:
         try:
@@ -351,7 +351,7 @@ def _pair_stage(data, t_s, stages, orders, target, partner, seq_obj, record_s, c
     try:
         obj = objective(run_chain(data, t_s, Plan(target, tuple(stages) + (joint,)),
                                   alpha_method=ctx["alpha_method"]).corrected, ctx["hp"])
-    except InputError as exc:
+    except (InputError, np.linalg.LinAlgError) as exc:
         report["choices"].append(f"pair orders one after another: the joint fit failed ({exc})")
         return seq, seq_obj
     report["objective_joint_nT2"] = obj

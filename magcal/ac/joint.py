@@ -251,6 +251,9 @@ def pulse_selection(name: str, x: np.ndarray, y: np.ndarray, t_s: np.ndarray,
     """
     t_s = np.asarray(t_s, float)
     rows = np.flatnonzero(mask)
+    if not np.all(np.isfinite((x - y)[rows])):
+        # samples left out of the fit (glitches, QC flags) are NaN: no template there
+        raise InputError(f"event {name}: the pulse window holds NaN")
     off = t_s[rows] - centre_s
     u = _pulse_template((x - y)[rows], off, steps_s)
     cm = 0.5 * (x + y)
