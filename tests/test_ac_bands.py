@@ -194,7 +194,7 @@ def test_auto_day_removes_1000x_through_the_cli(bench, tmp_path, seed):
     """``picog fit --auto`` + ``apply`` on a GK-2A-like day at 4 s (three sensors, four
     disturbers, no boom shadow): at least 1000x of the disturbance power against the
     simulator's truth (issue 22 part 3). Measured 1795x and 1889x here (seeds 1-6:
-    868-1889x; 342x and 470x at a887a98, before the partner was kept out of the
+    868-1889x; 642x and 298x before the partner was kept out of the
     reference choice and the pair orders were fitted jointly)."""
     from magcal.simulate.geostationary import GeostationaryConfig, simulate_geostationary
     from magcal.simulate.gk2a import gk2a_disturbers, gk2a_sensors

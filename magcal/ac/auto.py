@@ -6,15 +6,22 @@ Choices, each recorded with its reason in the returned report:
    the target with ``r`` gives ``alpha_r``; the noise it would inject is
    ``|alpha_r| sigma_r`` (Eq. 22, ``sigma`` from second differences). A reference is used
    when the fit removes more disturbance variance from the target than the noise it adds
-   (the paper's argument for AMR1 over AMR2: disturbance ratio against noise ratio). The
-   boom partner is the lowest-noise remaining sensor; it is cleaned against the same
-   reference.
+   (the paper's argument for AMR1 over AMR2: disturbance ratio against noise ratio);
+   among the references that pay, those injecting less noise than the target's own are
+   preferred. The boom partner is the lowest-noise other sensor; it is cleaned against
+   the same reference and never used as one. The reference order's high-pass is half
+   the pair's (the reference disturber's edges, not its plateaus, fix alpha).
 2. **Timescales and windows** (§4.2): the spectrum and autocorrelation of the principal
    component of the pair difference are reported; the window of each order is the
    candidate (from a geometric grid, at most a quarter of the data) that most reduces
    the objective.
 3. **Stopping**: orders are added while one reduces the objective by at least
    ``min_gain`` (the paper's AMR second order added noise: it would fail this test).
+   On records of at least :data:`JOINT_MIN_RECORD_S` the chosen windows are then
+   fitted jointly with the step and pulse events of the difference (one full 3x3 per
+   sensor, :mod:`magcal.ac.joint`): rank-one orders chained one after another leave
+   the last direction of a disturber cluster (co-located disturbers) to orders that
+   the objective, dominated by the ambient field, no longer accepts.
 4. **Non-orthogonal fallback**: the regression gradiometer with all sensors is tried
    too; it replaces the PiCoG pair stage when it reduces the objective further.
 
@@ -28,7 +35,9 @@ Filter lengths and windows scale with the record (:func:`record_scales`).
 
 Speed: orders are fitted incrementally. Each candidate window costs one scan of the
 current pair (windows sliding by about 1 % of their length) and one objective; the
-chain is never re-run per trial, so a simulated day takes a few seconds.
+chain is never re-run per trial. The joint fit is run once more to compare its
+objective (about 15 s of a 20-30 s fit of a simulated day at 1 s, most of it in the
+flank-ambient interpolation of the pulse events).
 """
 
 from __future__ import annotations
