@@ -23,7 +23,7 @@ with the boom shadow; the disturbance power removed from fgmo against the simula
 truth, on-board and delivered (target: >= 1000x; with the shadow the inboard sensor's
 offsets, part of the truth's clean field, limit it: see CHANGELOG).
 
-Run: ``python benchmarks/bench_picog_bands.py [--days 3]`` (about 15-30 s per day).
+Run: ``python benchmarks/bench_picog_bands.py [--days 3]`` (about 12 s per day, two days per seed).
 """
 
 from __future__ import annotations

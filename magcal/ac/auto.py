@@ -36,8 +36,7 @@ Filter lengths and windows scale with the record (:func:`record_scales`).
 Speed: orders are fitted incrementally. Each candidate window costs one scan of the
 current pair (windows sliding by about 1 % of their length) and one objective; the
 chain is never re-run per trial. The joint fit is run once more to compare its
-objective (about 15 s of a 20-30 s fit of a simulated day at 1 s, most of it in the
-flank-ambient interpolation of the pulse events).
+objective (a simulated day at 1 s takes about 11 s in all).
 """
 
 from __future__ import annotations
