@@ -35,8 +35,8 @@ Filter lengths and windows scale with the record (:func:`record_scales`).
 
 Speed: orders are fitted incrementally. Each candidate window costs one scan of the
 current pair (windows sliding by about 1 % of their length) and one objective; the
-chain is never re-run per trial. The joint fit is run once more to compare its
-objective (a simulated day at 1 s takes about 11 s in all).
+chain is never re-run per trial. The pair stage is run once more jointly and once
+more in sequence to compare them (a simulated day at 1 s takes 11-28 s in all).
 """
 
 from __future__ import annotations
