@@ -53,7 +53,9 @@ def test_worse_bands_are_recorded_and_warned(tmp_path, capsys):
     assert {w["component"] for w in worse} >= {"x", "z"}
     assert min(w["band_hz"][0] for w in worse) > 0.05
     assert "worse than raw" in err and "worse_than_raw" in err
-    assert main(["picog", "apply", str(path), "--params", str(params), "-o", str(clean)]) == 0
+    # the on-board product (constant matrices) on request: delivered as it is, warned
+    assert main(["picog", "apply", str(path), "--params", str(params), "--on-board",
+                 "-o", str(clean)]) == 0
     apply_err = capsys.readouterr().err                  # the delivered product is checked
     assert "worse than raw" in apply_err and "|G|" in apply_err
     out = pd.read_csv(clean)[["x", "y", "z"]].to_numpy()
@@ -83,7 +85,8 @@ def test_keep_correction_offset_gives_the_bare_sum(tmp_path, capsys):
     outs = {}
     for flag in ("--keep-correction-offset", "--pure-ac", None):
         o = tmp_path / f"{flag}.csv"
-        argv = ["picog", "apply", str(path), "--params", str(params), "-o", str(o)]
+        argv = ["picog", "apply", str(path), "--params", str(params), "--on-board",
+                "-o", str(o)]
         assert main(argv + ([flag] if flag else [])) == 0
         outs[flag] = pd.read_csv(o)[["x", "y", "z"]].to_numpy()
     assert_allclose(outs["--keep-correction-offset"], bare, atol=1e-5)

@@ -258,7 +258,11 @@ class PiCoG:
         Keep per-window scan results in ``result_.scans`` (for plots).
     check_bands : bool
         Compare raw and cleaned spectra per band and component after the fit
-        (:func:`magcal.ac.bandcheck.band_check`).
+        (:func:`magcal.ac.bandcheck.band_check`) and choose the delivered product
+        (:func:`magcal.ac.bands.deliver`: band-selective, never worse than raw).
+    robust : bool
+        Leave samples that are glitches of one sensor (spikes, stuck runs that passed
+        quality control) out of the fit (:mod:`magcal.ac.robust`).
 
     Attributes
     ----------
@@ -269,6 +273,8 @@ class PiCoG:
     time_grid_ : TimeGrid (fitted sample grid and the time-stamp jitter found)
     band_check_ : BandCheck or None (raw vs cleaned power per band and component)
     warnings_ : list of str (bands worse than raw, a large correction offset G)
+    delivery_ : Delivery or None (the product delivered, never worse than raw)
+    outliers_ : dict or None (samples left out of the fit as single-sensor glitches)
 
     Examples
     --------
@@ -285,13 +291,14 @@ class PiCoG:
 
     def __init__(self, plan: Plan | None = None, *, target: str | None = None,
                  auto: bool = False, alpha_method: str = "decorrelate",
-                 keep_scans: bool = False, check_bands: bool = True):
+                 keep_scans: bool = False, check_bands: bool = True, robust: bool = True):
         self.plan = plan
         self.target = target
         self.auto = auto
         self.alpha_method = alpha_method
         self.keep_scans = keep_scans
         self.check_bands = check_bands
+        self.robust = robust
 
     def fit(self, frame: pd.DataFrame) -> "PiCoG":
         """Fit the chain on ``frame`` (all rows; plan intervals select sub-ranges)."""
@@ -318,29 +325,59 @@ class PiCoG:
             data = {s: gridded(s) for s in names}
             require_common_frame(frame, names)
             _check_valid(data)
-            plan, report = auto_plan(data, grid_t, target, alpha_method=self.alpha_method)
+            fit_data = self._screen(data)
+            plan, report = auto_plan(fit_data, grid_t, target, alpha_method=self.alpha_method)
         else:
             if self.plan is None:
                 raise InputError("give a plan or use auto")
             plan, report = self.plan, None
             data = {s: gridded(s) for s in plan.sensors}
+            fit_data = None
         require_common_frame(frame, list(data))
         _check_valid(data)
+        if fit_data is None:
+            fit_data = self._screen(data)
         self.plan_ = plan
         self.auto_report_ = report
-        self.result_: ChainResult = run_chain(data, grid_t, plan, alpha_method=self.alpha_method,
+        self.result_: ChainResult = run_chain(fit_data, grid_t, plan,
+                                              alpha_method=self.alpha_method,
                                               keep_scans=self.keep_scans)
         self.M_ = self.result_.M
         self.G_ = self.result_.G
         self.steps_ = self.result_.steps
         self.target_ = plan.target
         raw = data[plan.target]
-        self.band_check_ = self._band_check(raw, self.result_.corrected + self.G_, grid.dt_s)
+        # on every sample, the glitches left out of the fit included
+        onboard = apply_weights(data, self.M_) + self.G_
+        self.band_check_ = self._band_check(raw, onboard, grid.dt_s)
+        self.delivery_ = None
+        if self.check_bands:
+            from magcal.ac.bands import deliver
+
+            self.delivery_ = deliver(raw, onboard, grid.dt_s)
         self.warnings_ = product_warnings(self.band_check_, self.G_, raw, plan.target)
+        if self.delivery_ is not None and self.delivery_.kind != "on_board":
+            self.warnings_.insert(0, f"delivered product: {self.delivery_.kind} "
+                                     f"({self.delivery_.reason})")
         if self.check_bands and self.band_check_ is None:
             self.warnings_.append(f"no band check of the product: the record ({n_grid} "
                                   "samples) is too short to compare spectra")
         return self
+
+    def _screen(self, data: dict) -> dict:
+        """Leave glitches of single sensors out of the fit (:mod:`magcal.ac.robust`)."""
+        if not self.robust:
+            self.outliers_ = self.screen_note_ = None
+            return data
+        from magcal.ac.robust import screen
+
+        fit_data, self.outliers_ = screen(data)
+        self.screen_note_ = None
+        if self.outliers_["rows_left_out"]:
+            flagged = ", ".join(f"{s} {n}" for s, n in self.outliers_["flagged"].items() if n)
+            self.screen_note_ = (f"{self.outliers_['rows_left_out']} sample(s) left out of "
+                                 f"the fit as glitches of one sensor ({flagged})")
+        return fit_data
 
     def _band_check(self, raw, clean, dt_s) -> BandCheck | None:
         if not self.check_bands:
@@ -354,9 +391,16 @@ class PiCoG:
         """What a user should see after a fit: the automatic choices (with ``auto``) and
         the power reduction per band and component of the cleaned target."""
         lines = list((self.auto_report_ or {}).get("choices", []))
-        if self.band_check_ is not None:
-            lines.append(f"power reduction of {self.target_} per band (raw / cleaned):")
-            lines += ["  " + ln for ln in self.band_check_.lines()]
+        if getattr(self, "screen_note_", None):
+            lines.append(self.screen_note_)
+        if self.delivery_ is not None:
+            lines.append(f"delivered product: {self.delivery_.kind} ({self.delivery_.reason})")
+        check = self.band_check_
+        if self.delivery_ is not None and self.delivery_.check is not None:
+            check = self.delivery_.check
+        if check is not None:
+            lines.append(f"power reduction of {self.target_} per band (raw / delivered):")
+            lines += ["  " + ln for ln in check.lines()]
         return lines
 
     def transform(self, frame: pd.DataFrame, *, pure_ac: bool = False,
@@ -382,8 +426,23 @@ class PiCoG:
                                else self.band_check_.worse_than_raw),
             "warnings": list(self.warnings_),
         }
+        if self.outliers_ is not None:
+            payload["outliers"] = self.outliers_
         if self.band_check_ is not None:
             payload["band_check"] = self.band_check_.to_dict()
+        payload["on_board"] = {
+            "M": payload["M"], "G": payload["G"],
+            "note": "constant matrices (Eq. 28, sum M = I) for an on-board upload, the same "
+                    "as the top-level M and G; worse_than_raw and band_check describe "
+                    "their product"}
+        if self.delivery_ is not None:
+            d = self.delivery_
+            payload["ground"] = {**d.to_dict(), "worse_than_raw": (
+                [] if d.check is None else d.check.worse_than_raw)}
+            if d.check is not None:
+                payload["ground"]["band_check"] = d.check.to_dict()
+            payload["delivered"] = d.kind
+            payload["delivered_reason"] = d.reason
         if self.auto_report_ is not None:
             payload["auto"] = self.auto_report_
         if provenance is not None:
@@ -478,16 +537,58 @@ def apply_upload(frame: pd.DataFrame, M: dict, G=None, *, pure_ac: bool = False,
 
 
 def apply_params(frame: pd.DataFrame, doc: dict, *, pure_ac: bool = False,
-                 keep_correction_offset: bool = False, file=None) -> tuple[pd.DataFrame, list]:
+                 keep_correction_offset: bool = False, on_board: bool = False,
+                 file=None) -> tuple[pd.DataFrame, list]:
     """Clean ``frame`` with a PARAMS.json document: (CLEAN frame, warnings).
 
-    See :func:`apply_upload` for the offset options; the warning says when ``G`` is
-    large against the target's field (:func:`offset_warning`).
+    By default the product is the band-selective "ground" one of ``doc["ground"]``,
+    re-checked on ``frame`` so that no band is worse than raw (:func:`deliver_frame`);
+    ``on_board=True`` (or a PARAMS.json without ``ground``) gives the constant matrices'
+    product, warned where it is worse than raw. See :func:`apply_upload` for the offset
+    options; the warning says when ``G`` is large against the target's field
+    (:func:`offset_warning`).
     """
     M, G, target = params_from_json(doc, file=file)
     out = apply_upload(frame, M, G, pure_ac=pure_ac,
                        keep_correction_offset=keep_correction_offset)
+    if (not on_board and doc.get("ground") and target in sensors_in_frame(frame)
+            and len(frame) > 2):
+        out, _ = deliver_frame(frame, target, out, doc["ground"],
+                               G if keep_correction_offset else None)
     return out, delivered_warnings(frame, target, out, G)
+
+
+def deliver_frame(frame: pd.DataFrame, target: str, out: pd.DataFrame, ground: dict,
+                  G=None):
+    """The band-selective product of PARAMS.json ``ground`` on ``frame`` with the
+    never-worse-than-raw rule re-checked on these data (:func:`magcal.ac.bands.deliver`).
+
+    ``out`` is the on-board product (:func:`apply_upload`); ``G`` is given when it was
+    left out of ``out`` (``--keep-correction-offset``): the check adds it back.
+    Returns ``(product frame, Delivery)``; the Delivery is None when the sample grid
+    cannot be fitted (then ``out`` is returned unchanged).
+    """
+    from magcal.ac.bands import deliver
+
+    raw = sensor_array(frame, target)
+    onboard = out[list(COMPONENTS)].to_numpy(dtype=float)
+    shift = np.zeros(3) if G is None else np.asarray(G, dtype=float)
+    try:
+        grid = fit_time_grid(epoch_seconds(frame.index))
+    except InputError:
+        return out, None
+    r = np.full((grid.n_grid, 3), np.nan)
+    o = np.full((grid.n_grid, 3), np.nan)
+    r[grid.slots], o[grid.slots] = raw, onboard + shift
+    res = deliver(r, o, grid.dt_s, bands_hz=[tuple(b) for b in ground.get("bands_hz", [])],
+                  weights=ground.get("weights"), kind=ground.get("delivered"))
+    new = out.copy()
+    vals = res.product[grid.slots] - shift
+    bad = ~np.all(np.isfinite(vals), axis=1)
+    new[list(COMPONENTS)] = vals
+    new["flag"] = np.maximum(new["flag"].to_numpy(), bad.astype(int))
+    new.attrs["delivery"] = res.to_dict()
+    return new, res
 
 
 def delivered_warnings(frame: pd.DataFrame, target: str, out: pd.DataFrame, G) -> list[str]:

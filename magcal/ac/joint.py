@@ -141,23 +141,27 @@ def flank_ambient(x: np.ndarray, t_s: np.ndarray, centre_s: float, *,
     """
     x = np.asarray(x, float)
     t_s = np.asarray(t_s, float)
-    span = np.abs(t_s - centre_s) <= flank_s
-    fit = span & (np.abs(t_s - centre_s) > core_s) & np.all(np.isfinite(x), axis=1)
+    # t_s increases (the chain's time base): work on the flanks' slice only (a day has
+    # tens of events, each interpolated at dozens of chance lags)
+    lo = int(np.searchsorted(t_s, centre_s - flank_s, side="left"))
+    hi = int(np.searchsorted(t_s, centre_s + flank_s, side="right"))
+    span = slice(lo, hi)
+    ts, xs = t_s[span] - centre_s, x[span]
+    rows = (np.abs(ts) > core_s) & np.all(np.isfinite(xs), axis=1)
     if exclude is not None:
-        fit &= ~np.asarray(exclude, bool)
-    u = (t_s[span] - centre_s) / flank_s
+        rows &= ~np.asarray(exclude, bool)[span]
+    u = ts / flank_s
     poly = [u ** k for k in range(degree + 1)] + [
-        np.clip(t_s[span] - centre_s - st, -1.0, 1.0) for st in steps_s]
+        np.clip(ts - st, -1.0, 1.0) for st in steps_s]
     best = None
     for period in (None, *periods_s):
         cols = poly if period is None else poly + [
             np.sin(2 * np.pi * u * flank_s / period), np.cos(2 * np.pi * u * flank_s / period)]
         basis = np.column_stack(cols)
-        rows = fit[span]
         if rows.sum() <= basis.shape[1]:
             continue
-        coef, *_ = np.linalg.lstsq(basis[rows], x[span][rows], rcond=None)
-        rss = float(np.sum((x[span][rows] - basis[rows] @ coef) ** 2))
+        coef, *_ = np.linalg.lstsq(basis[rows], xs[rows], rcond=None)
+        rss = float(np.sum((xs[rows] - basis[rows] @ coef) ** 2))
         if best is None or rss < best[0]:
             best = (rss, basis @ coef)
     out = np.full(x.shape, np.nan)
@@ -251,6 +255,9 @@ def pulse_selection(name: str, x: np.ndarray, y: np.ndarray, t_s: np.ndarray,
     """
     t_s = np.asarray(t_s, float)
     rows = np.flatnonzero(mask)
+    if not np.all(np.isfinite((x - y)[rows])):
+        # samples left out of the fit (glitches, QC flags) are NaN: no template there
+        raise InputError(f"event {name}: the pulse window holds NaN")
     off = t_s[rows] - centre_s
     u = _pulse_template((x - y)[rows], off, steps_s)
     cm = 0.5 * (x + y)

@@ -246,6 +246,8 @@ def fit_on_worker(task: FitTask) -> dict:
     params = ac.documents.get("PARAMS.json")
     upload = ({"M": params["M"], "G": params["G"]}
               if ac.summary.get("delivered") == "cleaned" else None)
+    if upload is not None and ac.summary.get("product") in ("ground", "band_limited"):
+        upload["ground"] = params["ground"]   # issue 22: the band-selective product
     fit = FrameApply(key=task.key, sensors=common.sensors, target=common.target,
                      transforms=common.transforms, to_hpen=np.asarray(common.to_hpen),
                      upload=upload)

@@ -54,7 +54,9 @@ class FrameApply:
     to_hpen : ndarray, shape (3, 3)
     upload : dict or None
         ``{"M": {sensor: 3x3}, "G": [3]}`` applied with G added back, or None when
-        the raw target is delivered (no plan, one sensor, or cleaning worse than raw).
+        the raw target is delivered (no plan, one sensor, or cleaning worse than raw);
+        with ``"ground"`` (PARAMS.json ``ground``) the band-selective product is
+        delivered instead, re-checked per file (:func:`magcal.ac.estimator.deliver_frame`).
     """
 
     key: str
@@ -134,8 +136,12 @@ def _process(task: PartitionTask) -> dict:
             from magcal.ac.estimator import apply_upload
 
             common = series.with_vectors(vectors, "to common frame", components=("x", "y", "z"))
-            out = apply_upload(common.select(fit.sensors).to_frame(), fit.upload["M"],
-                               fit.upload["G"], pure_ac=True)
+            frame = common.select(fit.sensors).to_frame()
+            out = apply_upload(frame, fit.upload["M"], fit.upload["G"], pure_ac=True)
+            if fit.upload.get("ground"):        # issue 22: the band-selective product
+                from magcal.ac.estimator import deliver_frame
+
+                out, _ = deliver_frame(frame, fit.target, out, fit.upload["ground"])
             cleaned = out[["x", "y", "z"]].to_numpy(dtype=float)
         to_hpen = np.asarray(fit.to_hpen, dtype=float)
         to_hpen_t = np.ascontiguousarray(to_hpen.T)  # a C-ordered (3, 3): 4x faster

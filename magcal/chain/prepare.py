@@ -268,7 +268,7 @@ def run_ac(data: CommonFrameData, config: ChainConfig) -> tuple[CleanedData, Sta
     if kind == "none" or len(data.sensors) < 2:
         lines.append("no AC cleaning (plan none or a single sensor)")
     else:
-        cleaned, params = _picog(data, kind, plan, opts, plan_files, config)
+        cleaned, params, ground = _picog(data, kind, plan, opts, plan_files, config)
         documents["PARAMS.json"] = params
         summary.update(_ac_metrics(raw, cleaned, data, params), delivered="cleaned")
         lines.append(f"PiCoG ({kind}): correction removed {summary['removed_rms_nT']:.3f} nT "
@@ -277,11 +277,26 @@ def run_ac(data: CommonFrameData, config: ChainConfig) -> tuple[CleanedData, Sta
         warnings += [f"PiCoG: {w}" for w in params.get("warnings") or []]
         worse = params.get("worse_than_raw") or []
         if worse and config["picog"]["on_worse"] == "raw":
-            cleaned, summary["delivered"] = raw, "raw"
-            warnings.append(f"PiCoG made {len(worse)} band/component(s) worse than raw: the "
-                            f"product carries the uncleaned {data.target} ([picog] on_worse "
-                            "= \"keep\" delivers the cleaned one)")
-            lines.append("cleaning worse than raw in some band: uncleaned target delivered")
+            # never worse than raw (issue 22): the band-selective product, else raw
+            summary.update(product=ground[1].kind if ground[1] else "raw",
+                           product_reason=ground[1].reason if ground[1] else
+                           "no band-selective product (sample grid)")
+            if summary["product"] in ("ground", "band_limited", "on_board"):
+                cleaned = ground[0]
+                summary["removed_rms_nT"] = _ac_metrics(raw, cleaned, data, params)[
+                    "removed_rms_nT"]
+                warnings.append(f"PiCoG's constant matrices made {len(worse)} band/component(s) "
+                                f"worse than raw: the {summary['product']} product is delivered "
+                                f"({summary['product_reason']})")
+                lines.append(f"on-board product worse than raw in some band: "
+                             f"{summary['product']} product delivered")
+            else:
+                cleaned, summary["delivered"] = raw, "raw"
+                warnings.append(f"PiCoG made {len(worse)} band/component(s) worse than raw: the "
+                                f"product carries the uncleaned {data.target} ([picog] on_worse "
+                                "= \"keep\" delivers the cleaned one): "
+                                f"{summary['product_reason']}")
+                lines.append("cleaning worse than raw in some band: uncleaned target delivered")
     hpen = cleaned @ data.to_hpen.T
     if data.input_hpen is not None:
         own = data.input_hpen
@@ -307,7 +322,14 @@ def _picog(data: CommonFrameData, kind: str, plan, opts: dict, plan_files, confi
     prov = make_provenance("picog fit", {"plan": config["picog"]["plan"],
                                          "target": data.target}, inputs=plan_files)
     out = apply_upload(frame, model.M_, model.G_, pure_ac=True)
-    return out[["x", "y", "z"]].to_numpy(dtype=float), model.to_params(prov)
+    params = model.to_params(prov)
+    ground = (None, None)
+    if params.get("ground"):
+        from magcal.ac.estimator import deliver_frame
+
+        g_out, delivery = deliver_frame(frame, data.target, out, params["ground"])
+        ground = (g_out[["x", "y", "z"]].to_numpy(dtype=float), delivery)
+    return out[["x", "y", "z"]].to_numpy(dtype=float), params, ground
 
 
 def _ac_metrics(raw, cleaned, data: CommonFrameData, params: dict) -> dict:

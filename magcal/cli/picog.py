@@ -43,6 +43,12 @@ def register(subparsers) -> None:
     offset.add_argument("--pure-ac", action="store_true",
                         help="add back the DC offset G of the correction (Eq. 32); now the "
                              "default, kept for compatibility")
+    a.add_argument("--on-board", action="store_true",
+                   help="deliver the on-board product (the constant matrices) even in bands "
+                        "where it is worse than raw (warned); by default the band-selective "
+                        "ground product is delivered, never above 1.1x the raw power in any "
+                        "band (else band-limited or the raw target, with the reason on "
+                        "stderr and in CLEAN.json next to the output)")
     add_output(a, help_text="CLEAN.csv (time,x,y,z,flag)")
     a.set_defaults(func=run_apply)
 
@@ -93,7 +99,7 @@ def run_apply(args) -> int:
     from magcal.ac.estimator import apply_params
     from magcal.io.csv import write_csv_frame
     from magcal.io.formats import read_any
-    from magcal.io.jsonio import read_json
+    from magcal.io.jsonio import read_json, write_json
 
     src = existing_file(args.input)
     params_path = existing_file(args.params)
@@ -102,12 +108,24 @@ def run_apply(args) -> int:
     try:
         out, warnings = apply_params(frame, doc, pure_ac=args.pure_ac,
                                      keep_correction_offset=args.keep_correction_offset,
-                                     file=params_path)
+                                     on_board=args.on_board, file=params_path)
     except InputError as exc:
         if exc.file is not None:
             raise
         raise InputError(exc.message, file=src, column=exc.column) from None
     write_csv_frame(args.output, out, float_format="%.6f")
+    delivery = out.attrs.get("delivery")
+    if delivery is not None:
+        from pathlib import Path
+
+        from magcal.provenance import make_provenance
+
+        side = Path(args.output).with_suffix(".json")
+        write_json(side, {**delivery, "product": str(args.output),
+                          "provenance": make_provenance("picog apply", {
+                              "params": str(params_path)}, inputs=[src, params_path])})
+        print(f"magcal picog apply: delivered {delivery['delivered']} ({delivery['reason']}); "
+              f"per-band record in {side}", file=sys.stderr)
     for warning in warnings:
         print(f"magcal picog apply: warning: {warning}", file=sys.stderr)
     return 0

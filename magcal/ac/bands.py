@@ -1,0 +1,266 @@
+"""Band-selective PiCoG: apply the correction only in the bands where it helps.
+
+The on-board correction (constant matrices, Eq. 28) changes the target by
+``delta = sum_k M_k B_k + G - B_target``, a linear combination of sensor differences:
+the disturbers' fields minus the other sensors' noise scaled by the matrices (Eq. 22).
+Where no disturber is present the correction only adds that noise (Venus Express: the
+inboard sensor's floor at 40-64 Hz). The "ground" product splits ``delta`` into the
+eighth-octave bands (:data:`WEIGHT_BAND_RATIO`; the check's bands are half-octave, see
+:func:`magcal.ac.bandcheck.record_bands_hz`) with FFT brick-wall filters (their sum is
+``delta`` again) and weights each band and component:
+
+- ``w = 1`` where the full correction does not raise the band's power by more than
+  :data:`RISE_TOLERANCE` (the ambient field cancels in ``delta``, so power can only
+  fall by removing a disturbance or rise by adding noise; the tolerance keeps the
+  ambient field's random cross term from switching bands off);
+- otherwise ``w = clip(-Re<R, D> / <D, D>, 0, 1)`` with ``R`` and ``D`` the band's
+  Fourier coefficients of the raw target and of ``delta``: the weight that minimises the
+  band's power, ``|d|^2 / (|d|^2 + |noise|^2)`` for a disturber ``d`` under added noise.
+
+Below the lowest resolvable band one more band ``[0, low)`` keeps the full correction
+(slow disturbers, steps lasting hours, live there, and a record cannot judge it); it
+is only left out when the lowest checked band fails, since its leakage reaches that
+band.
+
+**Never worse than raw** (:func:`deliver`): the product is checked against the raw
+target with :func:`magcal.ac.bandcheck.band_check`; a band/component still above
+``WORSE_FACTOR`` times the raw power gets ``w = 0`` (the band-limited correction), and
+when that cannot meet the rule either the raw target is delivered. The kind delivered
+and the reason travel with the product.
+
+When every weight is 1 the ground product equals the on-board one (it "collapses" to
+the constant matrices); otherwise it is a filter and cannot be uploaded as matrices.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from magcal.ac.bandcheck import WORSE_FACTOR, BandCheck, band_check, record_bands_hz
+from magcal.errors import InputError
+
+#: a band's weight is lowered only where the full correction raises its power by more
+#: than this factor (in-sample, over the record's Fourier coefficients)
+RISE_TOLERANCE = 1.02
+#: weights are chosen on bands finer than the check's (eighth-octave, at least this many
+#: Welch bins of the check): a disturber's band then holds little of the noise around
+#: it, and the step in noise density at its edges leaks less into the next checked band
+WEIGHT_BAND_RATIO = 2 ** 0.125
+WEIGHT_MIN_BINS = 4
+#: delivered kinds, best first
+KINDS = ("on_board", "ground", "band_limited", "raw")
+
+
+def _centered(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``x`` minus its mean with NaN set to 0, and the valid-row mask."""
+    x = np.asarray(x, dtype=float)
+    ok = np.all(np.isfinite(x), axis=1)
+    out = np.zeros_like(x)
+    if ok.any():
+        out[ok] = x[ok] - x[ok].mean(axis=0)
+    return out, ok
+
+
+def weights_per_frequency(f: np.ndarray, bands_hz, weights) -> np.ndarray:
+    """``(len(f), 3)`` weights: band ``b``'s weight on ``lo_b <= f < hi_b``, 1 below the
+    first band, the last band's weight above it.
+
+    Examples
+    --------
+    >>> w = weights_per_frequency(np.array([0.0, 1.0, 2.5, 9.0]), [(1, 2), (2, 4)],
+    ...                           [[0.5, 0.5, 0.5], [0.0, 1.0, 0.0]])
+    >>> w[:, 0].tolist()
+    [1.0, 0.5, 0.0, 0.0]
+    """
+    f = np.asarray(f, dtype=float)
+    weights = np.asarray(weights, dtype=float).reshape(-1, 3)
+    out = np.ones((f.size, 3))
+    if not len(bands_hz):
+        return out
+    lows = np.array([lo for lo, _ in bands_hz], dtype=float)
+    idx = np.searchsorted(lows, f, side="right") - 1
+    inside = idx >= 0
+    out[inside] = weights[idx[inside]]
+    return out
+
+
+def band_filter(x: np.ndarray, dt_s: float, bands_hz, weights) -> np.ndarray:
+    """``x`` (NaN rows as 0, mean removed) weighted per band in the Fourier domain."""
+    xc, _ = _centered(x)
+    f = np.fft.rfftfreq(xc.shape[0], dt_s)
+    spec = np.fft.rfft(xc, axis=0) * weights_per_frequency(f, bands_hz, weights)
+    return np.fft.irfft(spec, n=xc.shape[0], axis=0)
+
+
+def select_weights(raw: np.ndarray, onboard: np.ndarray, dt_s: float, bands_hz=None):
+    """Per-band, per-component weights of the correction ``onboard - raw`` (see the
+    module docstring). Returns ``(bands_hz, weights (n_bands, 3))``.
+
+    Examples
+    --------
+    A 35 Hz tone removed by the correction, which also adds white noise in y:
+
+    >>> rng = np.random.default_rng(0); t = np.arange(16384) / 128
+    >>> tone = np.sin(2 * np.pi * 35 * t)[:, None] * [1.0, 0.0, 0.0]
+    >>> raw = rng.normal(0, 0.01, (16384, 3)) + tone
+    >>> onboard = raw - tone + rng.normal(0, 0.05, (16384, 3)) * [0, 1, 0]
+    >>> bands, w = select_weights(raw, onboard, 1 / 128)
+    >>> k = [lo <= 35 < hi for lo, hi in bands].index(True)
+    >>> float(w[k, 0]), bool(w[1:, 1].max() < 0.1), bands[0][0], float(w[0, 1])
+    (1.0, True, 0.0, 1.0)
+    """
+    raw = np.asarray(raw, dtype=float)
+    if bands_hz is None:
+        bands_hz, _ = record_bands_hz(raw.shape[0], dt_s, min_bins=WEIGHT_MIN_BINS,
+                                      ratio=WEIGHT_BAND_RATIO)
+    bands_hz = [tuple(map(float, bd)) for bd in bands_hz]
+    added_low = bands_hz[0][0] > 0
+    if added_low:
+        bands_hz = [(0.0, bands_hz[0][0])] + bands_hz
+    r, ok_r = _centered(raw)
+    d, ok_d = _centered(np.asarray(onboard, dtype=float) - raw)
+    both = ok_r & ok_d
+    r[~both], d[~both] = 0.0, 0.0
+    f = np.fft.rfftfreq(r.shape[0], dt_s)
+    R, D = np.fft.rfft(r, axis=0), np.fft.rfft(d, axis=0)
+    weights = np.ones((len(bands_hz), 3))
+    for b, (lo, hi) in enumerate(bands_hz):
+        sel = (f >= lo) & (f < hi) if b < len(bands_hz) - 1 else f >= lo
+        if not sel.any():
+            continue
+        if b == 0 and added_low:
+            continue                         # below the checked bands: kept (see above)
+        cross = np.real(np.sum(np.conj(R[sel]) * D[sel], axis=0))
+        dd = np.sum(np.abs(D[sel]) ** 2, axis=0)
+        rr = np.sum(np.abs(R[sel]) ** 2, axis=0)
+        # |R + D|^2 against |R|^2 over the band: an ambient field that dominates the band
+        # makes the cross term noisy, so only a clear rise counts as harm
+        helps = 2 * cross + dd <= (RISE_TOLERANCE - 1.0) * rr
+        with np.errstate(divide="ignore", invalid="ignore"):
+            w_opt = np.clip(np.where(dd > 0, -cross / dd, 0.0), 0.0, 1.0)
+        weights[b] = np.where(helps, 1.0, w_opt)
+    return bands_hz, weights
+
+
+@dataclass(frozen=True)
+class Delivery:
+    """The product delivered and why (see :func:`deliver`)."""
+
+    product: np.ndarray          #: (n, 3) delivered target, NaN where an input is NaN
+    kind: str                    #: one of :data:`KINDS`
+    reason: str
+    bands_hz: tuple
+    weights: np.ndarray          #: (n_bands, 3) weights applied (all 0 for "raw")
+    check: BandCheck | None      #: delivered product against raw
+    onboard_check: BandCheck | None
+
+    @property
+    def collapses_to_on_board(self) -> bool:
+        """True when the delivered correction is the constant matrices (all weights 1)."""
+        return self.kind == "on_board"
+
+    def to_dict(self) -> dict:
+        return {"delivered": self.kind, "reason": self.reason,
+                "bands_hz": [list(b) for b in self.bands_hz],
+                "weights": np.asarray(self.weights).tolist(),
+                "collapses_to_on_board": self.collapses_to_on_board,
+                "worse_factor": WORSE_FACTOR,
+                "rule": "no band/component of the delivered product above worse_factor "
+                        "times the raw target's power (log-spaced bands, Welch); below "
+                        "the lowest band the on-board correction is kept"}
+
+
+def _check(raw, product, dt_s) -> BandCheck | None:
+    try:
+        return band_check(raw, product, dt_s)
+    except InputError:
+        return None
+
+
+def _nan_where(product, raw, onboard):
+    bad = ~(np.all(np.isfinite(raw), axis=1) & np.all(np.isfinite(onboard), axis=1))
+    product = product.copy()
+    product[bad] = np.nan
+    return product
+
+
+def deliver(raw: np.ndarray, onboard: np.ndarray, dt_s: float, *, bands_hz=None,
+            weights=None, kind: str | None = None,
+            max_rounds: int = 8) -> Delivery:
+    """The best product that is nowhere worse than ``raw`` (module docstring).
+
+    Parameters
+    ----------
+    raw, onboard : ndarray (n, 3)
+        Raw target and on-board product (``sum_k M_k B_k + G``) on one uniform grid,
+        NaN for missing samples.
+    bands_hz, weights : optional
+        Band weights fitted earlier (PARAMS.json ``ground``); chosen here when absent.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(1); t = np.arange(16384) / 128
+    >>> tone = np.sin(2 * np.pi * 35 * t)[:, None] * [1.0, 0.0, 0.0]
+    >>> raw = rng.normal(0, 0.01, (16384, 3)) + tone
+    >>> onboard = raw - tone + rng.normal(0, 0.05, (16384, 3)) * [0, 1, 0]
+    >>> out = deliver(raw, onboard, 1 / 128)
+    >>> out.kind, out.check.worse_than_raw   # the noise below 0.27 Hz leaks: left out too
+    ('band_limited', [])
+    """
+    raw = np.asarray(raw, dtype=float)
+    onboard = np.asarray(onboard, dtype=float)
+    if raw.shape != onboard.shape:
+        raise InputError(f"raw {raw.shape} and product {onboard.shape} differ in shape")
+    onboard_check = _check(raw, onboard, dt_s)
+    if onboard_check is None:
+        return Delivery(onboard, "on_board", "record too short for a band check: the "
+                        "on-board product is delivered unchecked", (), np.ones((0, 3)),
+                        None, None)
+    if bands_hz is None or weights is None:
+        bands_hz, weights = select_weights(raw, onboard, dt_s)
+    weights = np.array(weights, dtype=float).reshape(-1, 3)
+    if weights.size and not weights.any():
+        return Delivery(raw.copy(), "raw", "the fit delivered the raw target (no band "
+                        "where the correction helps)", tuple(bands_hz), weights,
+                        _check(raw, raw, dt_s), onboard_check)
+    delta_mean = np.nanmean(onboard - raw, axis=0)
+    raw_filled = np.where(np.isfinite(raw), raw, np.nanmean(raw, axis=0))
+    if kind not in ("ground", "band_limited"):
+        kind = "on_board" if np.all(weights == 1.0) else "ground"
+    reason = {"on_board": "the on-board correction raises no band's power: the constant "
+                          "matrices are delivered",
+              "ground": "the correction is weighted down in the bands where it adds the "
+                        "other sensors' noise (it no longer collapses to the constant "
+                        "matrices)",
+              "band_limited": "the fitted band-limited correction (left out where it was "
+                              "worse than raw)"}[kind]
+    for _ in range(max_rounds):
+        if kind == "on_board":
+            product = onboard
+        else:
+            product = _nan_where(raw_filled + band_filter(onboard - raw, dt_s, bands_hz,
+                                                          weights) + delta_mean,
+                                 raw, onboard)
+        check = _check(raw, product, dt_s)
+        worse = [] if check is None else check.worse_than_raw
+        if not worse:
+            return Delivery(product, kind, reason, tuple(bands_hz), weights, check,
+                            onboard_check)
+        listed = ", ".join(f"{w['band_hz'][0]:.3g}-{w['band_hz'][1]:.3g} Hz {w['component']}"
+                           for w in worse[:4])
+        for w in worse:
+            lo, hi = w["band_hz"]
+            k = "xyz".index(w["component"])
+            for b, (blo, bhi) in enumerate(bands_hz):
+                # the band itself, and what lies below the lowest checked band (its
+                # leakage reaches the lowest band through the Welch window)
+                if blo < hi and (bhi > lo or lo <= check.bands_hz[0][0]):
+                    weights[b, k] = 0.0
+        kind = "band_limited"
+        reason = (f"the correction was still above {WORSE_FACTOR:g}x the raw power in "
+                  f"{len(worse)} band/component(s) ({listed}): it is left out there")
+    return Delivery(raw.copy(), "raw", f"no band-limited correction met the rule ({reason}): "
+                    "the raw target is delivered", tuple(bands_hz),
+                    np.zeros_like(weights), _check(raw, raw, dt_s), onboard_check)
