@@ -343,7 +343,7 @@ def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bo
     if not use.all():
         warnings = (f"{int((~use).sum())} of {use.size} samples left out as outliers "
                     f"(residual beyond {ROBUST_K:g} robust std)",)
-    method = "wahba+ou-gls" if noise_model == "ou" else "wahba+ou-white-gls"
+    method = "wahba+ou-gls"  # the noise dictionary names the model (OU or OU + white)
     return summarize(theta, cov, names, noise, resid, method=method, dof=dof,
                      lon_deg=lon_deg, warnings=warnings)
 
