@@ -80,6 +80,22 @@ def test_scan_step_and_period(rng):
     assert_allclose(peaks[0][0] / 3600, 5.5, rtol=0.002)
 
 
+def test_a_step_at_the_edge_of_a_week_long_gap_is_found_not_a_crash(rng):
+    """Issue 20: an 8-day hole in a 35-day record made change_points ask scan_step for
+    the step inside the hole (no sample there): IndexError. The step (2 nT, at the
+    end of the hole) must come back as a change time at the gap's end or inside it."""
+    from magcal.discover.scan import change_points
+
+    t = np.arange(0, 35 * 86400, 60.0)
+    t = t[(t < 12 * 86400) | (t >= 20 * 86400)]
+    r = np.where(t >= 20 * 86400, 2.0, 0.0)[:, None] + rng.normal(0, 0.3, (t.size, 1))
+    found = change_points(t, r)
+    assert len(found) == 1
+    assert 12 * 86400 - 3600 <= found[0][0] <= 20 * 86400 + 3600
+    assert scan_step(t[:0], r[:0])[0] is None
+    assert scan_step(t[:1], r[:1])[0] is None
+
+
 def test_inputs_interpolate_covariates_and_hold_kp():
     t = pd.date_range("2019-11-01", periods=360, freq="1min", tz="UTC")
     cov = pd.DataFrame({"kp": [1.0, 2.0, 3.0], "temperature": [0.0, 30.0, 60.0]},

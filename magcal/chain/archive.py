@@ -105,7 +105,7 @@ def _config_part(cfg: ChainConfig) -> dict:
     model = {k: v for k, v in cfg["model"].items() if k not in ("jobs", "cache_dir")}
     inp = {k: v for k, v in cfg["input"].items() if k not in ("files", "simulate")}
     return {"version": __version__, "input": inp, "position": cfg["position"],
-            "model": model, "cadence_s": cfg["offsets"]["cadence_s"]}
+            "model": model, "cadence_s": cfg["offsets"]["cadence_s"], "qc": cfg["qc"]}
 
 
 def read_index_tables(cfg: ChainConfig) -> dict:
@@ -236,6 +236,8 @@ def fit_on_worker(task: FitTask) -> dict:
     cfg = task.config
     try:
         series = prepare.series_from_frames(cfg, list(task.files), list(task.frames))
+        qc = prepare.quality_control(series, cfg)
+        series = prepare.mask_series(series, qc)  # flagged samples stay out of the fit
         common, frames = prepare.run_frames(series, cfg)
         _, ac = prepare.run_ac(common, cfg)
     except InputError as exc:
@@ -254,8 +256,13 @@ def fit_on_worker(task: FitTask) -> dict:
                 f"of the first {picog['fit_days']:g} days within [picog] fit_max_samples = "
                 f"{picog['fit_max_samples']} (the fit's memory grows with its samples)")
     sample = {"fit_files": names, "fit_samples": len(series),
+              "fit_samples_flagged": int(qc.excluded.sum()), "fit_qc": qc.counts(),
               "fit_max_samples": picog["fit_max_samples"],
               "fit_capped_by_samples": task.capped}
+    if qc.excluded.any():
+        note += (f"; quality control left {int(qc.excluded.sum())} of {len(series)} samples "
+                 "out of the fit (" + ", ".join(f"{k} {v}" for k, v in qc.counts().items())
+                 + ")")
     frames = replace(frames, summary={**frames.summary, "fit_files": names})
     ac = replace(ac, summary={**ac.summary, **sample}, lines=ac.lines + (note,),
                  provenance={**(ac.provenance or {}), "fit_sample": sample})
@@ -279,7 +286,7 @@ def fit_phase(cfg: ChainConfig, files, shas, state: Path, engine):
     plan_path = cfg.resolve(plan) if plan not in ("auto", "none") else None
     config = _config_part(cfg)
     key = digest({"files": [by_path[f] for f in fit_files], "frames": cfg["frames"],
-                  "picog": cfg["picog"], "version": config["version"],
+                  "picog": cfg["picog"], "version": config["version"], "qc": cfg["qc"],
                   "input": config["input"],
                   "plan": file_sha256(plan_path) if plan_path and plan_path.is_file()
                   else None})
@@ -453,7 +460,8 @@ def gather_full(records) -> CleanedData:
     pick = order[keep]
     index = pd.DatetimeIndex(t[pick], name="time").tz_localize("UTC")
     return CleanedData(index, np.concatenate([p["hpen_full"] for p in parts])[pick],
-                       np.concatenate([p["raw_full"] for p in parts])[pick])
+                       np.concatenate([p["raw_full"] for p in parts])[pick],
+                       np.concatenate([p["quality_full"] for p in parts])[pick])
 
 
 # ------------------------------------------------------------------ stage products
@@ -473,8 +481,67 @@ def read_product(cfg: ChainConfig, files, shas, records, summary: PartitionSumma
                       for f, s in zip(files, shas)]
     line = (f"{len(files)} file(s), {samples} samples at {cadence:g} s over {span_h:.2f} h; "
             f"sensors {', '.join(sensors)}")
-    return None, StageProduct(stage="read", summary=doc, lines=(line,),
-                              provenance=prov)
+    faults = archive_faults(records, cadence)
+    doc["quality"] = faults["quality"]
+    doc["archive_faults"] = faults["warnings"]
+    lines = (line,) + faults["lines"]
+    return None, StageProduct(stage="read", summary=doc, lines=lines, provenance=prov,
+                              warnings=tuple(faults["warnings"]))
+
+
+def archive_faults(records, cadence_s: float) -> dict:
+    """What the partitions found wrong with the archive, each fault named with its file:
+    samples QC flagged, repairs the readers made (duplicate samples dropped, fills,
+    a truncated last line...), files at another cadence or in another format than most,
+    identical and overlapping files, and 1-min samples without Kp.
+
+    Returns ``{"warnings": [...], "lines": (...), "quality": {flag name: samples}}``.
+    """
+    out, quality = [], {}
+    name = {r["file"]: Path(r["file"]).name for r in records}
+    for r in records:
+        qc = r.get("qc") or {}
+        for k, v in (qc.get("counts") or {}).items():
+            quality[k] = quality.get(k, 0) + v
+        if qc.get("n_flagged"):
+            parts = ", ".join(f"{k} {v}" for k, v in qc["counts"].items())
+            out.append(f"{r['file']}: quality control flagged {qc['n_flagged']} of "
+                       f"{r['n_samples']} samples ({parts}); they are kept, flagged, in the "
+                       "corrected product and left out of every fit")
+        repairs: dict = {}
+        for rep in r.get("repairs") or []:  # one line per kind (fills come per column)
+            repairs[rep["what"]] = repairs.get(rep["what"], 0) + int(rep["count"])
+        out += [f"{r['file']}: {what} ({n})" for what, n in repairs.items()]
+        if cadence_s > 0 and abs(r["cadence_s"] / cadence_s - 1) > 0.05:
+            out.append(f"{r['file']}: cadence {r['cadence_s']:g} s where the archive's is "
+                       f"{cadence_s:g} s (used at its own cadence)")
+        if r.get("n_no_kp"):
+            out.append(f"{r['file']}: no Kp for {r['n_no_kp']} of {r['n_minutes']} averaged "
+                       "samples (a hole in the Kp file): they are not quiet-time candidates")
+    formats = [r.get("format") or "?" for r in records]
+    common = max(set(formats), key=formats.count) if formats else "?"
+    out += [f"{r['file']}: format {f} among {common} files (read as {f})"
+            for r, f in zip(records, formats) if f != common]
+    by_sha: dict = {}
+    for r in records:
+        by_sha.setdefault(r["sha256"], []).append(r["file"])
+    copies = {f for group in by_sha.values() for f in group[1:]}
+    for group in by_sha.values():
+        out += [f"{f}: an identical copy of {group[0]}; its samples are used once"
+                for f in group[1:]]
+    latest_end, latest_file = None, None
+    for r in sorted(records, key=lambda r: (r["start"], r["file"])):
+        if r["file"] in copies:
+            continue
+        if latest_end is not None and r["start"] <= latest_end:
+            out.append(f"{r['file']}: overlaps {latest_file} from {r['start']} to "
+                       f"{min(r['end'], latest_end)}; at a time both hold, the sample of "
+                       f"the file that starts first ({name[latest_file]}) is used")
+        if latest_end is None or r["end"] > latest_end:
+            latest_end, latest_file = r["end"], r["file"]
+    lines = (("archive faults: " + "; ".join(out[:3]) + (f"; ... ({len(out)} in all, "
+              "see MANIFEST.json warnings)" if len(out) > 3 else "")),) if out else ()
+    return {"warnings": out, "lines": lines, "quality": quality}
 
 
 def model_product(minute: MinuteData, cfg: ChainConfig, records):
@@ -623,7 +690,7 @@ def _bracket_key(table, day: str, partition_keys) -> str:
     hi = np.searchsorted(c, t1, side="left")
     rows = valid[max(lo, 0):min(hi, len(valid) - 1) + 1] if len(valid) else valid
     return digest({"partitions": sorted(partition_keys), "centers": c[np.isin(valid, rows)],
-                   "offsets": table.offset_nT[rows], "flag_meaning": "v1"})[:24]
+                   "offsets": table.offset_nT[rows], "flag_meaning": "v2 quality"})[:24]
 
 
 def write_corrected_day(task: DayTask) -> dict:
@@ -631,6 +698,8 @@ def write_corrected_day(task: DayTask) -> dict:
     from magcal.chain.daily_csv import write_day_csv
     from magcal.offsets import apply_offsets
     from magcal.provenance import file_sha256
+    from magcal.qc.flags import OFFSET_HELD
+    from magcal.qc.flags import counts as flag_counts
 
     try:
         data = gather_full([{"result": r} for r in task.results])
@@ -642,11 +711,13 @@ def write_corrected_day(task: DayTask) -> dict:
             corr, _, flag = apply_offsets(t, hpen, task.table)
         else:
             corr, flag = hpen.copy(), np.full(len(t), 3, dtype=np.int8)
-        write_day_csv(Path(task.path), times, corr, HPEN, np.asarray(flag, dtype=int),
+        flag = np.asarray(flag, dtype=int)
+        quality = data.quality[day] | np.where(flag != 0, OFFSET_HELD, 0).astype(np.uint16)
+        write_day_csv(Path(task.path), times, corr, HPEN, flag, extra={"quality": quality},
                       provenance=task.provenance or None)
-        counts = np.bincount(np.asarray(flag, dtype=int), minlength=4)[:4]
+        counts = np.bincount(flag, minlength=4)[:4]
         return {"day": task.day, "status": "ok", "sha256": file_sha256(task.path),
-                "n": len(times), "flags": counts.tolist()}
+                "n": len(times), "flags": counts.tolist(), "quality": flag_counts(quality)}
     except Exception as exc:  # noqa: BLE001 - one day must not stop the others
         return {"day": task.day, "status": "failed", "reason": f"{type(exc).__name__}: {exc}"}
 
@@ -655,6 +726,7 @@ def corrected_stage(run, table, records, cfg: ChainConfig, engine):
     """Daily corrected files, rewritten only for days whose inputs changed (or whose
     file no longer has the checksum it was written with)."""
     from magcal.offsets import FLAG_MEANING
+    from magcal.qc import FLAG_NAMES
 
     out = run.outdir / "corrected"
     marker = run.outdir / STATE_DIR / "corrected.json"
@@ -696,11 +768,19 @@ def corrected_stage(run, table, records, cfg: ChainConfig, engine):
     n = int(sum(done[d]["n"] for d in done))
     failed = [f"{r['day']}: {r['reason']}" for r in results if r["status"] != "ok"]
     valid = bool(np.isfinite(table.offset_nT).all(axis=1).any())
+    quality: dict = {}
+    for d in done:
+        for name, k in done[d].get("quality", {}).items():
+            quality[name] = quality.get(name, 0) + k
     summary = {"n_samples": n, "n_files": len(done),
                "flags": {FLAG_MEANING[k]: int(counts[k]) for k in range(4)},
+               "quality": {"bits": {str(b): name for b, name in FLAG_NAMES.items()},
+                           "counts": quality},
                "failed_days": failed}
     lines = (f"{n} samples in {len(done)} daily files ({len(tasks) - len(failed)} rewritten); "
-             f"interpolated {counts[0]}, held {counts[1] + counts[2]}, no offset {counts[3]}",)
+             f"interpolated {counts[0]}, held {counts[1] + counts[2]}, no offset {counts[3]}",
+             "quality column: " + (", ".join(f"{k} {v}" for k, v in quality.items())
+                                   or "every sample good"))
     warnings = (() if valid else
                 ("no valid offset: corrected files hold the uncorrected data (offset_flag 3)",))
     warnings += tuple(f"corrected day failed: {f}" for f in failed)
@@ -776,7 +856,9 @@ def corrected_for_alignment(minute: MinuteData, table, records, cfg: ChainConfig
     corr_min, flag_min = correct(minute.times, minute.hpen)
     full_t, full = np.empty(0, dtype="datetime64[ns]"), np.empty((0, 3))
     if cfg["alignment"]["cadence_s"] == 0:
+        from magcal.qc import masked
+
         data = gather_full(records)
         full_t = data.times.tz_localize(None).as_unit("ns").to_numpy()
-        full = correct(full_t, data.hpen)[0]
+        full = correct(full_t, masked(data.hpen, data.quality))[0]
     return CorrectedData(minute.times, corr_min, flag_min, full_t, full)

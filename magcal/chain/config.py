@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from magcal.errors import InputError
+from magcal.qc.quality import QCSettings
 
 _MISSING = object()
 
@@ -43,6 +44,7 @@ SCHEMA: dict[str, dict[str, tuple]] = {
     "discover": {"enabled": (bool, True), "max_effects": (int, 8), "covariates": (str, None)},
     "report": {"enabled": (bool, True), "pdf": (bool, False)},
     "truth": {"file": (str, None)},
+    "qc": QCSettings.schema(),  # sample quality control (magcal.qc; README "[qc]")
     "spin": {"spin_period_s": ((int, float), None), "flipper": (bool, True),
              "units": (str, "nT"), "reference": (str, None), "state": (str, None),
              "pipeline": (dict, {})},
@@ -204,6 +206,10 @@ def _check_values(s: dict, path: Path, kind: str) -> None:
         raise InputError("[picog] fit_max_samples must be at least 1 (the fit's memory grows "
                          "with its samples: about 1.3 kB per two-sensor sample)", file=path,
                          column="picog.fit_max_samples")
+    try:
+        QCSettings.from_mapping(s["qc"])
+    except InputError as exc:
+        raise InputError(exc.message, file=path, column=exc.column) from None
     if s["offsets"]["method"] not in ("median", "lt_balanced"):
         raise InputError(f"[offsets] method {s['offsets']['method']!r}: use median or "
                          "lt_balanced", file=path)

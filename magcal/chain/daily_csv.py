@@ -27,8 +27,9 @@ def _cell(value: float) -> str:
 
 def write_day_csv(path: str | Path, times: pd.DatetimeIndex, values: np.ndarray,
                   columns: tuple, flags: np.ndarray, flag_column: str = "offset_flag",
-                  provenance: dict | None = None) -> Path:
-    """Write ``time, <columns> (%.6f), <flag_column> (integer)`` atomically.
+                  provenance: dict | None = None, extra: dict | None = None) -> Path:
+    """Write ``time, <columns> (%.6f), <flag_column> (integer), <extra> (integers)``
+    atomically.
 
     Parameters
     ----------
@@ -41,6 +42,9 @@ def write_day_csv(path: str | Path, times: pd.DatetimeIndex, values: np.ndarray,
     flag_column : str
     provenance : dict, optional
         Written beside the CSV as ``<path>.provenance.json``, as ``write_csv_frame`` does.
+    extra : dict, optional
+        More integer columns after ``flag_column``, ``name -> (n,)`` (the ``quality``
+        flag of the chain's corrected files).
 
     Returns
     -------
@@ -52,15 +56,17 @@ def write_day_csv(path: str | Path, times: pd.DatetimeIndex, values: np.ndarray,
     check_increasing(index)
     stamps = format_times(index).tolist()
     values = np.asarray(values, dtype=float)
-    marks = np.asarray(flags).astype(np.int64).tolist()
+    extra = dict(extra or {})
+    ints = [np.asarray(flags).astype(np.int64).tolist()]
+    ints += [np.asarray(v).astype(np.int64).tolist() for v in extra.values()]
     if np.isfinite(values).all():  # one printf over every row: the fastest way here
-        row = "%s," + "%.6f," * values.shape[1] + "%d\n"
-        cells = zip(stamps, *(values[:, k].tolist() for k in range(values.shape[1])), marks)
+        row = "%s," + "%.6f," * values.shape[1] + ",".join(["%d"] * len(ints)) + "\n"
+        cells = zip(stamps, *(values[:, k].tolist() for k in range(values.shape[1])), *ints)
         body = (row * len(stamps)) % tuple(v for cell in cells for v in cell)
     else:  # NaN written as pandas writes it
-        body = "".join(f"{t},{','.join(_cell(v) for v in row)},{f}\n"
-                       for t, row, f in zip(stamps, values.tolist(), marks))
-    header = ",".join(("time", *columns, flag_column)) + "\n"
+        body = "".join(f"{t},{','.join(_cell(v) for v in row)},{','.join(map(str, f))}\n"
+                       for t, row, *f in zip(stamps, values.tolist(), *ints))
+    header = ",".join(("time", *columns, flag_column, *extra)) + "\n"
     with atomic_path(path) as tmp:
         with open(tmp, "w", encoding="utf-8", newline="") as handle:
             handle.write(header)

@@ -29,7 +29,7 @@ from magcal.io.jsonio import to_jsonable
 STATE_DIR = ".partitions"
 
 #: Arrays of a partition file: full-cadence (``t_full``...) and offsets-cadence (``t_min``...).
-FULL_ARRAYS = ("t_full", "hpen_full", "raw_full")
+FULL_ARRAYS = ("t_full", "hpen_full", "raw_full", "quality_full")
 MINUTE_ARRAYS = ("t_min", "hpen_min", "model_min", "kp", "lon_deg", "lat_deg", "r_re")
 
 
@@ -109,9 +109,12 @@ def _process(task: PartitionTask) -> dict:
         apply_frame,
         load_series,
         naive_times,
+        quality_control,
         run_model,
         series_from_frames,
     )
+    from magcal.qc.flags import EXCLUDE, IMPLAUSIBLE
+    from magcal.qc.flags import counts as flag_counts
 
     cfg = task.config
     fit = task.fit
@@ -120,6 +123,8 @@ def _process(task: PartitionTask) -> dict:
         warnings.simplefilter("ignore", RuntimeWarning)
         series = (load_series(cfg, [Path(task.file)]) if task.frame is None else
                   series_from_frames(cfg, [Path(task.file)], [task.frame]))
+        _check_sensors(series, fit, task.file)
+        qc = quality_control(series, cfg)
         vectors = {s: apply_frame(series[s], fit.transforms[s]) for s in fit.sensors}
         raw = vectors[fit.target]
         cleaned = raw
@@ -133,23 +138,68 @@ def _process(task: PartitionTask) -> dict:
         to_hpen = np.asarray(fit.to_hpen, dtype=float)
         data = CleanedData(series.times, cleaned @ to_hpen.T, raw @ to_hpen.T)
         one_job = replace(cfg, sections={**cfg.sections, "model": {**cfg["model"], "jobs": 1}})
-        minute, product = run_model(series, data, one_job, tables)
+        flags = qc.flags
+        # the averages and the model see only the samples QC keeps; the product keeps all
+        minute, product = run_model(series, _masked(data, flags), one_job, tables)
+        implausible = _implausible(data, minute, cfg)
+        if (implausible & ~((flags & EXCLUDE) != 0)).any():
+            flags = flags | np.where(implausible, IMPLAUSIBLE, 0).astype(np.uint16)
+            minute, product = run_model(series, _masked(data, flags), one_job, tables)
     arrays = {"t_full": naive_times(series.times).astype(np.int64),
-              "hpen_full": data.hpen, "raw_full": data.raw_hpen,
+              "hpen_full": data.hpen, "raw_full": data.raw_hpen, "quality_full": flags,
               "t_min": minute.times.astype("datetime64[ns]").astype(np.int64),
               "hpen_min": minute.hpen, "model_min": minute.model, "kp": minute.kp,
               "lon_deg": minute.lon_deg, "lat_deg": minute.lat_deg, "r_re": minute.r_re}
     t = series.times
     days = sorted({str(d.date()) for d in t.floor("D").unique()})
+    read_step = series.provenance[0] if series.provenance else {}
     meta = {"n_samples": len(series), "cadence_s": float(series.cadence_s),
             "sensors": [s for s in series.sensors if s], "start": str(t[0]),
             "end": str(t[-1]), "days": days, "n_minutes": len(minute.times),
             "n_model_invalid": int(product.summary.get("n_invalid", 0)),
+            "n_no_kp": int(np.count_nonzero(~np.isfinite(minute.kp))),
             "warnings": list(product.warnings),
+            "qc": {"n_flagged": int(np.count_nonzero(flags & EXCLUDE)),
+                   "counts": flag_counts(flags), "by_sensor": qc.by_sensor},
+            "repairs": [r for r in read_step.get("repairs", []) if r.get("count")],
+            "format": ",".join(read_step.get("formats", [])),
             # the Kp and driver records this partition used (a rerun compares them)
             "index_digest": index_digest(tables, str(t[0]), str(t[-1]))}
     write_partition(Path(task.result), arrays, meta)
     return meta
+
+
+def _check_sensors(series, fit: FrameApply, file: str) -> None:
+    """A file without every sensor the fit used fails its partition with a reason that
+    names what it has (not a KeyError from deep inside)."""
+    missing = [s for s in fit.sensors if s not in series.sensors]
+    if missing:
+        raise InputError(f"has no sensor {', '.join(missing)} (it has "
+                         f"{', '.join(s for s in series.sensors if s) or 'none'}); the "
+                         f"archive's fit used {', '.join(fit.sensors)}", file=file)
+
+
+def _masked(data, flags):
+    """``data`` with the samples QC excludes set to NaN."""
+    from magcal.chain.prepare import CleanedData
+    from magcal.qc import masked
+
+    return CleanedData(data.times, masked(data.hpen, flags), masked(data.raw_hpen, flags))
+
+
+def _implausible(data, minute, cfg: ChainConfig) -> np.ndarray:
+    """Full-cadence samples whose raw magnitude is implausible against the model field
+    (interpolated from the offsets cadence, held beyond its first and last time)."""
+    from magcal.chain.prepare import naive_times
+    from magcal.qc import QCSettings, plausibility_flags
+
+    t = naive_times(data.times).astype(np.int64)
+    tm = minute.times.astype("datetime64[ns]").astype(np.int64)
+    ok = np.isfinite(minute.model).all(axis=1)
+    if not ok.any():
+        return np.zeros(len(t), dtype=bool)
+    model = np.column_stack([np.interp(t, tm[ok], minute.model[ok, k]) for k in range(3)])
+    return plausibility_flags(data.raw_hpen, model, QCSettings.from_mapping(cfg["qc"])) != 0
 
 
 def write_partition(path: Path, arrays: dict, meta: dict) -> Path:

@@ -61,6 +61,30 @@ def series_from_frames(config: ChainConfig, files: list[Path], frames: list) -> 
     return series.replace(provenance=(step,) + series.provenance, meta=meta)
 
 
+def quality_control(series: VectorSeries, config: ChainConfig):
+    """The quality flags (:func:`magcal.qc.flag_samples`) of the sensors the chain uses
+    (and the frames' reference), on the readings as read."""
+    from magcal.qc import QCSettings, flag_samples
+
+    names = list(_sensors(series, config))
+    ref = config["frames"]["reference"]
+    if ref and ref in series.sensors and ref not in names:
+        names.append(ref)
+    return flag_samples(series.times.asi8, {s: series[s] for s in names}, series.cadence_s,
+                        QCSettings.from_mapping(config["qc"]))
+
+
+def mask_series(series: VectorSeries, qc) -> VectorSeries:
+    """``series`` with every vector of the samples QC excludes set to NaN (for fits)."""
+    bad = qc.excluded
+    if not bad.any():
+        return series
+    data = series.data.copy()
+    data.iloc[bad, :] = np.nan
+    step = {"step": "qc", "excluded_samples": int(bad.sum()), "counts": qc.counts()}
+    return series.replace(data=data, provenance=series.provenance + (step,))
+
+
 def _sensors(series: VectorSeries, config: ChainConfig) -> list[str]:
     wanted = config["input"]["sensors"]
     if wanted is None:
@@ -204,6 +228,8 @@ class CleanedData:
     times: pd.DatetimeIndex
     hpen: np.ndarray
     raw_hpen: np.ndarray
+    #: Per-sample quality flags (:mod:`magcal.qc.flags`), when known.
+    quality: np.ndarray | None = None
 
 
 def _plan_for(config: ChainConfig, target: str):
@@ -372,8 +398,8 @@ def run_model(series: VectorSeries, cleaned: CleanedData, config: ChainConfig,
         inputs.append(drv_path)
     elif name in ("T96", "T01", "T04"):
         raise InputError(f"[model] {name} needs drivers = <file>", file=config.path)
-    if name == "T89" and not np.isfinite(kp_values).any():
-        raise InputError("the Kp file does not cover the data times", file=kp_path)
+    # Kp missing for some or all of these times (a hole in the Kp file): T89 is NaN
+    # there (counted in the model's n_invalid and named by the run), the data stay
     lon, lat, r = _position(series, config, times)
     res = model_field_hpen(times, lon, lat, r, model=name, kp=kp_values, drivers=drivers,
                            cadence_s=config["model"]["cadence_s"], n_jobs=config["model"]["jobs"],

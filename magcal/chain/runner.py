@@ -287,7 +287,9 @@ def run_chain(config: ChainConfig | str | Path, outdir: str | Path,
                        progress)
         else:
             from magcal.chain.archive import hash_inputs
+            from magcal.io.formats import in_time_order
 
+            files = in_time_order(files)
             shas = hash_inputs(files)
             run = _Run(out, [{"path": str(p), "sha256": s} for p, s in zip(files, shas)],
                        progress)
@@ -377,7 +379,7 @@ def _geostationary_stages(run: _Run, cfg: ChainConfig, files, shas, extras: dict
     def keys(offsets_sha: str) -> dict:
         """The keys of the stages made from the offset product with this checksum."""
         out = {"corrected": digest({"partitions": pkeys, "offsets": offsets_sha,
-                                    "written": "daily_csv v1"})}
+                                    "written": "daily_csv v2 quality"})}
         if cfg["alignment"]["enabled"]:
             out["alignment"] = digest({
                 "partitions": pkeys, "offsets": offsets_sha, "cfg": cfg["alignment"],

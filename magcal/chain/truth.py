@@ -81,6 +81,11 @@ def run_truth(cleaned: CleanedData, table, raw_target, config: ChainConfig):
         t_all = naive_times(cleaned.times)
         k = np.searchsorted(t_all, t)
         ok = (k < len(t_all)) & (t_all[np.minimum(k, len(t_all) - 1)] == t)
+        if cleaned.quality is not None:  # scored on the samples QC keeps
+            from magcal.qc import EXCLUDE
+
+            good = (cleaned.quality & EXCLUDE) == 0
+            ok &= good[np.minimum(k, len(t_all) - 1)]
         want = truth[clean_cols].to_numpy(dtype=float)[ok]
         got, raw = cleaned.hpen[k[ok]], raw_target[k[ok]]
         res_c = (got - want) - np.nanmean(got - want, axis=0)

@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+import traceback
 
 from magcal._version import __version__
 from magcal.errors import InputError, NotYetAvailableError
@@ -56,6 +58,9 @@ def build_parser() -> argparse.ArgumentParser:
         "magcal turns raw multi-sensor spacecraft magnetometer data into calibrated "
         "magnetic field products. Field values are in nT, times in UTC."))
     parser.add_argument("--version", action="version", version=f"magcal {__version__}")
+    parser.add_argument("--debug", action="store_true",
+                        help="print the full traceback of an internal error (any verb, "
+                             "anywhere on the line; or set MAGCAL_DEBUG=1)")
     subparsers = parser.add_subparsers(dest="verb", metavar="VERB", parser_class=_Parser)
     for verb, (module_name, help_text) in VERBS.items():
         try:
@@ -69,11 +74,26 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def debug_requested(argv: list[str], environ=None) -> tuple[list[str], bool]:
+    """``argv`` without ``--debug`` (accepted after any verb) and whether it or
+    ``MAGCAL_DEBUG`` (any value but empty or 0) asks for tracebacks.
+
+    Examples
+    --------
+    >>> debug_requested(["run", "CHAIN.toml", "--debug"], environ={})
+    (['run', 'CHAIN.toml'], True)
+    """
+    rest = [a for a in argv if a != "--debug"]
+    env = str((os.environ if environ is None else environ).get("MAGCAL_DEBUG", "")).strip()
+    return rest, len(rest) != len(argv) or env not in ("", "0")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the ``magcal`` command; return the exit status."""
     from magcal.offline import configure_offline
 
     parser = build_parser()
+    argv, debug = debug_requested(sys.argv[1:] if argv is None else list(argv))
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
@@ -91,7 +111,11 @@ def main(argv: list[str] | None = None) -> int:
         print("magcal: interrupted", file=sys.stderr)
         return 1
     except Exception as exc:  # noqa: BLE001 - the CLI boundary reports everything
-        print(f"magcal {args.verb}: internal error: {type(exc).__name__}: {exc}", file=sys.stderr)
+        if debug:
+            traceback.print_exc(file=sys.stderr)
+        print(f"magcal {args.verb}: internal error: {type(exc).__name__}: {exc}"
+              + ("" if debug else " (run again with --debug or MAGCAL_DEBUG=1 for the "
+                                  "traceback)"), file=sys.stderr)
         return 1
     return int(status or 0)
 

@@ -42,7 +42,8 @@ def scan_step(times_s, residual, margin_s: float = 0.25 * DAY_S):
     Returns
     -------
     t_step_s : float or None
-        Time of the first sample after the step (None if the record is too short).
+        Time of the first sample after the step (None if the record is too short, e.g.
+        a window that falls inside a gap of the data).
     size_nT : ndarray (m,)
         Mean after minus mean before, per component.
     statistic : float
@@ -60,6 +61,8 @@ def scan_step(times_s, residual, margin_s: float = 0.25 * DAY_S):
     r = np.asarray(residual, dtype=float)
     if r.ndim == 1:
         r = r[:, None]
+    if t.size < 2:
+        return None, np.zeros(r.shape[1]), 0.0
     ok = np.isfinite(r)
     v = np.where(ok, r, 0.0)
     cn = np.cumsum(ok, axis=0).astype(float)
@@ -261,19 +264,30 @@ def change_points(times_s, residual, *, kind: str = "step", bin_s: float = 3600.
         ok = np.isfinite(x)
         if ok.sum() < 2 * margin + 2:
             continue
-        x = np.interp(np.arange(nb), np.flatnonzero(ok), x[ok])
+        if kind == "step":
+            # steps on the bins that hold data, joined across gaps: interpolating a
+            # step across a gap of days makes a ramp that Binseg cuts into several
+            # steps; joined, the step sits at the gap's end
+            bins = np.flatnonzero(ok)
+            x = x[ok]
+        else:  # a drift's hinge needs true time: bridge gaps linearly
+            bins = np.arange(nb)
+            x = np.interp(bins, np.flatnonzero(ok), x[ok])
         s2 = _long_run_variance(x, max(int(DAY_S / bin_s), 3))
         cost = CumsumL2() if kind == "step" else CumsumCLinear()
         algo = rpt.Binseg(custom_cost=cost, min_size=margin, jump=1 if kind == "step" else 2)
-        found = algo.fit(x[:, None]).predict(pen=penalty * s2 * np.log(nb))[:-1]
+        found = algo.fit(x[:, None]).predict(pen=penalty * s2 * np.log(x.size))[:-1]
         found_c = []
         for k in found:
             if kind == "step":
+                h = (np.arange(x.size) >= k).astype(float)
+                k = int(bins[k])
                 lo = max(k - 2, 1)
                 hi = min(k + 2, nb - 1)
                 sel = (t >= starts[lo - 1]) & (t < starts[hi] + bin_s)
                 ts, _, _ = scan_step(t[sel], r[sel, c:c + 1], margin_s=bin_s)
-                h = (np.arange(nb) >= k).astype(float)
+                if not ok[k - 1]:  # the change is across a gap: at its end
+                    ts = t[np.searchsorted(t, starts[k])]
                 t_c = float(ts) if ts is not None else float(starts[k])
             else:
                 t_c, j = _refine_hinge(starts, x, k, margin)

@@ -217,6 +217,23 @@ def _check_shape(raw: bytes, text: str, p: Path) -> np.ndarray:
     return lines[1:] + 1
 
 
+def _without_truncated_last_line(raw: bytes) -> tuple[bytes, str | None]:
+    """A file cut short while it was written ends in a partial line without its line
+    break: drop that line (returned, to be reported) when it has fewer fields than the
+    header. A short line that ends with a line break is an error of the file, as any
+    other (:func:`_check_shape`)."""
+    if raw.endswith((b"\n", b"\r")) or b'"' in raw:
+        return raw, None
+    cut = raw.rfind(b"\n")
+    if cut < 0:
+        return raw, None
+    header = raw[:raw.find(b"\n")]
+    last = raw[cut + 1:]
+    if last.strip() and last.count(b",") < header.count(b","):
+        return raw[:cut + 1], last.decode("utf-8", "replace")
+    return raw, None
+
+
 def read_text_table(path: str | os.PathLike,
                     unnamed_first: str | None = None) -> tuple[pd.DataFrame, list[str]]:
     """Read a CSV file as a table of stripped strings, checking its shape.
@@ -224,8 +241,10 @@ def read_text_table(path: str | os.PathLike,
     The one place magcal's CSV readers turn a file into cells: UTF-8 (a byte-order mark
     is skipped), compression from the file name (``.gz``, ``.bz2``, ``.xz``), every
     cell a string with empty cells as ``""``, every line with as many fields as the
-    header. ``table.attrs["unterminated_last_line"]`` says whether the last line lacks
-    its line break (a file cut short ends so); ``table.attrs["dropped_empty_last_column"]``
+    header. A last line without its line break and with fewer fields than the header
+    (a file cut short while written) is dropped and returned in
+    ``table.attrs["dropped_truncated_last_line"]``; ``table.attrs["unterminated_last_line"]``
+    says whether the kept last line lacks its line break; ``table.attrs["dropped_empty_last_column"]``
     whether an unnamed, empty last column (every line ending with a comma) was dropped.
 
     Parameters
@@ -274,6 +293,7 @@ def read_text_table(path: str | os.PathLike,
         raise InputError("file is empty (expected a header line starting with 'time')",
                          file=p)
     _check_text(raw, p)
+    raw, cut = _without_truncated_last_line(raw)
     text = raw.decode("utf-8")
     lines = _check_shape(raw, text, p)
     import io
@@ -299,6 +319,7 @@ def read_text_table(path: str | os.PathLike,
     table.columns = columns
     table.attrs["unterminated_last_line"] = len(table) > 0 and not raw.endswith((b"\n", b"\r"))
     table.attrs["dropped_empty_last_column"] = trailing
+    table.attrs["dropped_truncated_last_line"] = cut
     # file line of each row, kept only when blank lines shift them (pandas deep-copies
     # attrs on every operation, so the plain case stores nothing)
     plain = lines.size != len(table) or np.array_equal(lines, np.arange(len(table)) + 2)
@@ -377,6 +398,10 @@ def read_csv_frame(path: str | os.PathLike, required: Iterable[str] | None = Non
         data[name] = values
     if table.attrs.get("dropped_empty_last_column"):
         repairs.append({"what": "unnamed empty last column dropped (lines end with a comma)",
+                        "column": None, "count": 1})
+    if table.attrs.get("dropped_truncated_last_line"):
+        repairs.append({"what": "dropped a truncated last line (the file was cut short: "
+                                f"{table.attrs['dropped_truncated_last_line'][:40]!r})",
                         "column": None, "count": 1})
     if table.attrs.get("unterminated_last_line"):
         repairs.append({"what": "last line kept although it has no line break (the file "

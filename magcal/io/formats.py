@@ -135,6 +135,49 @@ def detect_format(path: str | os.PathLike) -> str:
                      f"'time'; {_SUPPORTED}", file=p, row=1)
 
 
+def first_time(path: str | os.PathLike) -> pd.Timestamp | None:
+    """The first sample's time of a CSV file (plain or gzip) from its first data line,
+    without reading the rest; None for other formats or a line that does not parse
+    (the reader will say why, later).
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> p = pathlib.Path(tempfile.mkdtemp()) / "d.csv"
+    >>> _ = p.write_text("time,x\\n2019-11-02T00:00:00Z,1\\n")
+    >>> str(first_time(p))
+    '2019-11-02 00:00:00+00:00'
+    """
+    p = Path(path)
+    try:
+        opener = gzip.open if _head(p, 2) == b"\x1f\x8b" else open
+        with opener(p, "rb") as handle:
+            head = handle.readline()
+            line = handle.readline()
+    except (OSError, EOFError, InputError):
+        return None
+    if not head.lstrip(b"\xef\xbb\xbf").startswith(b"time"):
+        return None
+    try:
+        stamp = pd.Timestamp(line.split(b",", 1)[0].decode("utf-8").strip())
+    except (ValueError, UnicodeDecodeError):
+        return None
+    return stamp.tz_localize("UTC") if stamp.tzinfo is None else stamp.tz_convert("UTC")
+
+
+def in_time_order(files: list) -> list:
+    """``files`` sorted by their first sample (:func:`first_time`); a file whose first
+    time cannot be peeked keeps its place after the file before it in name order. An
+    archive's file names need not sort in time (a reprocessed day renamed, another
+    naming scheme): the fit phase takes the first days of data, not of names."""
+    keys, last = [], pd.Timestamp.min.tz_localize("UTC")
+    for k, f in enumerate(files):
+        t = first_time(f)
+        last = t if t is not None else last
+        keys.append((last, t is None, k))
+    return [files[k] for *_, k in sorted(keys)]
+
+
 def read_any(path: str | os.PathLike, fmt: str | None = None,
              required=None) -> pd.DataFrame:
     """Read one instrument file of any supported format into a CONTRACTS §0 frame.
