@@ -269,3 +269,15 @@ def test_chain_report_reads_the_chains_ac_products_and_offset_errors(chain_run):
     for table in tables.values():
         for row in table.rows:
             assert not any(c.strip().lower() in ("nan", "-nan", "inf") for c in row), row
+
+
+def test_chain_discovery_states_each_amplitude_with_a_standard_error(chain_run):
+    doc = json.loads((chain_run / "discover" / "REPORT.json").read_text())
+    assert doc["effects"] and "tau_s" in doc["amplitude_noise"]
+    for e in doc["effects"]:
+        assert set(e["amplitude_se_nT"]) == set(e["amplitude_nT"]) <= set(e["components"])
+        assert all(np.isfinite(v) and v >= 0 for v in e["amplitude_se_nT"].values())
+    text = _text((chain_run / "report" / "REPORT.html").read_text())
+    name, amp = doc["effects"][0]["name"], doc["effects"][0]["amplitude_nT"]
+    c = next(iter(amp))
+    assert f"{c} {amp[c]:.3f} +- " in text and name in text

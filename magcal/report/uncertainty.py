@@ -580,13 +580,22 @@ def discover_section(root: Path) -> tuple:
     if not path.is_file():
         return (_missing("discover/REPORT.json"),)
     doc = _read_json(path)
+    def amplitude(e):
+        amp, se = e.get("amplitude_nT") or {}, e.get("amplitude_se_nT") or {}
+        if not amp:
+            return "not computed (REPORT.json written before amplitudes existed)"
+        return ", ".join(f"{c} {amp[c]:.3f} +- {se.get(c, float('nan')):.3f}" for c in amp)
+
     rows = [(e["name"], ",".join(e.get("components", [])), e["rms_before_nT"],
-             e["rms_after_nT"]) for e in doc.get("effects", [])]
+             e["rms_after_nT"], amplitude(e)) for e in doc.get("effects", [])]
     return (Paragraph(f"Gap between measured and model: {doc['gap_initial']['rms_nT']:.3f} nT "
                       f"rms at the start, {doc['gap_final']['rms_nT']:.3f} nT after the "
                       f"effects below ({doc.get('stopped_because', '')})."),
-            Table.from_records(["effect", "components", "rms before (nT)", "rms after (nT)"],
-                               rows, caption="Effects in the order they were added.",
+            Table.from_records(["effect", "components", "rms before (nT)", "rms after (nT)",
+                                "amplitude (rms over the record, nT) +- standard error"],
+                               rows, caption="Effects in the order they were added; "
+                               "standard errors under the OU + white noise model fitted to "
+                               "the final residual (discover/REPORT.json amplitude_noise).",
                                source=_rel(path, root), fmt="{:.3f}"))
 
 
