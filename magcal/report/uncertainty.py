@@ -201,10 +201,10 @@ def chain_ac_items(root: Path, budget: list) -> tuple:
                                     source=f"{src_p}, {src_s}"))
     check = params.get("band_check") or {}
     if check.get("bands_hz") and check.get("reduction"):
-        brows = [(f"{lo * 1e3:.3g} - {hi * 1e3:.3g}", *[float(r) for r in red])
+        brows = [(f"{lo:.3g} - {hi:.3g}", *[float(r) for r in red])
                  for (lo, hi), red in zip(check["bands_hz"], check["reduction"])]
         items.append(Table.from_records(
-            ["band (mHz)", "raw/clean Hp", "raw/clean He", "raw/clean Hn"], brows,
+            ["band (Hz)", "raw/clean Hp", "raw/clean He", "raw/clean Hn"], brows,
             caption="Power ratio raw / cleaned per band of the fit data (PiCoG band check).",
             source=f"{src_p} band_check", fmt="{:.3f}"))
     else:
@@ -335,7 +335,7 @@ def offsets_section(root: Path, budget: list) -> tuple:
     items.append(Table.from_records(
         ["centre", "Hp (nT)", "He (nT)", "Hn (nT)", "Hp se", "He se", "Hn se", "Hp spread",
          "He spread", "Hn spread", "n used"],
-        rows, caption="Offsets per window (median estimator), 1-sigma standard errors and "
+        rows or [("no window with an offset",) + ("-",) * 10], caption="Offsets per window (median estimator), 1-sigma standard errors and "
                       "the spread (std) of the selected samples (nT).",
         source=_rel(main, root), fmt="{:.2f}"))
     if not ok.all():
@@ -345,13 +345,14 @@ def offsets_section(root: Path, budget: list) -> tuple:
         items.append(Paragraph(f"{int((~ok).sum())} window(s) without an offset, left out "
                                "of the table: " + ("; ".join(reasons) or "no reason given")
                                + "."))
-    spread = (np.nanmax(table.offset_nT[ok], axis=0) - np.nanmin(table.offset_nT[ok], axis=0)
-              if ok.any() else np.full(3, np.nan))
-    items.append(Table.from_records(
-        ["quantity"] + [f"{c} (nT)" for c in COMPONENTS],
-        [("range over windows", *map(float, spread))],
-        caption="Variation of the offsets over the record.", source=_rel(main, root),
-        fmt="{:.2f}"))
+    if ok.any():
+        spread = (np.nanmax(table.offset_nT[ok], axis=0)
+                  - np.nanmin(table.offset_nT[ok], axis=0))
+        items.append(Table.from_records(
+            ["quantity"] + [f"{c} (nT)" for c in COMPONENTS],
+            [("range over windows", *map(float, spread))],
+            caption="Variation of the offsets over the record.", source=_rel(main, root),
+            fmt="{:.2f}"))
     from magcal.offsets.plots import plot_offsets
 
     items.append(Figure(_png_of(plot_offsets, table), "Offsets per window; error bars: "
@@ -378,6 +379,7 @@ def offsets_section(root: Path, budget: list) -> tuple:
         BELOW, "offset: standard error",
         float(np.nanmax(se[ok])) if has_se else None,
         "largest 1-sigma standard error of a window offset (any component)" if has_se else
+        _NO_OFFSET if not ok.any() else
         "not computed: OFFSETS.csv has no Hp_se,He_se,Hn_se (written before they existed)",
         src))
     budget.append(Contribution(
@@ -391,8 +393,12 @@ def offsets_section(root: Path, budget: list) -> tuple:
         BELOW, "offset: spread of quiet data - model",
         float(np.nanmax(mean_std)) if np.isfinite(mean_std).any() else None,
         "per-sample std (largest component): the model error per sample; its effect on a "
-        "window's offset is in the standard error", src, combined=False))
+        "window's offset is in the standard error" if ok.any() else _NO_OFFSET, src,
+        combined=False))
     return tuple(items)
+
+
+_NO_OFFSET = "not computed: no window has an offset (reasons in DC offsets)"
 
 
 # --------------------------------------------------------------------------- alignment
