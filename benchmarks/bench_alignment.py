@@ -19,7 +19,9 @@ the true covariance (rms of error / bound, target <= 1.2), the stated std over t
 bound, and the local-time selection cost when there is no local-time field (the Aligner's
 test, fits with and without 3 harmonics: share of draws whose chosen std stays within
 1.3x the bound, target >= 90 %). ``--seconds`` stops each family's draws after S seconds
-(the full run is N = 50 without it). ``--json PATH`` writes the table.
+(the full run is N = 50 without it). ``--json PATH`` writes the table; ``--only``
+picks families. On a shared machine run it with ``OMP_NUM_THREADS=1`` (contended
+multithreaded BLAS slowed the fits tenfold).
 
 Run: python benchmarks/bench_alignment.py [--coverage N | --families N [--seconds S]]
 """
@@ -132,14 +134,14 @@ def family_draw(family: str, seed: int) -> dict:
 
 
 def families(n_draws: int = 50, seconds: float | None = None, first_seed: int = 5000,
-             json_path: str | None = None) -> dict:
+             json_path: str | None = None, only=None) -> dict:
     """Coverage and efficiency table per noise family (issue 21)."""
     import json
 
     table = {}
     print(f"{'family':<13}{'draws':>6}{'cover95':>9}  {'scatter/CRB Hp He Hn':<22}"
           f"{'std/CRB Hp He Hn':<20}{'rms z':>6}{'LT kept':>9}{'<=1.3 CRB':>10}")
-    for fam in BENCH_FAMILIES:
+    for fam in only or BENCH_FAMILIES:
         t0 = time.perf_counter()
         rows = []
         for s in range(n_draws):
@@ -182,10 +184,13 @@ if __name__ == "__main__":
     ap.add_argument("--families", type=int, help="draws per noise family (issue 21)")
     ap.add_argument("--seconds", type=float, help="time limit per family (s)")
     ap.add_argument("--json", help="write the families table here")
+    ap.add_argument("--only", help="comma-separated families (default: all of "
+                    + ", ".join(BENCH_FAMILIES) + ")")
     args = ap.parse_args()
     if args.coverage:
         coverage(args.coverage)
     elif args.families:
-        families(args.families, args.seconds, json_path=args.json)
+        families(args.families, args.seconds, json_path=args.json,
+                 only=args.only.split(",") if args.only else None)
     else:
         main()

@@ -59,9 +59,10 @@ def kalman_gains(times_s, tau_s: float, rho: float, tol: float = 1e-14) -> Gains
 
     Examples
     --------
-    >>> g = kalman_gains(np.arange(5.0), 1e9, 0.0)
-    >>> g.f.round(6)
-    array([1.e+00, 2.e-09, 2.e-09, 2.e-09, 2.e-09])
+    Pure OU with unit spacing and time constant: innovation variance ``1 - e^-2``.
+
+    >>> kalman_gains(np.arange(4.0), 1.0, 0.0).f.round(4)
+    array([1.    , 0.8647, 0.8647, 0.8647])
     """
     phi = lag_correlation(times_s, tau_s)
     n = phi.size
