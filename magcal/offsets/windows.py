@@ -259,10 +259,13 @@ def batch_standard_error(t_ns, x, batch_ns: int = DAY_NS, min_batches: int = 3,
 
     Examples
     --------
+    Ten days whose values climb 0, 1, ..., 9: sd / sqrt(10) = 0.957, and consecutive
+    days are correlated (r1 = 0.7), so it is inflated by sqrt(2.4).
+
     >>> t = np.arange(10 * 24) * (DAY_NS // 24)
     >>> x = np.repeat(np.arange(10.0), 24)[:, None]
     >>> batch_standard_error(t, x).round(3)
-    array([0.957])
+    array([1.483])
     """
     t = np.asarray(t_ns, dtype=np.int64)
     x = np.asarray(x, dtype=float)
