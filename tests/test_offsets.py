@@ -132,12 +132,13 @@ def test_product_csv_roundtrip_and_apply(tmp_path, months):
     header = path.read_text().splitlines()[0].split(",")
     assert tuple(header[:11]) == CONTRACT_COLUMNS
     assert header[11:] == ["Hp_mad", "He_mad", "Hn_mad", "n_available", "reason",
-                           "days_covered", "lt_hours_covered"]
+                           "days_covered", "lt_hours_covered", "Hp_se", "He_se", "Hn_se"]
     assert (tmp_path / "OFFSETS.csv.provenance.json").exists()
     back = read_offsets_csv(path)
     assert_array_equal(back.days_covered, tab.days_covered)
     assert_array_equal(back.lt_hours_covered, tab.lt_hours_covered)
     assert_allclose(back.offset_nT, tab.offset_nT, atol=6e-5)
+    assert_allclose(back.se_nT, tab.se_nT, atol=6e-5)  # CONTRACTS 7.1 standard errors
     assert_array_equal(back.center, tab.center)
     corrected, off, flag = apply_offsets(stormy.times, stormy.measured_nT, back)
     assert set(np.unique(flag)) == {0, 1, 2}

@@ -179,3 +179,105 @@ def test_alignment_not_determinable_is_reported_not_crashed(tmp_path):
     report = build_uncertainty_report(tmp_path)
     text = " ".join(str(i.__dict__) for s in report.sections for i in s.items)
     assert "do not determine the rotation" in text and "changes too little" in text
+
+
+def _tables(report):
+    return {(s.title, i.caption): i for s in report.sections for i in s.items
+            if hasattr(i, "rows")}
+
+
+def _budget(report):
+    table = next(i for i in report.sections[0].items if hasattr(i, "rows"))
+    return {(r[0], r[1]): r for r in table.rows}
+
+
+def test_budget_combines_the_products_per_band(products):
+    """Below 0.1 mHz: offset estimator disagreement (0.4 nT in the fixture) and the
+    alignment's largest angle std times the default 100 nT field, root sum of squares;
+    the per-sample spread is shown but not added; no NaN cell anywhere."""
+    from magcal.report.uncertainty import build_uncertainty_report
+
+    report = build_uncertainty_report(products)
+    rows = _budget(report)
+    align = json.loads((products / "alignment" / "ALIGN.json").read_text())
+    a_nT = np.deg2rad(max(align["std_deg"].values())) * 100.0
+    assert float(rows[("below 0.1 mHz", "alignment")][2]) == pytest.approx(a_nT, abs=1e-3)
+    assert float(rows[("below 0.1 mHz", "offset: estimator disagreement")][2]) == (
+        pytest.approx(0.4, abs=1e-3))
+    total = rows[("below 0.1 mHz", "TOTAL (root sum of squares)")]
+    assert float(total[2]) == pytest.approx(np.hypot(0.4, a_nT), abs=2e-3)
+    assert "lower bound" in total[4] and "standard error" in total[4]  # no Hp_se columns
+    assert ("below 0.1 mHz", "offset: spread of quiet data - model (not added)") in rows
+    x_rms = 0.05 * 2.0 / np.sqrt(2.0)  # the plans' disagreement: 0.05 x a 2 nT 30 s wave
+    assert float(rows[("above 0.1 mHz", "AC cleaning floor")][2]) == pytest.approx(
+        x_rms, abs=2e-3)
+    assert float(rows[("direction", "TOTAL (root sum of squares)")][2]) == pytest.approx(
+        max(align["std_deg"].values()), abs=1e-3)
+    for table in _tables(report).values():
+        for row in table.rows:
+            assert not any(c.strip().lower() in ("nan", "-nan", "inf") for c in row), row
+
+
+@pytest.fixture(scope="module")
+def chain_run(tmp_path_factory):
+    """An 8-day 1-min archive through ``magcal run`` with a PiCoG plan, alignment,
+    discovery and the report (about 15 s)."""
+    from test_chain_archive import PLAN, _archive
+
+    tmp = tmp_path_factory.mktemp("chainreport")
+    (tmp / "PLAN.toml").write_text(PLAN)
+    cfg = _archive(tmp, n_days=8, plan="PLAN.toml", stages=True)
+    cfg.write_text(cfg.read_text().replace("[report]\nenabled = false",
+                                           "[report]\nenabled = true"))
+    out = tmp / "out"
+    assert main(["run", str(cfg), "-o", str(out), "--quiet", "--workers", "1"]) == 0
+    return out
+
+
+def test_chain_report_reads_the_chains_ac_products_and_offset_errors(chain_run):
+    from magcal.offsets.table import read_offsets_csv
+    from magcal.report.uncertainty import build_uncertainty_report
+
+    text = _text((chain_run / "report" / "REPORT.html").read_text())
+    assert "Not available: no ac/" not in text
+    report = build_uncertainty_report(chain_run)
+    ac = json.loads((chain_run / "ac" / "AC.json").read_text())
+    params = json.loads((chain_run / "ac" / "PARAMS.json").read_text())
+    tables = _tables(report)
+    corr = dict(tables[("AC cleaning (PiCoG)", "PiCoG correction of the chain run.")].rows)
+    assert corr["removed rms (nT)"] == f"{ac['removed_rms_nT']:.3f}"
+    assert corr["correction steps"] == str(len(params["steps"]))
+    bands = tables[("AC cleaning (PiCoG)", "Power ratio raw / cleaned per band of the fit "
+                                           "data (PiCoG band check).")]
+    assert len(bands.rows) == len(params["band_check"]["bands_hz"])
+    # offsets: the standard errors of OFFSETS.csv, the spread apart
+    table = read_offsets_csv(chain_run / "offsets" / "OFFSETS.csv")
+    off = next(t for (s, c), t in tables.items() if s == "DC offsets" and "standard errors"
+               in c)
+    assert off.columns[4:10] == ("Hp se", "He se", "Hn se", "Hp spread", "He spread",
+                                 "Hn spread")
+    ok = np.isfinite(table.offset_nT).all(axis=1)
+    np.testing.assert_allclose([[float(x) for x in r[4:7]] for r in off.rows],
+                               table.se_nT[ok], atol=0.006)
+    rows = _budget(report)
+    assert float(rows[("below 0.1 mHz", "offset: standard error")][2]) == pytest.approx(
+        float(np.nanmax(table.se_nT[ok])), abs=1e-3)
+    for band in ("above 0.1 mHz", "below 0.1 mHz", "direction"):
+        total = rows[(band, "TOTAL (root sum of squares)")]
+        assert total[2] == "not computed" or float(total[2]) >= 0
+        assert total[4]  # a verdict or the reason
+    for table in tables.values():
+        for row in table.rows:
+            assert not any(c.strip().lower() in ("nan", "-nan", "inf") for c in row), row
+
+
+def test_chain_discovery_states_each_amplitude_with_a_standard_error(chain_run):
+    doc = json.loads((chain_run / "discover" / "REPORT.json").read_text())
+    assert doc["effects"] and "tau_s" in doc["amplitude_noise"]
+    for e in doc["effects"]:
+        assert set(e["amplitude_se_nT"]) == set(e["amplitude_nT"]) <= set(e["components"])
+        assert all(np.isfinite(v) and v >= 0 for v in e["amplitude_se_nT"].values())
+    text = _text((chain_run / "report" / "REPORT.html").read_text())
+    name, amp = doc["effects"][0]["name"], doc["effects"][0]["amplitude_nT"]
+    c = next(iter(amp))
+    assert f"{c} {amp[c]:.3f} +- " in text and name in text

@@ -259,7 +259,8 @@ def initial_guess(d, r, names):
 def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bool = True,
                   fit_scale: bool = False, noise: OUNoise | None = None,
                   max_iter: int = 20, noise_iter: int = 2, lt_harmonics: int = 0,
-                  lon_deg: float | None = None) -> AlignmentResult:
+                  lon_deg: float | None = None, noise_model: str = "ou+white",
+                  robust: bool = True) -> AlignmentResult:
     """Rotation (plus offset, scale) of ``data`` against ``ref`` with calibrated errors.
 
     Model: ``data = scale * R(w) @ ref + offset + L(LT) + e`` where each component of
@@ -289,6 +290,18 @@ def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bo
     lon_deg : float, optional
         East longitude, to express the local-time field in local time (otherwise UT;
         for a fixed longitude the fit is the same, only the phase differs).
+    noise_model : {"ou+white", "ou"}
+        Residual noise model per component: Ornstein-Uhlenbeck plus white noise (exact
+        Kalman likelihood, :mod:`magcal.alignment.ouwhite`; default) or pure OU
+        (:mod:`magcal.alignment.noise`; faster, but reads white noise as fast
+        decorrelation and then overstates the information, issue 21).
+    robust : bool
+        Leave out samples whose residual lies more than ``ROBUST_K`` robust standard
+        deviations (median absolute deviation) from the median, first against the
+        reference itself and then against the fit, and refit: under 1 % of spikes or
+        saturated values that passed quality control cannot ruin the angles, and the
+        stated uncertainty is that of the samples kept (left-out samples are gaps of
+        the noise model, handled exactly). The count is in ``warnings``.
 
     Returns
     -------
@@ -306,10 +319,67 @@ def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bo
     """
     if not (fit_rotation or fit_offset or fit_scale):
         raise InputError("nothing to fit: enable rotation, offset or scale")
+    if noise_model not in ("ou", "ou+white"):
+        raise InputError(f"noise_model must be 'ou' or 'ou+white', got {noise_model!r}")
     t, d, r, keep = prepare(times, data, ref)
     names = param_names(fit_rotation, fit_offset, fit_scale, lt_harmonics)
     basis = lt_basis(times, keep, lt_harmonics, lon_deg)
-    theta = starting_point(d, r, names, basis)
+    core = _core_ou if noise_model == "ou" else _core_ouw
+    if noise is not None and noise_model == "ou+white" and not hasattr(noise, "white_std_nT"):
+        core = _core_ou  # a fixed pure-OU noise model was given
+    use = np.ones(t.size, dtype=bool)
+    if robust:
+        use = ~outlier_rows(d - r, ROBUST_K_REFERENCE)
+    out = core(t[use], d[use], r[use], names, _rows(basis, use), noise, max_iter, noise_iter)
+    if robust:
+        mu_all = predict_and_jacobian(out[0], names, r, basis)[0]
+        again = use & ~outlier_rows(d - mu_all, ROBUST_K, rows=use)
+        if again.sum() < use.sum():
+            use = again
+            out = core(t[use], d[use], r[use], names, _rows(basis, use), noise, max_iter,
+                       noise_iter, start=out[0])
+    theta, cov, dof, noise, resid = out
+    warnings = ()
+    if not use.all():
+        warnings = (f"{int((~use).sum())} of {use.size} samples left out as outliers "
+                    f"(residual beyond {ROBUST_K:g} robust std)",)
+    method = "wahba+ou-gls"  # the noise dictionary names the model (OU or OU + white)
+    return summarize(theta, cov, names, noise, resid, method=method, dof=dof,
+                     lon_deg=lon_deg, warnings=warnings)
+
+
+ROBUST_K_REFERENCE = 12.0
+ROBUST_K = 8.0
+
+
+def _rows(basis, use):
+    return None if basis is None else basis[use]
+
+
+def outlier_rows(resid, k: float, rows=None) -> np.ndarray:
+    """Rows of ``resid`` (n, 3) with a component beyond ``k`` robust standard deviations.
+
+    Centre and scale (1.4826 x median absolute deviation) come from ``rows`` (default
+    all); a Gaussian sample is beyond 8 robust std with probability ~1e-15.
+
+    Examples
+    --------
+    >>> x = np.random.default_rng(0).normal(size=(1000, 3))
+    >>> x[10, 1] = 1e6
+    >>> np.flatnonzero(outlier_rows(x, 8.0))
+    array([10])
+    """
+    x = np.asarray(resid, dtype=float)
+    ref = x if rows is None else x[rows]
+    med = np.median(ref, axis=0)
+    mad = 1.4826 * np.median(np.abs(ref - med), axis=0)
+    scale = np.maximum(mad, 1e-12 * (1.0 + np.abs(med)))
+    return np.any(np.abs(x - med) > k * scale, axis=1)
+
+
+def _core_ou(t, d, r, names, basis, noise, max_iter, noise_iter, start=None):
+    """Wahba start, OU-GLS refinement: (theta, cov, dof, noise, residual)."""
+    theta = starting_point(d, r, names, basis) if start is None else np.asarray(start)
     fixed_noise = noise is not None
     for _ in range(1 if fixed_noise else noise_iter):
         if not fixed_noise:
@@ -325,8 +395,47 @@ def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bo
     cov = information_inverse(a)
     dof = (variance_dof(stats, nstats, noise) if not fixed_noise
            else np.full(len(names), np.inf))
-    return summarize(theta, cov, names, noise, d - mu, method="wahba+ou-gls", dof=dof,
-                     lon_deg=lon_deg)
+    return theta, cov, dof, noise, d - mu
+
+
+def _core_ouw(t, d, r, names, basis, noise, max_iter, noise_iter, start=None,
+              max_halvings: int = 30):
+    """Wahba start, GLS under OU + white noise (Kalman whitening): as :func:`_core_ou`."""
+    from magcal.alignment.ouwhite import fit_noise_ouw, whitened_normals
+
+    theta = starting_point(d, r, names, basis) if start is None else np.asarray(start)
+    fixed_noise = noise is not None
+    prev = None
+    for _ in range(1 if fixed_noise else noise_iter):
+        mu, jac = predict_and_jacobian(theta, names, r, basis)
+        if not fixed_noise:
+            noise = fit_noise_ouw(d - mu, t, jac, start=prev)
+            prev = noise
+        gains = [noise.gains(c, t) for c in range(3)]
+        a, b, current = whitened_normals(t, d - mu, jac, noise, gains)
+        for _ in range(max_iter):
+            step = np.linalg.lstsq(a, b, rcond=None)[0]
+            for _ in range(max_halvings):
+                trial = theta + step
+                mu_t, jac_t = predict_and_jacobian(trial, names, r, basis)
+                a_t, b_t, value = whitened_normals(t, d - mu_t, jac_t, noise, gains)
+                if value <= current * (1.0 + 1e-12):
+                    break
+                step = 0.5 * step
+            else:
+                break
+            theta, a, b, current = trial, a_t, b_t, value
+            if np.all(np.abs(step) <= 1e-9 * (1.0 + np.abs(theta))):
+                break
+    mu, jac = predict_and_jacobian(theta, names, r, basis)
+    if not fixed_noise:
+        noise = fit_noise_ouw(d - mu, t, jac, start=prev)
+    a, _, _ = whitened_normals(t, d - mu, jac, noise)
+    cov = information_inverse(a)
+    # uncertainty of the noise model itself: Student t with the effective sample count
+    dof = np.full(len(names), np.inf if fixed_noise
+                  else max(float(np.min(noise.effective_n)) - len(names), 1.0))
+    return theta, cov, dof, noise, d - mu
 
 
 def information_inverse(a) -> np.ndarray:

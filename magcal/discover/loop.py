@@ -116,6 +116,10 @@ class FittedEffect:
         confounded alternatives.
     gap_before : dict
         :func:`~magcal.discover.gap.profile_gap` of the residual it was fitted to.
+    amplitude : dict
+        ``amplitude_nT`` and ``amplitude_se_nT`` per component
+        (:func:`magcal.discover.amplitude.effect_amplitudes`: rms of the contribution
+        over the record, standard error under the OU + white noise model).
     """
 
     effect: Effect
@@ -125,6 +129,7 @@ class FittedEffect:
     rms_after_nT: float
     evidence: dict
     gap_before: dict = field(default_factory=dict, repr=False, compare=False)
+    amplitude: dict = field(default_factory=dict, compare=False)
 
     @property
     def name(self) -> str:
@@ -142,7 +147,7 @@ class FittedEffect:
         comps = list(self.effect.components)
         return {"name": self.name, "components": comps, "parameters": self.parameters,
                 "rms_before_nT": self.rms_before_nT, "rms_after_nT": self.rms_after_nT,
-                "evidence": self.evidence}
+                "evidence": self.evidence, **self.amplitude}
 
 
 @dataclass(frozen=True)
@@ -167,6 +172,8 @@ class DiscoveryResult:
     local_time_h: np.ndarray | None = field(default=None, repr=False, compare=False)
     residual_initial: np.ndarray = field(default=None, repr=False, compare=False)
     residual_final: np.ndarray = field(default=None, repr=False, compare=False)
+    #: Noise model of the effects' amplitude standard errors (OU + white per component).
+    amplitude_noise: dict = field(default_factory=dict)
 
     @property
     def names(self) -> list[str]:
@@ -192,6 +199,7 @@ class DiscoveryResult:
             "settings": self.settings,
             "longitude_deg": self.longitude_deg,
             "rounds": list(self.rounds),
+            "amplitude_noise": self.amplitude_noise,
             "provenance": self.provenance,
         })
 
@@ -710,6 +718,10 @@ def discover(inputs: EffectInputs, measured, settings: DiscoverySettings | None 
     loop = _Loop(inputs, y, settings)
     residual0 = loop.gram.residual([], [])
     fitted, residual, stopped, rounds = loop.run()
+    from magcal.discover.amplitude import effect_amplitudes
+
+    amps, amp_noise = effect_amplitudes(inputs, measured, fitted)
+    fitted = [dataclasses.replace(f, amplitude=a) for f, a in zip(fitted, amps)]
     gap0 = profile_gap(inputs, residual0)
     gap1 = profile_gap(inputs, residual)
     return DiscoveryResult(
@@ -717,7 +729,7 @@ def discover(inputs: EffectInputs, measured, settings: DiscoverySettings | None 
         gap_final=gap1, stopped_because=stopped, settings=settings.as_dict(),
         longitude_deg=longitude_deg, rounds=tuple(rounds), times_s=inputs.times_s,
         local_time_h=inputs.local_time_h, residual_initial=residual0,
-        residual_final=residual)
+        residual_final=residual, amplitude_noise=amp_noise)
 
 
 def discover_gap(measured, model, covariates=None, longitude_deg=None, max_effects: int = 8,

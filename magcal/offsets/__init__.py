@@ -22,6 +22,7 @@ import importlib
 #: estimator needs SciPy's statistics (about 1 s to import), which ``magcal offsets
 #: --help`` and the light submodules do not.
 _WHERE = {"FLAG_MEANING": "apply", "apply_offsets": "apply", "interpolate_offsets": "apply",
+          "offset_uncertainty": "apply", "batch_standard_error": "windows",
           "outside_valid_windows": "apply", "average_to_cadence": "averaging",
           "local_time_hours": "diagnostics", "residual_by_local_time": "diagnostics",
           "OffsetEstimator": "estimator", "fit_offsets": "estimator",

@@ -117,3 +117,44 @@ def outside_valid_windows(times, table) -> np.ndarray:
     k = np.searchsorted(starts, t, side="right") - 1
     inside = (k >= 0) & (t < reach[np.maximum(k, 0)])
     return ~inside
+
+
+def offset_uncertainty(times, table) -> np.ndarray:
+    """1-sigma uncertainty (nT) of the interpolated offset at each sample, (n, 3).
+
+    The offset at a sample is a linear blend ``(1 - w) o_a + w o_b`` of two window
+    offsets; overlapping windows share samples, so their errors are positively
+    correlated and the blend's error is at most ``(1 - w) se_a + w se_b`` (full
+    correlation), which is what is returned: an upper bound, never an understatement.
+    Held ends take the end window's standard error (a drift beyond the last window is
+    not included). NaN where no window has a standard error.
+
+    Parameters
+    ----------
+    times : array_like of datetime64, shape (n,)
+    table : OffsetTable
+        With ``se_nT`` (from :class:`~magcal.offsets.OffsetEstimator` or OFFSETS.csv).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from magcal.offsets.table import OffsetTable
+    >>> c = np.array(["2019-11-08", "2019-11-15"], dtype="datetime64[ns]")
+    >>> tab = OffsetTable(center=c, start=c, end=c, offset_nT=np.zeros((2, 3)),
+    ...                   std_nT=np.ones((2, 3)), mad_nT=np.ones((2, 3)),
+    ...                   n_used=np.array([9, 9]), n_available=np.array([9, 9]),
+    ...                   fraction_used=np.ones(2), se_nT=np.array([[0.2] * 3, [0.4] * 3]))
+    >>> t = np.array(["2019-11-01", "2019-11-11T12"], dtype="datetime64[ns]")
+    >>> offset_uncertainty(t, tab)[:, 0].round(3)
+    array([0.2, 0.3])
+    """
+    se = getattr(table, "se_nT", None)
+    n = np.asarray(times).size
+    if se is None:
+        return np.full((n, 3), np.nan)
+    se = np.where(np.all(np.isfinite(table.offset_nT), axis=1)[:, None], se, np.nan)
+    ok = np.all(np.isfinite(se), axis=1)
+    if not ok.any():
+        return np.full((n, 3), np.nan)
+    out, _ = interpolate_offsets(times, np.asarray(table.center)[ok], se[ok])
+    return out

@@ -206,7 +206,8 @@ class OffsetEstimator:
             n_available=stats["n_available"], fraction_used=stats["fraction_used"],
             reason=tuple(reasons), parameters=self.get_params(),
             provenance=dict(provenance or {}), days_covered=cover["days_covered"],
-            lt_hours_covered=cover["lt_hours_covered"], warnings=self.warnings_)
+            lt_hours_covered=cover["lt_hours_covered"], warnings=self.warnings_,
+            se_nT=stats["se"])
         self.n_quiet_ = int(np.count_nonzero(quiet_mask(kp, self.kp_max)))
         return self
 

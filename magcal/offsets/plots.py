@@ -38,21 +38,33 @@ def plot_residual_local_time(path, times, diff, lon_deg, selected=None, title=No
 
 
 def plot_offsets(path, table, title=None):
-    """Save the window offsets with their standard deviations (error bars) per component."""
+    """Save the window offsets per component: error bars are the 1-sigma standard errors
+    (``table.se_nT``) and the band the spread of the selected samples; without standard
+    errors the error bars are the spread."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(3, 1, figsize=(7, 8), sharex=True)
+    se = table.se_nT
+    has_se = se is not None and bool(np.isfinite(se).any())
     for j, ax in enumerate(axes):
-        ax.errorbar(table.center, table.offset_nT[:, j], yerr=table.std_nT[:, j], fmt="o-",
-                    capsize=3)
+        off = table.offset_nT[:, j]
+        if has_se:
+            ax.fill_between(table.center, off - table.std_nT[:, j], off + table.std_nT[:, j],
+                            alpha=0.2, label="spread (std of selected samples)")
+        ax.errorbar(table.center, off, yerr=se[:, j] if has_se else table.std_nT[:, j],
+                    fmt="o-", capsize=3,
+                    label="offset, 1-sigma standard error" if has_se else "offset, spread")
         ax.set_ylabel(f"{COMPONENTS[j]} offset (nT)")
         ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7)
     axes[-1].set_xlabel("window centre (UTC)")
     fig.autofmt_xdate()
-    fig.suptitle(title or "DC offsets per sliding window (error bars: std of selected data)")
+    fig.suptitle(title or ("DC offsets per sliding window (error bars: standard errors)"
+                           if has_se else "DC offsets per sliding window (error bars: std "
+                           "of selected data)"))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -28,7 +28,7 @@ COMPONENTS = ("Hp", "He", "Hn")
 CONTRACT_COLUMNS = ("center", "start", "end", "Hp", "He", "Hn", "Hp_std", "He_std", "Hn_std",
                     "n_used", "fraction_used")
 EXTRA_COLUMNS = ("Hp_mad", "He_mad", "Hn_mad", "n_available", "reason", "days_covered",
-                 "lt_hours_covered")
+                 "lt_hours_covered", "Hp_se", "He_se", "Hn_se")
 
 
 @dataclass(frozen=True)
@@ -53,6 +53,10 @@ class OffsetTable:
         unknown.
     warnings : tuple of str
         Record-level warnings (e.g. a record far shorter than the window).
+    se_nT : ndarray, shape (k, 3), optional
+        1-sigma standard error of each offset, residual correlation accounted for
+        (:func:`magcal.offsets.windows.batch_standard_error`); columns ``Hp_se..`` of
+        OFFSETS.csv (CONTRACTS §7.1), NaN where not computed.
     """
 
     center: np.ndarray
@@ -70,6 +74,7 @@ class OffsetTable:
     days_covered: np.ndarray | None = None
     lt_hours_covered: np.ndarray | None = None
     warnings: tuple = ()
+    se_nT: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.center.size)
@@ -98,6 +103,9 @@ class OffsetTable:
             column = pd.array(values, dtype="Int64")
             column[values < 0] = pd.NA
             cols[name] = column
+        se = np.full((len(self), 3), np.nan) if self.se_nT is None else self.se_nT
+        for j, c in enumerate(COMPONENTS):
+            cols[f"{c}_se"] = se[:, j]
         return pd.DataFrame(cols)
 
     def to_json(self) -> dict:
@@ -175,4 +183,5 @@ def read_offsets_csv(path) -> OffsetTable:
     return OffsetTable(center=times["center"], start=times["start"], end=times["end"],
                        offset_nT=offset, std_nT=std, mad_nT=mad, n_used=n_used,
                        n_available=n_av, fraction_used=num("fraction_used"), reason=reason,
-                       parameters={"source": os.fspath(p)}, **cover)
+                       parameters={"source": os.fspath(p)},
+                       se_nT=np.stack([num(f"{c}_se") for c in COMPONENTS], axis=1), **cover)

@@ -74,7 +74,7 @@ def window_statistics(t_ns, diff, selected, starts_ns, ends_ns, min_used: int = 
     Returns
     -------
     dict
-        ``median, std, mad`` (k, m); ``n_used, n_available`` (k,) int; ``fraction_used``
+        ``median, std, mad, se`` (k, m) (``se``: :func:`batch_standard_error`); ``n_used, n_available`` (k,) int; ``fraction_used``
         (k,) = n_used / n_available; ``reason`` list of str ('' when fine).
 
     Examples
@@ -114,6 +114,7 @@ def window_statistics(t_ns, diff, selected, starts_ns, ends_ns, min_used: int = 
     median = np.full((k, m), np.nan)
     std = np.full((k, m), np.nan)
     mad = np.full((k, m), np.nan)
+    se = np.full((k, m), np.nan)
     reasons = []
     for i in range(k):
         if n_av[i] == 0:
@@ -139,10 +140,11 @@ def window_statistics(t_ns, diff, selected, starts_ns, ends_ns, min_used: int = 
             median[i] = med
         std[i] = np.std(x, axis=0, ddof=1) if n_used[i] > 1 else 0.0
         mad[i] = median_abs_deviation(x, axis=0, scale="normal")
+        se[i] = batch_standard_error(t_use[lo[i]:hi[i]], x)
         reasons.append("")
     with np.errstate(invalid="ignore", divide="ignore"):
         frac = np.where(n_av > 0, n_used / np.maximum(n_av, 1), np.nan)
-    return {"median": median, "std": std, "mad": mad, "n_used": n_used.astype(np.int64),
+    return {"median": median, "std": std, "mad": mad, "se": se, "n_used": n_used.astype(np.int64),
             "n_available": n_av.astype(np.int64), "fraction_used": frac, "reason": reasons}
 
 
@@ -230,3 +232,58 @@ def thin_coverage_reason(days_covered: int, window_days: float, lt_hours_covered
         parts.append(f"{where} {lt_hours_covered} of {lt_bins} local-time hours "
                      f"(< {min_lt_fraction:.0%})")
     return ("coverage too thin to trust: " + " and ".join(parts)) if parts else ""
+
+
+def batch_standard_error(t_ns, x, batch_ns: int = DAY_NS, min_batches: int = 3,
+                         min_fraction: float = 0.1) -> np.ndarray:
+    """Standard error (1 sigma) of a window's offset under correlated residuals.
+
+    The residual of data minus model is correlated over hours (the model misses slowly
+    varying fields), so the spread over ``sqrt(n)`` says nothing about how well the
+    offset is known. Batch means: the window is cut into days, each day's median is one
+    batch value, and the standard error is ``sd(batches) / sqrt(n_batches)`` inflated by
+    ``sqrt(1 + 2 r1)`` with ``r1 >= 0`` the lag-one correlation of consecutive days'
+    values (residuals correlated across midnight). Days holding under ``min_fraction``
+    of the fullest day's samples are left out; fewer than ``min_batches`` days give NaN.
+    Measured (issue 21): 95 % intervals hold the true offset in >= 90 % of archives whose
+    model misses an AR(1) field of 3 nT, tau 6 h.
+
+    Parameters
+    ----------
+    t_ns : array_like of int64, shape (n,)
+    x : array_like, shape (n, m)
+
+    Returns
+    -------
+    ndarray, shape (m,)
+
+    Examples
+    --------
+    Ten days whose values climb 0, 1, ..., 9: sd / sqrt(10) = 0.957, and consecutive
+    days are correlated (r1 = 0.7), so it is inflated by sqrt(2.4).
+
+    >>> t = np.arange(10 * 24) * (DAY_NS // 24)
+    >>> x = np.repeat(np.arange(10.0), 24)[:, None]
+    >>> batch_standard_error(t, x).round(3)
+    array([1.483])
+    """
+    t = np.asarray(t_ns, dtype=np.int64)
+    x = np.asarray(x, dtype=float)
+    x = x[:, None] if x.ndim == 1 else x
+    if t.size == 0:
+        return np.full(x.shape[1], np.nan)
+    day = (t - t[0]) // int(batch_ns)
+    edges = np.flatnonzero(np.diff(day)) + 1
+    groups = np.split(np.arange(t.size), edges)
+    sizes = np.array([g.size for g in groups])
+    good = [g for g, s in zip(groups, sizes) if s >= min_fraction * sizes.max()]
+    if len(good) < min_batches:
+        return np.full(x.shape[1], np.nan)
+    b = np.array([np.median(x[g], axis=0) for g in good])
+    nb = b.shape[0]
+    sd = np.std(b, axis=0, ddof=1)
+    c = b - b.mean(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r1 = np.sum(c[1:] * c[:-1], axis=0) / np.sum(c ** 2, axis=0)
+    r1 = np.clip(np.nan_to_num(r1), 0.0, 0.9)
+    return sd / np.sqrt(nb) * np.sqrt(1.0 + 2.0 * r1)

@@ -7,6 +7,7 @@ come from, so each number in a report is traceable to a product and its provenan
 from __future__ import annotations
 
 import io
+import math
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -30,10 +31,11 @@ class Table:
     @classmethod
     def from_records(cls, columns: Sequence[str], rows: Sequence[Sequence], caption: str = "",
                      source: str = "", fmt: str = "{:.3g}") -> "Table":
-        """Format numbers with ``fmt`` and everything else with ``str``."""
+        """Format numbers with ``fmt`` and everything else with ``str``; a non-finite
+        number is written "not computed" (a report shows no NaN cell)."""
         def cell(v):
             if isinstance(v, float):
-                return fmt.format(v)
+                return fmt.format(v) if math.isfinite(v) else "not computed"
             return str(v)
         return cls(tuple(columns), tuple(tuple(cell(v) for v in r) for r in rows), caption,
                    source)
