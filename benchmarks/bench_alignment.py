@@ -120,8 +120,8 @@ def family_draw(family: str, seed: int) -> dict:
 
     dr = draw(family, np.random.default_rng(seed))
     t, d, r = dr["times_s"], dr["data"], dr["ref"]
-    res = fit_alignment(t, d, r)
-    with_lt = fit_alignment(t, d, r, lt_harmonics=3)
+    res = fit_alignment(t, d, r, noise_model="ou+white")
+    with_lt = fit_alignment(t, d, r, lt_harmonics=3, noise_model="ou+white")
     keep, _ = select_lt_harmonics(with_lt, res)
     chosen = with_lt if keep else res
     ci = np.asarray(res.ci95_deg)

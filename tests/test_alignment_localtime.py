@@ -101,12 +101,14 @@ def test_disturbed_month_windows_disagree_and_intervals_widen(month):
     # (truth 0) ...
     assert res.determinability.fitted_angles_deg[0] - 1.96 * fitted_std[0] > 0.0
     # ... so the product does not deliver it: the rotation fits worse than the identity
-    # (plain residual RMS) and Hn's inflated interval leaves the sensible range. The
-    # warning's remedy (--kp) is what the quiet-month tests exercise.
+    # (plain residual RMS). (Before the fit left residuals beyond 8 robust std out, the
+    # storm peaks stayed in and Hn's inflated interval also left the +-45 deg range; the
+    # refusal does not depend on that.) The warning's remedy (--kp) is what the
+    # quiet-month tests exercise.
     assert not res.determinable and np.all(np.isnan(res.angles_deg))
     det = res.determinability
     assert np.sqrt(np.mean(det.rotation_rms_nT ** 2)) > np.sqrt(np.mean(det.identity_rms_nT ** 2))
-    assert "more than" in det.reason and "+-45 deg" in det.reason
+    assert "more than" in det.reason and "of the identity" in det.reason
 
 
 def test_marginal_likelihood_equals_direct_projection():

@@ -77,7 +77,7 @@ def test_ou_plus_white_alignment_coverage_short():
     inside, ratio, z = [], [], []
     for s in range(8):
         dr = draw("ou+white", np.random.default_rng(900 + s), n=720)
-        res = fit_alignment(dr["times_s"], dr["data"], dr["ref"])
+        res = fit_alignment(dr["times_s"], dr["data"], dr["ref"], noise_model="ou+white")
         ci = np.asarray(res.ci95_deg)
         inside.append((ci[:, 0] <= dr["truth_deg"]) & (dr["truth_deg"] <= ci[:, 1]))
         ratio.append(res.std_deg / dr["crb_std_deg"])
@@ -95,10 +95,10 @@ def test_a_200_minute_gap_leaves_the_std_stable():
     case = synthetic_pair(np.random.default_rng(21), n=35 * 1440, cadence_s=60.0,
                           rotvec_deg=TRUTH, noise_std_nT=(2.0, 2.0, 2.0),
                           noise_tau_s=(3600.0,) * 3)
-    full = fit_alignment(case.times, case.data, case.ref)
+    full = fit_alignment(case.times, case.data, case.ref, noise_model="ou+white")
     data = case.data.copy()
     data[20000:20200] = np.nan  # 200 min cut
-    gap = fit_alignment(case.times, data, case.ref)
+    gap = fit_alignment(case.times, data, case.ref, noise_model="ou+white")
     assert gap.n_used == full.n_used - 200
     assert np.all(np.abs(gap.std_deg / full.std_deg - 1) < 0.10)
     for res in (full, gap):

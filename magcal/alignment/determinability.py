@@ -142,7 +142,7 @@ class Determinability:
 
 
 def identity_fit(times, data, ref, *, fit_offset: bool = True, fit_scale: bool = False,
-                 lt_harmonics: int = 0, lon_deg=None) -> AlignmentResult:
+                 lt_harmonics: int = 0, lon_deg=None, noise_model: str = "ou") -> AlignmentResult:
     """Fit of the nuisance terms alone (rotation fixed at the identity): the baseline a
     rotation must beat, and the noise model of the bound.
 
@@ -154,7 +154,8 @@ def identity_fit(times, data, ref, *, fit_offset: bool = True, fit_scale: bool =
 
     if fit_offset or fit_scale or lt_harmonics:
         return fit_alignment(times, data, ref, fit_rotation=False, fit_offset=fit_offset,
-                             fit_scale=fit_scale, lt_harmonics=lt_harmonics, lon_deg=lon_deg)
+                             fit_scale=fit_scale, lt_harmonics=lt_harmonics, lon_deg=lon_deg,
+                             noise_model=noise_model)
     t, d, r, _ = prepare(times, data, ref)
     resid = d - r
     return AlignmentResult(
@@ -219,7 +220,7 @@ def rotation_bound(times, data, ref, identity: AlignmentResult, *, fit_offset: b
 
 def check_before(times, data, ref, identity: AlignmentResult, *, fit_offset: bool = True,
                  fit_scale: bool = False, lt_harmonics: int = 0, lon_deg=None,
-                 max_angle_deg: float = MAX_ANGLE_DEG) -> Determinability:
+                 max_angle_deg: float = MAX_ANGLE_DEG, noise_model: str = "ou") -> Determinability:
     """Decide, before fitting, whether the data can determine the rotation.
 
     Parameters

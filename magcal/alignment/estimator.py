@@ -137,6 +137,9 @@ class Aligner:
     max_angle_deg : float
         Physically sensible range of each angle: a rotation the data cannot confine to
         it is reported as not determinable (default 45, the posterior's prior range).
+    noise_model : {"ou", "ou+white"}
+        Residual noise model (:func:`magcal.alignment.gls.fit_alignment`; OU + white is
+        opt-in, see there).
 
     Attributes
     ----------
@@ -165,7 +168,7 @@ class Aligner:
                  rng: np.random.Generator | None = None, n_walkers: int = 32,
                  min_autocorr_times: float = 50.0, max_steps: int = 40000,
                  lt_harmonics="auto", window_days="auto", inflate_inconsistent: bool = True,
-                 max_angle_deg: float = MAX_ANGLE_DEG):
+                 max_angle_deg: float = MAX_ANGLE_DEG, noise_model: str = "ou"):
         self.fit_offset = fit_offset
         self.fit_scale = fit_scale
         self.mcmc = mcmc
@@ -177,6 +180,7 @@ class Aligner:
         self.window_days = window_days
         self.inflate_inconsistent = inflate_inconsistent
         self.max_angle_deg = max_angle_deg
+        self.noise_model = noise_model
 
     def fit(self, times, data, ref, lon_deg=None) -> Aligner:
         """Fit on matched ``data`` and ``ref`` (n, 3) at ``times``; return self.
@@ -195,7 +199,8 @@ class Aligner:
         t_s, _, _, _ = prepare(times, data, ref)
         span_days = float(t_s[-1] - t_s[0]) / 86400.0
         k = resolve_lt_harmonics(self.lt_harmonics, span_days)
-        kw = {"fit_offset": self.fit_offset, "fit_scale": self.fit_scale, "lon_deg": lon_deg}
+        kw = {"fit_offset": self.fit_offset, "fit_scale": self.fit_scale, "lon_deg": lon_deg,
+              "noise_model": self.noise_model}
         fits, selection = {}, None
         if self.lt_harmonics == "auto" and k:
             fits = {k: fit_alignment(times, data, ref, lt_harmonics=k, **kw),

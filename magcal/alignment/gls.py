@@ -259,7 +259,7 @@ def initial_guess(d, r, names):
 def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bool = True,
                   fit_scale: bool = False, noise: OUNoise | None = None,
                   max_iter: int = 20, noise_iter: int = 2, lt_harmonics: int = 0,
-                  lon_deg: float | None = None, noise_model: str = "ou+white",
+                  lon_deg: float | None = None, noise_model: str = "ou",
                   robust: bool = True) -> AlignmentResult:
     """Rotation (plus offset, scale) of ``data`` against ``ref`` with calibrated errors.
 
@@ -290,11 +290,15 @@ def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bo
     lon_deg : float, optional
         East longitude, to express the local-time field in local time (otherwise UT;
         for a fixed longitude the fit is the same, only the phase differs).
-    noise_model : {"ou+white", "ou"}
-        Residual noise model per component: Ornstein-Uhlenbeck plus white noise (exact
-        Kalman likelihood, :mod:`magcal.alignment.ouwhite`; default) or pure OU
-        (:mod:`magcal.alignment.noise`; faster, but reads white noise as fast
-        decorrelation and then overstates the information, issue 21).
+    noise_model : {"ou", "ou+white"}
+        Residual noise model per component: pure OU (:mod:`magcal.alignment.noise`;
+        default) or Ornstein-Uhlenbeck plus white noise (exact Kalman likelihood,
+        :mod:`magcal.alignment.ouwhite`). OU + white holds its coverage where the
+        residual is one OU process plus white noise (pure OU reads the white part as
+        fast decorrelation and overstates the information), but on the demo's
+        residual (fast and multi-day parts) it fitted a 5-9 day time constant and a
+        rotation worse than none, and it is 4x slower: opt-in until a multi-scale
+        model holds on both (issue 21).
     robust : bool
         Leave out samples whose residual lies more than ``ROBUST_K`` robust standard
         deviations (median absolute deviation) from the median, first against the

@@ -186,6 +186,8 @@ class AlignSettings:
     max_angle_deg : float
         Physically sensible range of an angle (see
         :mod:`magcal.alignment.determinability`).
+    noise_model : str
+        ``ou`` or ``ou+white`` (:func:`magcal.alignment.gls.fit_alignment`).
     """
 
     fit_offset: bool = True
@@ -196,13 +198,15 @@ class AlignSettings:
     window_days: object = "auto"
     lt_harmonics: object = "auto"
     max_angle_deg: float = 45.0
+    noise_model: str = "ou"
 
     def aligner(self, rng: np.random.Generator | None) -> Aligner:
         """The estimator these settings describe."""
         return Aligner(fit_offset=self.fit_offset, fit_scale=self.fit_scale, mcmc=self.mcmc,
                        rng=rng, max_steps=self.max_steps, lt_harmonics=self.lt_harmonics,
                        window_days=None if self.window_days in (0, 0.0, None)
-                       else self.window_days, max_angle_deg=self.max_angle_deg)
+                       else self.window_days, max_angle_deg=self.max_angle_deg,
+                       noise_model=self.noise_model)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -121,7 +121,8 @@ def run_alignment(corrected: CorrectedData, minute: MinuteData, config: ChainCon
     window = cfg["window_days"]
     settings = AlignSettings(mcmc=cfg["mcmc"], seed=cfg["seed"],
                              lt_harmonics=cfg["lt_harmonics"],
-                             window_days=None if window == 0 else window)
+                             window_days=None if window == 0 else window,
+                             noise_model=cfg["noise_model"])
     product = align_product(times, data, ref, lon_deg=lon,
                             lon_source="[position]", quiet=quiet, selection=selection,
                             settings=settings, rng=np.random.default_rng(cfg["seed"]),

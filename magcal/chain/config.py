@@ -40,7 +40,7 @@ SCHEMA: dict[str, dict[str, tuple]] = {
     "alignment": {"reference": (str, "model"), "mcmc": (bool, False), "seed": (int, 0),
                   "lt_harmonics": ((str, int), "auto"), "window_days": ((str, int, float), "auto"),
                   "kp_max": ((int, float), 1.0), "enabled": (bool, True),
-                  "cadence_s": ((int, float), 60.0)},
+                  "cadence_s": ((int, float), 60.0), "noise_model": (str, "ou")},
     "discover": {"enabled": (bool, True), "max_effects": (int, 8), "covariates": (str, None)},
     "report": {"enabled": (bool, True), "pdf": (bool, False)},
     "truth": {"file": (str, None)},
@@ -189,6 +189,9 @@ def _check_values(s: dict, path: Path, kind: str) -> None:
     if s["input"]["format"] not in ("auto",) + FORMATS:
         raise InputError(f"[input] format {s['input']['format']!r}: use auto or one of "
                          f"{', '.join(FORMATS)}", file=path)
+    if s["alignment"]["noise_model"] not in ("ou", "ou+white"):
+        raise InputError(f"[alignment] noise_model {s['alignment']['noise_model']!r}: use "
+                         "ou or ou+white", file=path, column="alignment.noise_model")
     if s["output"]["format"] not in ("auto", "csv", "netcdf", "cdf"):
         raise InputError(f"[output] format {s['output']['format']!r}: use auto (the input's "
                          "family), csv, netcdf (CF-1.8) or cdf (ISTP)", file=path,

@@ -56,6 +56,10 @@ def register(subparsers) -> None:
                         "a model, which lacks the storm-time field")
     p.add_argument("--kp-max", type=float, default=1.0,
                    help="largest Kp of a used sample with --kp (default 1.0)")
+    p.add_argument("--noise-model", choices=("ou", "ou+white"), default="ou",
+                   help="residual noise model: OU (default) or OU plus white noise (exact "
+                        "Kalman likelihood; holds its coverage when the residual has a white "
+                        "part, opt-in: see the README's alignment limits)")
     p.add_argument("--max-angle", type=float, default=45.0, metavar="DEG",
                    help="physically sensible range of each angle: a rotation the data cannot "
                         "confine to +-DEG is reported as not determinable (default 45)")
@@ -89,7 +93,7 @@ def run(args) -> int:
         seed=args.seed, max_steps=args.max_steps,
         window_days=_auto_or_number(args.window_days, "--window-days"),
         lt_harmonics=_auto_or_number(args.lt_harmonics, "--lt-harmonics", int),
-        max_angle_deg=args.max_angle)
+        max_angle_deg=args.max_angle, noise_model=args.noise_model)
     pair = match_frames(read_any(data_path, required=COLUMNS),
                         read_any(ref_path, required=COLUMNS),
                         data_name=data_path, ref_name=ref_path)
