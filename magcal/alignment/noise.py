@@ -418,25 +418,44 @@ class OUNoise:
 
     def to_dict(self) -> dict:
         """Plain dictionary keyed by component name."""
-        return {
-            "model": "ornstein-uhlenbeck per component",
-            "std_nT": dict(zip(COMPONENTS, map(float, self.std_nT))),
-            "tau_s": dict(zip(COMPONENTS, map(float, self.tau_s))),
-            "effective_n": dict(zip(COMPONENTS, map(float, self.effective_n))),
-            "tau_at_bound": dict(zip(COMPONENTS, map(bool, self.tau_at_bound))),
-            "warning": self.warning(),
-        }
+        return noise_dict("ornstein-uhlenbeck per component", self)
 
     def warning(self) -> str | None:
         """A caution when the noise model cannot be trusted, else None."""
-        if any(self.tau_at_bound):
-            return ("residuals correlated over the whole record: the uncertainty cannot be "
-                    "estimated from these data and is a lower bound")
-        if np.min(self.effective_n) < 30:
-            return ("fewer than 30 independent samples in a component: correlation time "
-                    "and hence the uncertainty are themselves uncertain (measured: 95 % "
-                    "intervals hold the truth in about 92 % of cases at 30)")
-        return None
+        return noise_warning(self.tau_at_bound, self.effective_n)
+
+
+def noise_warning(tau_at_bound, effective_n) -> str | None:
+    """A caution when a fitted noise model cannot be trusted, else None.
+
+    Shared by the OU and the OU + white models: both state their correlation times'
+    bound hits and effective sample sizes per component.
+    """
+    if any(tau_at_bound):
+        return ("residuals correlated over the whole record: the uncertainty cannot be "
+                "estimated from these data and is a lower bound")
+    if np.min(effective_n) < 30:
+        return ("fewer than 30 independent samples in a component: correlation time "
+                "and hence the uncertainty are themselves uncertain (measured: 95 % "
+                "intervals hold the truth in about 92 % of cases at 30)")
+    return None
+
+
+def noise_dict(model: str, noise, extra: tuple[str, ...] = ()) -> dict:
+    """A fitted noise model as a plain dictionary keyed by component name.
+
+    ``extra`` names further per-component array attributes (for example
+    ``white_std_nT``) written after ``tau_s``.
+    """
+    out = {"model": model,
+           "std_nT": dict(zip(COMPONENTS, map(float, noise.std_nT))),
+           "tau_s": dict(zip(COMPONENTS, map(float, noise.tau_s)))}
+    for name in extra:
+        out[name] = dict(zip(COMPONENTS, map(float, getattr(noise, name))))
+    out["effective_n"] = dict(zip(COMPONENTS, map(float, noise.effective_n)))
+    out["tau_at_bound"] = dict(zip(COMPONENTS, map(bool, noise.tau_at_bound)))
+    out["warning"] = noise.warning()
+    return out
 
 
 def fit_noise(residuals, times_s, jacobian=None) -> OUNoise:

@@ -26,7 +26,7 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.signal import lfilter
 
-from magcal.alignment.noise import COMPONENTS, lag_correlation
+from magcal.alignment.noise import lag_correlation, noise_dict, noise_warning
 
 RHO_MAX = 0.999
 
@@ -223,25 +223,12 @@ class OUWhiteNoise:
 
     def to_dict(self) -> dict:
         """Plain dictionary keyed by component name."""
-        return {
-            "model": "ornstein-uhlenbeck plus white per component (Kalman likelihood)",
-            "std_nT": dict(zip(COMPONENTS, map(float, self.std_nT))),
-            "tau_s": dict(zip(COMPONENTS, map(float, self.tau_s))),
-            "white_std_nT": dict(zip(COMPONENTS, map(float, self.white_std_nT))),
-            "effective_n": dict(zip(COMPONENTS, map(float, self.effective_n))),
-            "tau_at_bound": dict(zip(COMPONENTS, map(bool, self.tau_at_bound))),
-            "warning": self.warning(),
-        }
+        return noise_dict("ornstein-uhlenbeck plus white per component (Kalman likelihood)",
+                          self, extra=("white_std_nT",))
 
     def warning(self) -> str | None:
         """A caution when the noise model cannot be trusted, else None."""
-        if any(self.tau_at_bound):
-            return ("residuals correlated over the whole record: the uncertainty cannot be "
-                    "estimated from these data and is a lower bound")
-        if np.min(self.effective_n) < 30:
-            return ("fewer than 30 independent samples in a component: correlation time "
-                    "and hence the uncertainty are themselves uncertain")
-        return None
+        return noise_warning(self.tau_at_bound, self.effective_n)
 
 
 def noise_from_components(fits, times_s) -> OUWhiteNoise:
