@@ -12,16 +12,33 @@ sensor (:mod:`magcal.ac.bandcheck`), steps, spikes and remnants
 (:class:`PiCoG`, with the fitted sample grid :func:`fit_time_grid`).
 """
 
-from magcal.ac.bandcheck import BandCheck, band_check
-from magcal.ac.chain import ChainResult, Order, Plan, Stage, apply_weights, run_chain
-from magcal.ac.core import FirstOrderFit, correction_matrix, fit_first_order, variance_system
-from magcal.ac.estimator import (PiCoG, TimeGrid, apply_params, apply_upload, fit_time_grid,
-                                 params_from_json)
-from magcal.ac.plan import read_plan
-from magcal.ac.scan import ScanResult, ScanSummary, scan_first_order, summarize_scan
+from __future__ import annotations
 
-__all__ = ["PiCoG", "Plan", "Stage", "Order", "ChainResult", "run_chain", "apply_weights",
-           "apply_upload", "apply_params", "params_from_json", "fit_time_grid", "TimeGrid",
-           "band_check", "BandCheck", "fit_first_order", "FirstOrderFit",
-           "correction_matrix", "variance_system", "scan_first_order", "summarize_scan",
-           "ScanResult", "ScanSummary", "read_plan"]
+import importlib
+
+#: Public name -> the submodule that defines it, imported on first use (PEP 562): the
+#: band check needs scipy.signal (which imports scipy.stats: about 0.8 s), which a
+#: chain with ``plan = "none"`` and ``magcal picog --help`` do not.
+_WHERE = {"BandCheck": "bandcheck", "band_check": "bandcheck",
+          "ChainResult": "chain", "Order": "chain", "Plan": "chain", "Stage": "chain",
+          "apply_weights": "chain", "run_chain": "chain",
+          "FirstOrderFit": "core", "correction_matrix": "core", "fit_first_order": "core",
+          "variance_system": "core",
+          "PiCoG": "estimator", "TimeGrid": "estimator", "apply_params": "estimator",
+          "apply_upload": "estimator", "fit_time_grid": "estimator",
+          "params_from_json": "estimator",
+          "read_plan": "plan",
+          "ScanResult": "scan", "ScanSummary": "scan", "scan_first_order": "scan",
+          "summarize_scan": "scan"}
+
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str):
+    if name in _WHERE:
+        return getattr(importlib.import_module(f"magcal.ac.{_WHERE[name]}"), name)
+    raise AttributeError(f"module 'magcal.ac' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -42,7 +42,6 @@ more in sequence to compare them (a simulated day at 1 s takes 11-28 s in all).
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import median_abs_deviation
 
 from magcal.ac.chain import (
     Order,
@@ -57,6 +56,7 @@ from magcal.ac.chain import (
 from magcal.ac.core import correction_matrix
 from magcal.ac.filters import running_mean
 from magcal.errors import InputError
+from magcal.stats import normal_mad
 
 CANDIDATE_WINDOWS_S = (30.0, 100.0, 300.0, 700.0, 2000.0, 6000.0, 16000.0)
 #: fewer samples cannot support a choice of filters, windows and orders (nor the band
@@ -80,7 +80,7 @@ def noise_sigma(b: np.ndarray) -> float:
     d2 = d2[np.all(np.isfinite(d2), axis=1)]
     if d2.shape[0] < 10:
         return float("nan")
-    mad = median_abs_deviation(d2, axis=0, scale="normal")
+    mad = normal_mad(d2, axis=0)
     return float(np.sqrt(np.sum((mad / np.sqrt(6.0)) ** 2)))
 
 

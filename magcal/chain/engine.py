@@ -202,9 +202,19 @@ class Pending:
 
 
 def _import_partition_code() -> None:
-    """What a worker imports to run partitions (see :meth:`Engine.start_workers`)."""
+    """What a worker imports to read files, fit and run partitions (see
+    :meth:`Engine.start_workers`): imported while the driver starts, not when the first
+    task waits for them (about a second of a small archive's run)."""
     import magcal.chain.archive  # noqa: F401
+    import magcal.chain.prepare  # noqa: F401
     import magcal.io.formats  # noqa: F401
+    import magcal.io.netcdf  # noqa: F401
+    import magcal.missions.goes  # noqa: F401
+    import magcal.models.field  # noqa: F401
+    import magcal.qc.quality  # noqa: F401
+    from magcal.offline import configure_offline
+
+    configure_offline()
 
 
 def _connect(scheduler):

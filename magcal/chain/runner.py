@@ -277,9 +277,9 @@ def run_chain(config: ChainConfig | str | Path, outdir: str | Path,
     own = engine is None
     engine = Engine(workers, scheduler, bars=progress is not None) if own else engine
     try:
+        if cfg.kind != "spin":  # the workers start while the driver prepares
+            engine.start_workers()
         if cfg["input"]["simulate"]:
-            if cfg.kind != "spin":  # the workers start while the driver simulates
-                engine.start_workers()
             extras["simulated"] = _simulate_input(cfg, out, progress)
         files = cfg.input_files()
         if cfg.kind == "spin":

@@ -240,6 +240,34 @@ def _read_file(path: Path) -> tuple[dict, dict, np.ndarray, dict]:
     return columns, counts, np.where(t_ok, t_ns, np.iinfo(np.int64).min), meta
 
 
+def _column_block(parts: list[dict], times: list[np.ndarray], names: list[str],
+                  order: np.ndarray | None) -> np.ndarray:
+    """The columns ``names`` of every file, joined and put in time order (``order``;
+    None: the files' rows already are), as the ``(n, len(names))`` transpose of one
+    C-ordered block, which pandas takes as its own without copying.
+
+    A DataFrame built from a dict of 19 columns copies them into such a block (0.28 s
+    of a 0.6 s read of a 10 Hz day); writing each column once into it costs a tenth.
+    """
+    n_in = sum(t.size for t in times)
+    n_out = n_in if order is None else order.size
+    block = np.empty((len(names), n_out))
+    joined = np.empty(n_in) if order is not None or len(parts) > 1 else None
+    for k, name in enumerate(names):
+        if joined is None:
+            block[k] = parts[0].get(name, np.nan)
+            continue
+        start = 0
+        for part, t in zip(parts, times):
+            joined[start:start + t.size] = part.get(name, np.nan)
+            start += t.size
+        if order is None:
+            block[k] = joined
+        else:
+            np.take(joined, order, out=block[k])
+    return block.T
+
+
 def _orbit(variables, path: Path, t_ns: np.ndarray):
     if "orbit_llr_geo" not in variables:
         raise InputError("variable missing", file=path, column="orbit_llr_geo")
@@ -325,8 +353,6 @@ def read_goes_mag(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> pd.
     names = []
     for cols in parts:
         names.extend(c for c in cols if c not in names)
-    data = {c: np.concatenate([p.get(c, np.full(t.size, np.nan)) for p, t in zip(parts, times)])
-            for c in names}
     t_all = np.concatenate(times)
     repairs: list[dict] = []
 
@@ -346,7 +372,7 @@ def read_goes_mag(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> pd.
                         "count": int((~keep).sum())})
     order = order[keep]
 
-    all_fill = []
+    all_fill, dropped = [], set()
     for var_name, cols, _, _ in _VECTORS + tuple((v, (c,), None, r) for v, c, r in _SCALARS):
         stats = [c[var_name] for c in counts_all if var_name in c]
         if not stats:
@@ -355,8 +381,7 @@ def read_goes_mag(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> pd.
         n_range = sum(s["range"] for s in stats)
         if n_fill == sum(s["size"] for s in stats) and var_name in _OPTIONAL_IF_ALL_FILL:
             all_fill.append(var_name)
-            for col in cols:
-                data.pop(col, None)
+            dropped.update(cols)
             continue
         if n_fill:
             repairs.append({"what": "fill value replaced by NaN", "column": var_name,
@@ -371,7 +396,11 @@ def read_goes_mag(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> pd.
 
     index = pd.DatetimeIndex(t_sorted[keep].astype("datetime64[ns]"), name="time")
     index = index.tz_localize("UTC")
-    frame = pd.DataFrame({c: v[order] for c, v in data.items()}, index=index)
+    frame = pd.DataFrame(_column_block(parts, times, [c for c in names if c not in dropped],
+                                       None if order.size == t_all.size and not moved
+                                       else order),
+                         index=index, columns=[c for c in names if c not in dropped],
+                         copy=False)
     frame.attrs["source"] = [str(p) for p in files]
     frame.attrs["repairs"] = repairs
     frame.attrs["n_missing"] = {k: int(v) for k, v in frame.isna().sum().items()}

@@ -12,9 +12,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.stats import median_abs_deviation
 
 from magcal.errors import InputError
+from magcal.stats import normal_mad
 
 DAY_NS = 86_400 * 10**9
 #: Local-time bins (one hour each) over which a window's coverage is counted.
@@ -139,7 +139,7 @@ def window_statistics(t_ns, diff, selected, starts_ns, ends_ns, min_used: int = 
         else:
             median[i] = med
         std[i] = np.std(x, axis=0, ddof=1) if n_used[i] > 1 else 0.0
-        mad[i] = median_abs_deviation(x, axis=0, scale="normal")
+        mad[i] = normal_mad(x, axis=0)
         se[i] = batch_standard_error(t_use[lo[i]:hi[i]], x)
         reasons.append("")
     with np.errstate(invalid="ignore", divide="ignore"):
