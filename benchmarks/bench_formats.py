@@ -53,6 +53,12 @@ from bench_archive import load, parallel_floor, profile_parts, run  # noqa: E402
 
 bench_archive.BASE_ENV = _USER_ENV
 
+# the allocator settings of the chain's workers (engine.keep_freed_memory, their pool's
+# initializer), so the in-process day and the floor see what a worker sees
+from magcal.chain.engine import keep_freed_memory  # noqa: E402
+
+keep_freed_memory()
+
 CHAIN = """[input]
 files = ["raw/*.nc"]
 target = "ob"
