@@ -25,7 +25,7 @@ Usage::
     python benchmarks/bench_formats.py [--days 120] [--fixed-days 35] [--keep DIR]
                                        [--skip-chain]
 
-The full figures need an idle machine: ``--days 120 --fixed-days 35`` (about 20 min of
+The full figures need an idle machine: ``--days 120 --fixed-days 35`` (about 12 min of
 generation and runs). ``--days 3 --fixed-days 5`` is a quick check.
 """
 
