@@ -117,12 +117,13 @@ def family_draw(family: str, seed: int) -> dict:
     selection's chosen std / bound (no local-time field in the data)."""
     from magcal.alignment.checks import select_lt_harmonics
     from magcal.alignment.families import draw
+    from magcal.alignment.harmonic_test import lt_field_test
 
     dr = draw(family, np.random.default_rng(seed))
     t, d, r = dr["times_s"], dr["data"], dr["ref"]
     res = fit_alignment(t, d, r, noise_model="ou+white")
     with_lt = fit_alignment(t, d, r, lt_harmonics=3, noise_model="ou+white")
-    keep, _ = select_lt_harmonics(with_lt, res)
+    keep, _ = select_lt_harmonics(with_lt, res, field_test=lt_field_test(res, t, d, r, 3))
     chosen = with_lt if keep else res
     ci = np.asarray(res.ci95_deg)
     truth, crb = dr["truth_deg"], dr["crb_std_deg"]

@@ -205,7 +205,10 @@ class Aligner:
         if self.lt_harmonics == "auto" and k:
             fits = {k: fit_alignment(times, data, ref, lt_harmonics=k, **kw),
                     0: fit_alignment(times, data, ref, lt_harmonics=0, **kw)}
-            keep, selection = select_lt_harmonics(fits[k], fits[0])
+            from magcal.alignment.harmonic_test import lt_field_test
+
+            field = lt_field_test(fits[0], times, data, ref, k, lon_deg=lon_deg)
+            keep, selection = select_lt_harmonics(fits[k], fits[0], field_test=field)
             k = k if keep else 0
         identity = identity_fit(times, data, ref, lt_harmonics=k if span_days >= 1.0 else 0,
                                 **kw)

@@ -62,13 +62,15 @@ class HarmonicFTest:
 
 
 def comparison_frequencies(span_s: float, n_harmonics: int, cadence_s: float,
-                     neighbours: int = NEIGHBOURS, period_s: float = DAY_S):
+                           neighbours: int = NEIGHBOURS, period_s: float = DAY_S):
     """The harmonic frequencies ``k / period`` and their neighbours (Hz).
 
     Neighbours are the record's Fourier frequencies ``f_k +- j / T``, ``j = 2 ..
     neighbours + 1`` (the adjacent bin can hold a harmonic's leakage when the record is
     not a whole number of periods), kept when they are more than 1.5 bins from every
-    harmonic and from zero and below the Nyquist frequency.
+    harmonic and from zero and below the Nyquist frequency, and as many below each
+    harmonic as above it, so that a sloped (red) spectrum averages out; when a harmonic
+    has none on one side (records shorter than about 4 periods) there are none.
 
     Returns
     -------
@@ -76,11 +78,18 @@ def comparison_frequencies(span_s: float, n_harmonics: int, cadence_s: float,
     """
     df = 1.0 / span_s
     harm = np.arange(1, n_harmonics + 1) / period_s
-    cand = np.array([h + s * j * df for h in harm for s in (-1, 1)
-                           for j in range(2, neighbours + 2)])
-    far = np.all(np.abs(cand[:, None] - harm[None, :]) > 1.5 * df, axis=1)
-    keep = far & (cand > 1.5 * df) & (cand < 0.5 / cadence_s)
-    return harm, np.unique(np.round(cand[keep], 15))
+    kept = []
+    for h in harm:
+        sides = []
+        for side in (-1, 1):  # nearest first
+            cand = h + side * np.arange(2, neighbours + 2) * df
+            far = np.all(np.abs(cand[:, None] - harm[None, :]) > 1.5 * df, axis=1)
+            sides.append(cand[far & (cand > 1.5 * df) & (cand < 0.5 / cadence_s)])
+        m = min(len(sides[0]), len(sides[1]))  # as many below as above
+        if m == 0:
+            return harm, np.zeros(0)
+        kept += [sides[0][:m], sides[1][:m]]
+    return harm, np.unique(np.round(np.concatenate(kept), 15))
 
 
 def amplitude_power(times_s, values, freqs) -> np.ndarray:
@@ -149,3 +158,39 @@ def harmonic_f_test(times_s, residual, n_harmonics: int, neighbours: int = NEIGH
         stat = np.where(p_n > 0, p_h / p_n, np.inf)
     dof = (2 * harm.size, 2 * nb.size)
     return HarmonicFTest(stat, dof, f_dist.sf(stat, *dof), p_h, p_n)
+
+
+def residual_without_harmonics(result, times, data, ref) -> tuple[np.ndarray, np.ndarray]:
+    """``(t_s, data - scale R(w) ref - offset)`` of a fit without local-time terms, on
+    the rows :func:`magcal.alignment.gls.prepare` keeps."""
+    from scipy.spatial.transform import Rotation
+
+    from magcal.alignment.gls import prepare
+
+    t_s, d, r, _ = prepare(times, data, ref)
+    rot = Rotation.from_rotvec(np.deg2rad(np.asarray(result.angles_deg, dtype=float)))
+    offset = np.zeros(3) if result.offset_nT is None else np.asarray(result.offset_nT)
+    scale = 1.0 if result.scale is None else float(result.scale)
+    return t_s, d - (scale * rot.apply(r) + offset)
+
+
+def lt_field_test(result, times, data, ref, n_harmonics: int,
+                  lon_deg=None) -> HarmonicFTest | None:
+    """:func:`harmonic_f_test` of the residual of ``result`` (a fit without local-time
+    harmonics) for ``n_harmonics`` daily harmonics.
+
+    At a fixed longitude local-time harmonics are UT harmonics with other phases, and the
+    test's power does not depend on phase; a moving spacecraft's ``lon_deg`` (per
+    sample) shifts each sample's time by ``lon / 15`` h so the harmonics are in local
+    time.
+    """
+    t_s, resid = residual_without_harmonics(result, times, data, ref)
+    if lon_deg is not None and np.ndim(lon_deg) and np.ptp(np.asarray(lon_deg, float)) > 0:
+        from magcal.alignment.gls import prepare
+
+        _, _, _, keep = prepare(times, data, ref)
+        shift = np.asarray(lon_deg, dtype=float)[keep] / 15.0 * 3600.0
+        t_s = t_s + shift
+        order = np.argsort(t_s, kind="stable")
+        t_s, resid = t_s[order], resid[order]
+    return harmonic_f_test(t_s, resid, n_harmonics)
