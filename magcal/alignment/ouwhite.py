@@ -273,16 +273,25 @@ def fit_noise_ouw(residuals, times_s, jacobian=None, start=None) -> OUWhiteNoise
     return noise_from_components(fits, t)
 
 
+def whitened_series(t, resid, jac, noise: OUWhiteNoise, gains=None):
+    """Per component, the residual and the Jacobian whitened by the Kalman filter and
+    scaled to unit variance: ``([uy_c], [ux_c])``, shapes (n,) and (n, p)."""
+    ys, xs = [], []
+    for c in range(3):
+        g = gains[c] if gains is not None else noise.gains(c, t)
+        u = whiten(np.column_stack([resid[:, c], jac[:, c, :]]), g) / np.sqrt(noise.total_var[c])
+        ys.append(u[:, 0])
+        xs.append(u[:, 1:])
+    return ys, xs
+
+
 def whitened_normals(t, resid, jac, noise: OUWhiteNoise, gains=None):
     """GLS normal matrix, right-hand side and objective under :class:`OUWhiteNoise`."""
     p = jac.shape[2]
     a = np.zeros((p, p))
     b = np.zeros(p)
     obj = 0.0
-    for c in range(3):
-        g = gains[c] if gains is not None else noise.gains(c, t)
-        u = whiten(np.column_stack([resid[:, c], jac[:, c, :]]), g) / np.sqrt(noise.total_var[c])
-        uy, ux = u[:, 0], u[:, 1:]
+    for uy, ux in zip(*whitened_series(t, resid, jac, noise, gains)):
         a += ux.T @ ux
         b += ux.T @ uy
         obj += float(uy @ uy)

@@ -1,0 +1,108 @@
+"""Parameter covariance of a GLS fit that holds when its noise model is wrong.
+
+A generalised least-squares estimate whitened with a noise model that is not the
+residual's true one stays unbiased and nearly efficient, but its model-based covariance
+(the inverse of the whitened normal matrix ``A``) no longer says how well it is known:
+under power-law (1/f) noise the Ornstein-Uhlenbeck plus white model overstated the
+angles' standard deviation by 1.2-1.25x the Cramer-Rao bound while their scatter was
+0.87-1.13x (issue 21), and under the pure OU model the reverse.
+
+The sandwich ``A^-1 B A^-1`` takes the middle term from the data: the whitened residual
+(the Kalman innovations) should be white with unit variance; whatever spectrum ``S(f)``
+it really has, ``B = sum_f Re(X(f)^H X(f)) S(f) / n`` over the whitened design's
+Fourier transform ``X(f)`` is the variance of the estimating equations (a
+frequency-domain heteroscedasticity-and-autocorrelation-consistent estimate). ``S`` is
+the periodogram smoothed over ``2 bins + 1`` neighbouring frequencies (Daniell); when
+the model is right ``S`` is about 1 and the sandwich is ``A^-1`` within its noise. That
+noise is carried into the intervals by a Student t with Satterthwaite's degrees of
+freedom per parameter.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Half-width of the Daniell smoothing of the whitened residual's periodogram, in
+#: frequency bins. Measured on 50 draws per noise family (10 days at 10 min): 5 bins keep
+#: the 95 % intervals at 0.92-0.99 and the stated std within 1.3x the bound in 96-100 %
+#: of draws; 10 bins smooth the 1/f excess away (80 %), 20 more so (70 %).
+SANDWICH_BINS = 5
+
+
+def _daniell(values: np.ndarray, bins: int) -> np.ndarray:
+    """Moving average over ``2 bins + 1`` rows, reflected at both ends (rows = frequency)."""
+    if bins <= 0:
+        return values
+    v = values if values.ndim == 2 else values[:, None]
+    pad = np.concatenate([v[1:bins + 1][::-1], v, v[-bins - 1:-1][::-1]])
+    kernel = np.ones(2 * bins + 1) / (2 * bins + 1)
+    out = np.stack([np.convolve(pad[:, j], kernel, mode="valid") for j in range(v.shape[1])],
+                   axis=1)
+    return out if values.ndim == 2 else out[:, 0]
+
+
+def spectral_sandwich(whitened_residuals, whitened_designs, a_inv: np.ndarray,
+                      bins: int = SANDWICH_BINS) -> tuple[np.ndarray, np.ndarray] | None:
+    """Sandwich covariance of a GLS estimate and its degrees of freedom.
+
+    Parameters
+    ----------
+    whitened_residuals : list of ndarray, shape (n_c,)
+        Per independent noise series (component), the residual whitened by the fitted
+        noise model and scaled to unit variance (the standardised innovations).
+    whitened_designs : list of ndarray, shape (n_c, p)
+        The Jacobian whitened the same way.
+    a_inv : ndarray, shape (p, p)
+        Inverse of ``sum_c X_c^T X_c`` (the model-based covariance).
+    bins : int
+        Half-width of the periodogram smoothing (frequency bins).
+
+    Returns
+    -------
+    (cov, dof) or None
+        ``cov`` (p, p) and ``dof`` (p,) Satterthwaite degrees of freedom of each
+        variance; None when a series is too short to smooth (under ``4 bins + 4``
+        samples) or ``a_inv`` is not finite.
+
+    Examples
+    --------
+    White unit-variance residuals: the model is right and the sandwich is the model's
+    covariance within its own noise (about 1 / sqrt(dof)).
+
+    >>> rng = np.random.default_rng(0)
+    >>> x = rng.normal(size=(4000, 2))
+    >>> a_inv = np.linalg.inv(x.T @ x)
+    >>> cov, dof = spectral_sandwich([rng.normal(size=4000)], [x], a_inv)
+    >>> bool(np.all(np.abs(np.diag(cov) / np.diag(a_inv) - 1) < 3 * np.sqrt(2 / dof)))
+    True
+    """
+    if not np.all(np.isfinite(a_inv)):
+        return None
+    p = a_inv.shape[0]
+    b = np.zeros((p, p))
+    num = np.zeros(p)
+    den = np.zeros(p)
+    for y, x in zip(whitened_residuals, whitened_designs):
+        n = y.size
+        if n < 4 * bins + 4:
+            return None
+        ey = np.fft.rfft(y)
+        ex = np.fft.rfft(x, axis=0)
+        s = _daniell(np.abs(ey) ** 2 / n, bins)
+        w = np.full(ey.size, 2.0)  # each rfft frequency but 0 and Nyquist stands for two
+        w[0] = 1.0
+        if n % 2 == 0:
+            w[-1] = 1.0
+        b += np.real((ex.conj().T * (w * s)) @ ex) / n
+        # each parameter's variance is sum_f weight(f) S(f); S is a moving average of
+        # periodogram ordinates P ~ S chi2_2 / 2, so it is sum_k v_k P_k with v the
+        # weights smoothed back onto the ordinates (Satterthwaite: dof = 2 E^2 / var)
+        weight = w[:, None] * np.abs(ex @ a_inv) ** 2 / n
+        v = _daniell(weight, bins)
+        num += np.sum(v * s[:, None], axis=0)
+        den += np.sum((v * s[:, None]) ** 2, axis=0)
+    cov = a_inv @ b @ a_inv
+    cov = 0.5 * (cov + cov.T)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dof = np.where(den > 0, 2.0 * num ** 2 / den, np.inf)
+    return cov, dof
