@@ -298,7 +298,10 @@ def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bo
         fast decorrelation and overstates the information), but on the demo's
         residual (fast and multi-day parts) it fitted a 5-9 day time constant and a
         rotation worse than none, and it is 4x slower: opt-in until a multi-scale
-        model holds on both (issue 21).
+        model holds on both (issue 21). Its covariance is the spectral sandwich of
+        :mod:`magcal.alignment.sandwich` (right also when the residual is not OU plus
+        white: on 1/f noise the model's own covariance was 1.2x too wide), with
+        Satterthwaite's degrees of freedom in the Student t intervals.
     robust : bool
         Leave out samples whose residual lies more than ``ROBUST_K`` robust standard
         deviations (median absolute deviation) from the median, first against the
