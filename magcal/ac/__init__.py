@@ -14,7 +14,7 @@ sensor (:mod:`magcal.ac.bandcheck`), steps, spikes and remnants
 
 from __future__ import annotations
 
-import importlib
+from magcal._lazy import lazy_exports
 
 #: Public name -> the submodule that defines it, imported on first use (PEP 562): the
 #: band check needs scipy.signal (which imports scipy.stats: about 0.8 s), which a
@@ -31,14 +31,4 @@ _WHERE = {"BandCheck": "bandcheck", "band_check": "bandcheck",
           "ScanResult": "scan", "ScanSummary": "scan", "scan_first_order": "scan",
           "summarize_scan": "scan"}
 
-__all__ = sorted(_WHERE)
-
-
-def __getattr__(name: str):
-    if name in _WHERE:
-        return getattr(importlib.import_module(f"magcal.ac.{_WHERE[name]}"), name)
-    raise AttributeError(f"module 'magcal.ac' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _WHERE, globals())

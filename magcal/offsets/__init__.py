@@ -16,7 +16,7 @@
 
 from __future__ import annotations
 
-import importlib
+from magcal._lazy import lazy_exports
 
 #: Public name -> the submodule that defines it, imported on first use (PEP 562): the
 #: estimator needs SciPy's statistics (about 1 s to import), which ``magcal offsets
@@ -31,14 +31,4 @@ _WHERE = {"FLAG_MEANING": "apply", "apply_offsets": "apply", "interpolate_offset
           "window_coverage": "windows", "window_grid": "windows",
           "window_statistics": "windows"}
 
-__all__ = sorted(_WHERE)
-
-
-def __getattr__(name: str):
-    if name in _WHERE:
-        return getattr(importlib.import_module(f"magcal.offsets.{_WHERE[name]}"), name)
-    raise AttributeError(f"module 'magcal.offsets' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _WHERE, globals())
