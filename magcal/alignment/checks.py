@@ -67,8 +67,7 @@ def local_time_check(with_lt: AlignmentResult, without_lt: AlignmentResult,
     lt = with_lt.local_time
     a1, s1 = with_lt.angles_deg, with_lt.std_deg
     a0, s0 = without_lt.angles_deg, without_lt.std_deg
-    sd_diff = np.sqrt(np.maximum(s1 ** 2 - s0 ** 2, 1e-12))
-    shift = (a0 - a1) / sd_diff
+    shift = angle_shift_sigma(with_lt, without_lt)
     pp = np.array([lt["peak_to_peak_nT"][c] for c in COMPONENTS])
     pv = np.array([lt["p_value"][c] for c in COMPONENTS])
     strong = bool(np.any((pv < LT_P_STRONG) & (pp >= LT_PP_MIN_NT)))
@@ -110,6 +109,20 @@ def local_time_check(with_lt: AlignmentResult, without_lt: AlignmentResult,
 #: every noise family (10-14 % at 0.1), the 8 / 5 / 1.5 nT field of the coverage
 #: experiment still kept in 48 of 50 records and its coverage unchanged (issue 21).
 LT_SELECT_ALPHA = 0.05
+
+
+def angle_shift_sigma(with_lt: AlignmentResult, without_lt: AlignmentResult) -> np.ndarray:
+    """The angles' change when the local-time harmonics are dropped, in units of the
+    standard deviation of that change (a Hausman statistic per angle).
+
+    For nested fits the variance of the difference is ``var_with - var_without`` of
+    their model-based covariances (``model_std_deg`` where the stated one is a
+    sandwich, which is not nested).
+    """
+    sd_with, sd_without = (r.std_deg if r.model_std_deg is None else r.model_std_deg
+                           for r in (with_lt, without_lt))
+    sd_diff = np.sqrt(np.maximum(sd_with ** 2 - sd_without ** 2, 1e-12))
+    return (without_lt.angles_deg - with_lt.angles_deg) / sd_diff
 
 
 def select_lt_harmonics(with_lt: AlignmentResult, without_lt: AlignmentResult,
@@ -155,8 +168,7 @@ def select_lt_harmonics(with_lt: AlignmentResult, without_lt: AlignmentResult,
     wald = np.array([lt["p_value"][c] for c in COMPONENTS])
     pv = wald if field_test is None else np.asarray(field_test.p_value, dtype=float)
     test_name = "Wald" if field_test is None else "harmonic F test"
-    sd_diff = np.sqrt(np.maximum(with_lt.std_deg ** 2 - without_lt.std_deg ** 2, 1e-12))
-    shift = (without_lt.angles_deg - with_lt.angles_deg) / sd_diff
+    shift = angle_shift_sigma(with_lt, without_lt)
     # alpha split over the two tests and the three components (union bound): without a
     # field the harmonics are kept in at most ``alpha`` of records, so at least
     # 1 - alpha of them keep the std at the bound (issue 21: 90 % within 1.3x)

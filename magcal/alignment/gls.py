@@ -345,14 +345,18 @@ def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bo
             use = again
             out = core(t[use], d[use], r[use], names, _rows(basis, use), noise, max_iter,
                        noise_iter, start=out[0])
-    theta, cov, dof, noise, resid = out
+    theta, cov, dof, noise, resid, *model = out
     warnings = ()
     if not use.all():
         warnings = (f"{int((~use).sum())} of {use.size} samples left out as outliers "
                     f"(residual beyond {ROBUST_K:g} robust std)",)
     method = "wahba+ou-gls"  # the noise dictionary names the model (OU or OU + white)
+    extra = {}
+    if model and model[0] is not None and "w_Hp" in names:
+        rows = [names.index(n) for n in ("w_Hp", "w_He", "w_Hn")]
+        extra["model_std_deg"] = np.rad2deg(np.sqrt(np.diag(model[0])[rows]))
     return summarize(theta, cov, names, noise, resid, method=method, dof=dof,
-                     lon_deg=lon_deg, warnings=warnings)
+                     lon_deg=lon_deg, warnings=warnings, **extra)
 
 
 ROBUST_K_REFERENCE = 12.0
@@ -443,13 +447,14 @@ def _core_ouw(t, d, r, names, basis, noise, max_iter, noise_iter, start=None,
     # uncertainty of the noise model itself: Student t with the effective sample count
     dof = np.full(len(names), np.inf if fixed_noise
                   else max(float(np.min(noise.effective_n)) - len(names), 1.0))
+    model_cov = None
     if not fixed_noise:
         # the covariance from the residual's own spectrum (robust to a wrong noise
         # model: 1/f noise was stated 1.2x too wide), its noise in a Student t
         robust = spectral_sandwich(ys, xs, cov)
         if robust is not None:
-            cov, dof = robust[0], np.minimum(dof, robust[1])
-    return theta, cov, dof, noise, d - mu
+            model_cov, cov, dof = cov, robust[0], np.minimum(dof, robust[1])
+    return theta, cov, dof, noise, d - mu, model_cov
 
 
 def information_inverse(a) -> np.ndarray:

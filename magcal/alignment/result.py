@@ -94,6 +94,11 @@ class AlignmentResult:
     checks: dict | None = None
     provenance: dict | None = None
     determinability: object | None = None
+    #: The angles' std under the fitted noise model itself (degrees), when the stated
+    #: covariance is another (the OU + white fit's spectral sandwich); None when they
+    #: are the same. The local-time shift test needs these: nested fits' model-based
+    #: variances differ by the variance of the angles' difference, sandwiches do not.
+    model_std_deg: np.ndarray | None = None
 
     @property
     def determinable(self) -> bool:
