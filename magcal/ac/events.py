@@ -21,18 +21,19 @@ from __future__ import annotations
 
 import numpy as np
 from scipy import ndimage, signal
-from scipy.stats import median_abs_deviation, norm
+from scipy.stats import median_abs_deviation
 
 from magcal.ac.chain import sample_period_s
 from magcal.ac.filters import running_mean
 from magcal.ac.metrics import fill_nan
 from magcal.errors import InputError
+from magcal.stats import MAD_TO_SIGMA
 
 #: Robust threshold (in MAD-sigmas above the median) for step and spike detection.
 DETECT_SIGMA = 8.0
 #: Factor from a MAD to a normal sigma, as ``median_abs_deviation(scale="normal")``
 #: uses it (for running MADs computed with a median filter).
-NORMAL_MAD = 1.0 / norm.ppf(0.75)
+NORMAL_MAD = MAD_TO_SIGMA
 
 
 def robust_threshold(v: np.ndarray, n_sigma: float, floor: float = -np.inf) -> float:

@@ -160,18 +160,18 @@ def harmonic_f_test(times_s, residual, n_harmonics: int, neighbours: int = NEIGH
     return HarmonicFTest(stat, dof, f_dist.sf(stat, *dof), p_h, p_n)
 
 
-def residual_without_harmonics(result, times, data, ref) -> tuple[np.ndarray, np.ndarray]:
-    """``(t_s, data - scale R(w) ref - offset)`` of a fit without local-time terms, on
-    the rows :func:`magcal.alignment.gls.prepare` keeps."""
+def residual_without_harmonics(result, times, data, ref):
+    """``(t_s, data - scale R(w) ref - offset, keep)`` of a fit without local-time
+    terms, on the rows :func:`magcal.alignment.gls.prepare` keeps (``keep``)."""
     from scipy.spatial.transform import Rotation
 
     from magcal.alignment.gls import prepare
 
-    t_s, d, r, _ = prepare(times, data, ref)
+    t_s, d, r, keep = prepare(times, data, ref)
     rot = Rotation.from_rotvec(np.deg2rad(np.asarray(result.angles_deg, dtype=float)))
     offset = np.zeros(3) if result.offset_nT is None else np.asarray(result.offset_nT)
     scale = 1.0 if result.scale is None else float(result.scale)
-    return t_s, d - (scale * rot.apply(r) + offset)
+    return t_s, d - (scale * rot.apply(r) + offset), keep
 
 
 def lt_field_test(result, times, data, ref, n_harmonics: int,
@@ -184,13 +184,9 @@ def lt_field_test(result, times, data, ref, n_harmonics: int,
     sample) shifts each sample's time by ``lon / 15`` h so the harmonics are in local
     time.
     """
-    t_s, resid = residual_without_harmonics(result, times, data, ref)
+    t_s, resid, keep = residual_without_harmonics(result, times, data, ref)
     if lon_deg is not None and np.ndim(lon_deg) and np.ptp(np.asarray(lon_deg, float)) > 0:
-        from magcal.alignment.gls import prepare
-
-        _, _, _, keep = prepare(times, data, ref)
-        shift = np.asarray(lon_deg, dtype=float)[keep] / 15.0 * 3600.0
-        t_s = t_s + shift
+        t_s = t_s + np.asarray(lon_deg, dtype=float)[keep] / 15.0 * 3600.0
         order = np.argsort(t_s, kind="stable")
         t_s, resid = t_s[order], resid[order]
     return harmonic_f_test(t_s, resid, n_harmonics)

@@ -250,20 +250,15 @@ def _column_block(parts: list[dict], times: list[np.ndarray], names: list[str],
     of a 0.6 s read of a 10 Hz day); writing each column once into it costs a tenth.
     """
     n_in = sum(t.size for t in times)
-    n_out = n_in if order is None else order.size
-    block = np.empty((len(names), n_out))
-    joined = np.empty(n_in) if order is not None or len(parts) > 1 else None
+    block = np.empty((len(names), n_in if order is None else order.size))
+    joined = np.empty(n_in) if order is not None else None
     for k, name in enumerate(names):
-        if joined is None:
-            block[k] = parts[0].get(name, np.nan)
-            continue
+        row = block[k] if order is None else joined  # files joined in place, or to sort
         start = 0
         for part, t in zip(parts, times):
-            joined[start:start + t.size] = part.get(name, np.nan)
+            row[start:start + t.size] = part.get(name, np.nan)
             start += t.size
-        if order is None:
-            block[k] = joined
-        else:
+        if order is not None:
             np.take(joined, order, out=block[k])
     return block.T
 
@@ -396,11 +391,10 @@ def read_goes_mag(paths: str | os.PathLike | Iterable[str | os.PathLike]) -> pd.
 
     index = pd.DatetimeIndex(t_sorted[keep].astype("datetime64[ns]"), name="time")
     index = index.tz_localize("UTC")
-    frame = pd.DataFrame(_column_block(parts, times, [c for c in names if c not in dropped],
-                                       None if order.size == t_all.size and not moved
-                                       else order),
-                         index=index, columns=[c for c in names if c not in dropped],
-                         copy=False)
+    names = [c for c in names if c not in dropped]
+    in_order = order.size == t_all.size and not moved  # no row dropped or moved
+    frame = pd.DataFrame(_column_block(parts, times, names, None if in_order else order),
+                         index=index, columns=names, copy=False)
     frame.attrs["source"] = [str(p) for p in files]
     frame.attrs["repairs"] = repairs
     frame.attrs["n_missing"] = {k: int(v) for k, v in frame.isna().sum().items()}
