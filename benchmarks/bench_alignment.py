@@ -112,7 +112,7 @@ BENCH_FAMILIES = ("ou", "ou+white", "two-scales", "power-law@1", "power-law@2", 
                   "gaps")
 
 
-def family_draw(family: str, seed: int) -> dict:
+def family_draw(family: str, seed: int, noise_model: str = "ou+white") -> dict:
     """One draw of ``family``: interval coverage, error / bound, and the local-time
     selection's chosen std / bound (no local-time field in the data)."""
     from magcal.alignment.checks import select_lt_harmonics
@@ -121,8 +121,8 @@ def family_draw(family: str, seed: int) -> dict:
 
     dr = draw(family, np.random.default_rng(seed))
     t, d, r = dr["times_s"], dr["data"], dr["ref"]
-    res = fit_alignment(t, d, r, noise_model="ou+white")
-    with_lt = fit_alignment(t, d, r, lt_harmonics=3, noise_model="ou+white")
+    res = fit_alignment(t, d, r, noise_model=noise_model)
+    with_lt = fit_alignment(t, d, r, lt_harmonics=3, noise_model=noise_model)
     keep, _ = select_lt_harmonics(with_lt, res, field_test=lt_field_test(res, t, d, r, 3))
     chosen = with_lt if keep else res
     ci = np.asarray(res.ci95_deg)
@@ -135,18 +135,19 @@ def family_draw(family: str, seed: int) -> dict:
 
 
 def families(n_draws: int = 50, seconds: float | None = None, first_seed: int = 5000,
-             json_path: str | None = None, only=None) -> dict:
-    """Coverage and efficiency table per noise family (issue 21)."""
+             json_path: str | None = None, only=None, noise_model: str = "ou+white") -> dict:
+    """Coverage and efficiency table per noise family (issue 21), for one noise model."""
     import json
 
     table = {}
+    print(f"noise model {noise_model!r}")
     print(f"{'family':<13}{'draws':>6}{'cover95':>9}  {'scatter/CRB Hp He Hn':<22}"
           f"{'std/CRB Hp He Hn':<20}{'rms z':>6}{'LT kept':>9}{'<=1.3 CRB':>10}")
     for fam in only or BENCH_FAMILIES:
         t0 = time.perf_counter()
         rows = []
         for s in range(n_draws):
-            rows.append(family_draw(fam, first_seed + s))
+            rows.append(family_draw(fam, first_seed + s, noise_model))
             if seconds is not None and time.perf_counter() - t0 > seconds and len(rows) >= 3:
                 break
         inside = np.array([x["inside"] for x in rows])
@@ -185,6 +186,8 @@ if __name__ == "__main__":
     ap.add_argument("--families", type=int, help="draws per noise family (issue 21)")
     ap.add_argument("--seconds", type=float, help="time limit per family (s)")
     ap.add_argument("--json", help="write the families table here")
+    ap.add_argument("--noise-model", default="ou+white", choices=("ou", "ou+white"),
+                    help="alignment noise model of the families table (default ou+white)")
     ap.add_argument("--only", help="comma-separated families (default: all of "
                     + ", ".join(BENCH_FAMILIES) + ")")
     args = ap.parse_args()
@@ -192,6 +195,7 @@ if __name__ == "__main__":
         coverage(args.coverage)
     elif args.families:
         families(args.families, args.seconds, json_path=args.json,
-                 only=args.only.split(",") if args.only else None)
+                 only=args.only.split(",") if args.only else None,
+                 noise_model=args.noise_model)
     else:
         main()

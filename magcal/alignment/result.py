@@ -94,16 +94,27 @@ class AlignmentResult:
     checks: dict | None = None
     provenance: dict | None = None
     determinability: object | None = None
-    #: The angles' std under the fitted noise model itself (degrees), when the stated
-    #: covariance is another (the OU + white fit's spectral sandwich); None when they
-    #: are the same. The local-time shift test needs these: nested fits' model-based
-    #: variances differ by the variance of the angles' difference, sandwiches do not.
-    model_std_deg: np.ndarray | None = None
+    #: Covariance of all parameters under the fitted noise model itself (``param_names``
+    #: order, angles in rad), when the stated ``param_cov`` is another (the spectral
+    #: sandwich, :mod:`magcal.alignment.sandwich`); None when they are the same.
+    model_param_cov: np.ndarray | None = dataclasses.field(default=None, repr=False)
 
     @property
     def determinable(self) -> bool:
         """False when the determinability checks found the rotation not determinable."""
         return self.determinability is None or bool(self.determinability.determinable)
+
+    @property
+    def model_std_deg(self) -> np.ndarray | None:
+        """The angles' std under the fitted noise model itself (degrees), or None.
+
+        The local-time shift test needs these: nested fits' model-based variances
+        differ by the variance of the angles' difference, sandwiches do not.
+        """
+        if self.model_param_cov is None or "w_Hp" not in self.param_names:
+            return None
+        rows = [self.param_names.index(n) for n in ("w_Hp", "w_He", "w_Hn")]
+        return np.rad2deg(np.sqrt(np.diag(self.model_param_cov)[rows]))
 
     @property
     def std_deg(self) -> np.ndarray:

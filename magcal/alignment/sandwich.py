@@ -41,6 +41,34 @@ def _daniell(values: np.ndarray, bins: int) -> np.ndarray:
     return out if values.ndim == 2 else out[:, 0]
 
 
+#: Smallest share of a smoothing window's power left by the fit that is corrected for.
+MIN_KEPT = 0.2
+
+
+def frequency_leverage(ex: np.ndarray, a_inv: np.ndarray, n: int) -> np.ndarray:
+    """Share of each frequency's power that the fit takes from white residuals.
+
+    For unit white noise ``y`` and the residual ``e = (I - X A^-1 X^T) y`` the
+    periodogram at frequency ``f`` has expectation ``1 - h(f)`` with
+    ``h(f) = X(f)^H A^-1 X(f) / n``, ``X(f)`` the design's Fourier transform (the
+    frequency-domain leverage; summed over all ``n`` frequencies it is the trace of the
+    hat matrix). The local spectrum is therefore estimated as ``sum P / sum (1 - h)``
+    over the smoothing window, as HC2 does for heteroscedastic regression: without it
+    the sandwich under a right OU model stated angle errors whose spread was 1.08x the
+    Student t's (200 draws of 5 days), and 6 % too narrow intervals with local-time
+    harmonics, which take nearly all the power at their frequencies.
+
+    Examples
+    --------
+    >>> x = np.ones((100, 1))   # a constant takes the zero frequency's power only
+    >>> h = frequency_leverage(np.fft.rfft(x, axis=0), np.array([[0.01]]), 100)
+    >>> round(float(h[0]), 12), round(float(np.abs(h[1:]).max()), 12)
+    (1.0, 0.0)
+    """
+    h = np.real(np.einsum("fi,ij,fj->f", ex.conj(), a_inv, ex)) / n
+    return np.clip(h, 0.0, 1.0)
+
+
 def spectral_sandwich(whitened_residuals, whitened_designs, a_inv: np.ndarray,
                       bins: int = SANDWICH_BINS) -> tuple[np.ndarray, np.ndarray] | None:
     """Sandwich covariance of a GLS estimate and its degrees of freedom.
@@ -88,7 +116,10 @@ def spectral_sandwich(whitened_residuals, whitened_designs, a_inv: np.ndarray,
             return None
         ey = np.fft.rfft(y)
         ex = np.fft.rfft(x, axis=0)
-        s = _daniell(np.abs(ey) ** 2 / n, bins)
+        # local spectrum: the periodogram ordinates over the share of each ordinate's
+        # power the fit left in the residual (sum P / sum (1 - h) over the window)
+        kept = _daniell(1.0 - frequency_leverage(ex, a_inv, n), bins)
+        s = _daniell(np.abs(ey) ** 2 / n, bins) / np.maximum(kept, MIN_KEPT)
         w = np.full(ey.size, 2.0)  # each rfft frequency but 0 and Nyquist stands for two
         w[0] = 1.0
         if n % 2 == 0:
