@@ -118,12 +118,14 @@ def family_draw(family: str, seed: int, noise_model: str = "ou+white") -> dict:
     from magcal.alignment.checks import select_lt_harmonics
     from magcal.alignment.families import draw
     from magcal.alignment.harmonic_test import lt_field_test
+    from magcal.alignment.shift_test import lt_shift_sigma
 
     dr = draw(family, np.random.default_rng(seed))
     t, d, r = dr["times_s"], dr["data"], dr["ref"]
     res = fit_alignment(t, d, r, noise_model=noise_model)
     with_lt = fit_alignment(t, d, r, lt_harmonics=3, noise_model=noise_model)
-    keep, _ = select_lt_harmonics(with_lt, res, field_test=lt_field_test(res, t, d, r, 3))
+    keep, _ = select_lt_harmonics(with_lt, res, field_test=lt_field_test(res, t, d, r, 3),
+                                  shift_sigma=lt_shift_sigma(res, with_lt, t, d, r))
     chosen = with_lt if keep else res
     ci = np.asarray(res.ci95_deg)
     truth, crb = dr["truth_deg"], dr["crb_std_deg"]

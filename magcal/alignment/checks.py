@@ -127,7 +127,7 @@ def angle_shift_sigma(with_lt: AlignmentResult, without_lt: AlignmentResult) -> 
 
 def select_lt_harmonics(with_lt: AlignmentResult, without_lt: AlignmentResult,
                         alpha: float = LT_SELECT_ALPHA,
-                        field_test=None) -> tuple[bool, dict]:
+                        field_test=None, shift_sigma=None) -> tuple[bool, dict]:
     """Keep the local-time nuisance field only when the data show one.
 
     Two tests, Bonferroni-corrected over the two tests and the three components so
@@ -144,7 +144,10 @@ def select_lt_harmonics(with_lt: AlignmentResult, without_lt: AlignmentResult,
     misses low-frequency noise (issue 21: 16 % of pure-OU records below a 5 % level).
     Fitting harmonics that are not there costs precision (the angles' variance grows by
     the information the harmonics share with the rotation); omitting a field that is
-    there biases the angles, which the shift test guards against.
+    there biases the angles, which the shift test guards against. ``shift_sigma``
+    (:func:`magcal.alignment.shift_test.lt_shift_sigma`: the change's standard deviation
+    from the residual's own spectrum), when given, replaces the model-based nested
+    variances, which are too small when the noise model misses low-frequency noise.
 
     Returns
     -------
@@ -168,7 +171,9 @@ def select_lt_harmonics(with_lt: AlignmentResult, without_lt: AlignmentResult,
     wald = np.array([lt["p_value"][c] for c in COMPONENTS])
     pv = wald if field_test is None else np.asarray(field_test.p_value, dtype=float)
     test_name = "Wald" if field_test is None else "harmonic F test"
-    shift = angle_shift_sigma(with_lt, without_lt)
+    shift_kind = "model-based nested variances" if shift_sigma is None else "spectral"
+    shift = angle_shift_sigma(with_lt, without_lt) if shift_sigma is None else np.asarray(
+        shift_sigma, dtype=float)
     # alpha split over the two tests and the three components (union bound): without a
     # field the harmonics are kept in at most ``alpha`` of records, so at least
     # 1 - alpha of them keep the std at the bound (issue 21: 90 % within 1.3x)
@@ -194,6 +199,7 @@ def select_lt_harmonics(with_lt: AlignmentResult, without_lt: AlignmentResult,
               "field_threshold": p_level, "wald_p_value": _comp(wald),
               "wald_threshold": p_level,
               "shift_sigma": _comp(shift), "shift_threshold_sigma": z_level,
+              "shift_variance": shift_kind,
               "std_with_deg": _comp(with_lt.std_deg),
               "std_without_deg": _comp(without_lt.std_deg), "reason": why}
     if field_test is not None:

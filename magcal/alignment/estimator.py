@@ -207,8 +207,12 @@ class Aligner:
                     0: fit_alignment(times, data, ref, lt_harmonics=0, **kw)}
             from magcal.alignment.harmonic_test import lt_field_test
 
+            from magcal.alignment.shift_test import lt_shift_sigma
+
             field = lt_field_test(fits[0], times, data, ref, k, lon_deg=lon_deg)
-            keep, selection = select_lt_harmonics(fits[k], fits[0], field_test=field)
+            shift = lt_shift_sigma(fits[0], fits[k], times, data, ref, lon_deg=lon_deg)
+            keep, selection = select_lt_harmonics(fits[k], fits[0], field_test=field,
+                                                  shift_sigma=shift)
             k = k if keep else 0
         identity = identity_fit(times, data, ref, lt_harmonics=k if span_days >= 1.0 else 0,
                                 **kw)

@@ -69,6 +69,70 @@ def frequency_leverage(ex: np.ndarray, a_inv: np.ndarray, n: int) -> np.ndarray:
     return np.clip(h, 0.0, 1.0)
 
 
+def rfft_weights(n: int) -> np.ndarray:
+    """How many of the ``n`` Fourier frequencies each ``rfft`` ordinate stands for."""
+    w = np.full(n // 2 + 1, 2.0)
+    w[0] = 1.0
+    if n % 2 == 0:
+        w[-1] = 1.0
+    return w
+
+
+def local_spectrum(y: np.ndarray, ex: np.ndarray, a_inv: np.ndarray,
+                   bins: int = SANDWICH_BINS) -> np.ndarray:
+    """Spectrum of a whitened GLS residual ``y`` at each ``rfft`` frequency.
+
+    The Daniell-smoothed periodogram over the share of each ordinate's power the fit
+    left in the residual (``sum P / sum (1 - h)`` over the window,
+    :func:`frequency_leverage`; ``ex`` the whitened design's ``rfft``).
+    """
+    n = y.size
+    kept = _daniell(1.0 - frequency_leverage(ex, a_inv, n), bins)
+    return _daniell(np.abs(np.fft.rfft(y)) ** 2 / n, bins) / np.maximum(kept, MIN_KEPT)
+
+
+def difference_variance(whitened_residuals, whitened_designs, sub_cols, rows,
+                        bins: int = SANDWICH_BINS) -> np.ndarray | None:
+    """Variance of ``theta_sub[rows] - theta_full[rows]`` between nested GLS fits.
+
+    The full fit uses every column of the whitened designs, the nested one only
+    ``sub_cols`` (the same whitening); both estimates are linear in the same residuals,
+    so their difference has influence ``e_f^T (A_sub^-1 X_sub(f) - A^-1 X(f))`` at each
+    frequency, and its variance is taken, as in :func:`spectral_sandwich`, from the
+    nested fit's residual spectrum (right under the hypothesis that the extra columns
+    are not needed). This is the Hausman test's variance without the noise model's
+    help: the model-based ``var_full - var_sub`` is too small when the noise has more
+    low-frequency power than the model (1/f: harmonics kept in 17 of 50 noise-only
+    records).
+
+    Returns
+    -------
+    ndarray, shape (len(rows),) or None
+        None when a series is too short or a normal matrix is singular.
+    """
+    a = sum(x.T @ x for x in whitened_designs)
+    a_sub = a[np.ix_(sub_cols, sub_cols)]
+    try:
+        a_inv = np.linalg.inv(a)
+        a_sub_inv = np.linalg.inv(a_sub)
+    except np.linalg.LinAlgError:
+        return None
+    if not (np.all(np.isfinite(a_inv)) and np.all(np.isfinite(a_sub_inv))):
+        return None
+    sub_rows = [list(sub_cols).index(r) for r in rows]
+    var = np.zeros(len(rows))
+    for y, x in zip(whitened_residuals, whitened_designs):
+        n = y.size
+        if n < 4 * bins + 4:
+            return None
+        ex = np.fft.rfft(x, axis=0)
+        ex_sub = ex[:, sub_cols]
+        s = local_spectrum(y, ex_sub, a_sub_inv, bins)
+        g = ex_sub @ a_sub_inv[:, sub_rows] - ex @ a_inv[:, rows]
+        var += np.sum((rfft_weights(n) * s)[:, None] * np.abs(g) ** 2, axis=0) / n
+    return var
+
+
 def spectral_sandwich(whitened_residuals, whitened_designs, a_inv: np.ndarray,
                       bins: int = SANDWICH_BINS) -> tuple[np.ndarray, np.ndarray] | None:
     """Sandwich covariance of a GLS estimate and its degrees of freedom.
@@ -114,16 +178,9 @@ def spectral_sandwich(whitened_residuals, whitened_designs, a_inv: np.ndarray,
         n = y.size
         if n < 4 * bins + 4:
             return None
-        ey = np.fft.rfft(y)
         ex = np.fft.rfft(x, axis=0)
-        # local spectrum: the periodogram ordinates over the share of each ordinate's
-        # power the fit left in the residual (sum P / sum (1 - h) over the window)
-        kept = _daniell(1.0 - frequency_leverage(ex, a_inv, n), bins)
-        s = _daniell(np.abs(ey) ** 2 / n, bins) / np.maximum(kept, MIN_KEPT)
-        w = np.full(ey.size, 2.0)  # each rfft frequency but 0 and Nyquist stands for two
-        w[0] = 1.0
-        if n % 2 == 0:
-            w[-1] = 1.0
+        s = local_spectrum(y, ex, a_inv, bins)
+        w = rfft_weights(n)
         b += np.real((ex.conj().T * (w * s)) @ ex) / n
         # each parameter's variance is sum_f weight(f) S(f); S is a moving average of
         # periodogram ordinates P ~ S chi2_2 / 2, so it is sum_k v_k P_k with v the
