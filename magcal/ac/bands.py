@@ -28,8 +28,15 @@ target with :func:`magcal.ac.bandcheck.band_check`; a band/component still above
 when that cannot meet the rule either the raw target is delivered. The kind delivered
 and the reason travel with the product.
 
-When every weight is 1 the ground product equals the on-board one (it "collapses" to
-the constant matrices); otherwise it is a filter and cannot be uploaded as matrices.
+On records of a geostationary day or more, the correction's smooth slow part that is
+not a step (:func:`magcal.ac.slow.slow_part`: a boom sensor's temperature drift, the
+ambient field through the sensors' misalignments) is taken out of the correction
+before the bands are weighted: the target keeps its own offsets instead of receiving
+the partner's.
+
+When every weight is 1 and no slow part is removed, the ground product equals the
+on-board one (it "collapses" to the constant matrices); otherwise it is a filter and
+cannot be uploaded as matrices.
 """
 
 from __future__ import annotations
@@ -39,6 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from magcal.ac.bandcheck import WORSE_FACTOR, BandCheck, band_check, record_bands_hz
+from magcal.ac.slow import SlowPart, slow_part
 from magcal.errors import InputError
 
 #: a band's weight is lowered only where the full correction raises its power by more
@@ -155,6 +163,8 @@ class Delivery:
     weights: np.ndarray          #: (n_bands, 3) weights applied (all 0 for "raw")
     check: BandCheck | None      #: delivered product against raw
     onboard_check: BandCheck | None
+    #: the smooth slow part taken out of the correction (:mod:`magcal.ac.slow`)
+    slow: SlowPart | None = None
 
     @property
     def collapses_to_on_board(self) -> bool:
@@ -166,6 +176,8 @@ class Delivery:
                 "bands_hz": [list(b) for b in self.bands_hz],
                 "weights": np.asarray(self.weights).tolist(),
                 "collapses_to_on_board": self.collapses_to_on_board,
+                "slow_offsets": ({"removed": False} if self.slow is None
+                                 else self.slow.to_dict()),
                 "worse_factor": WORSE_FACTOR,
                 "rule": "no band/component of the delivered product above worse_factor "
                         "times the raw target's power (log-spaced bands, Welch); below "
@@ -188,7 +200,7 @@ def _nan_where(product, raw, onboard):
 
 def deliver(raw: np.ndarray, onboard: np.ndarray, dt_s: float, *, bands_hz=None,
             weights=None, kind: str | None = None,
-            max_rounds: int = 8) -> Delivery:
+            max_rounds: int = 8, slow: bool | None = None) -> Delivery:
     """The best product that is nowhere worse than ``raw`` (module docstring).
 
     Parameters
@@ -198,6 +210,11 @@ def deliver(raw: np.ndarray, onboard: np.ndarray, dt_s: float, *, bands_hz=None,
         NaN for missing samples.
     bands_hz, weights : optional
         Band weights fitted earlier (PARAMS.json ``ground``); chosen here when absent.
+    slow : bool, optional
+        Take the correction's smooth slow part out (:func:`magcal.ac.slow.slow_part`,
+        records of at least :data:`magcal.ac.slow.MIN_RECORD_S` only); None and True
+        both try it, False keeps the whole correction (PARAMS.json written before
+        ``ground.slow_offsets`` existed).
 
     Examples
     --------
@@ -218,22 +235,31 @@ def deliver(raw: np.ndarray, onboard: np.ndarray, dt_s: float, *, bands_hz=None,
         return Delivery(onboard, "on_board", "record too short for a band check: the "
                         "on-board product is delivered unchecked", (), np.ones((0, 3)),
                         None, None)
+    sp = None if slow is False else slow_part(onboard - raw, dt_s)
+    if sp is not None and sp.applied:
+        onboard = onboard - sp.smooth      # NaN rows stay NaN
+        if kind == "on_board":
+            kind = None
+    else:
+        sp = None
     if bands_hz is None or weights is None:
         bands_hz, weights = select_weights(raw, onboard, dt_s)
     weights = np.array(weights, dtype=float).reshape(-1, 3)
     if weights.size and not weights.any():
         return Delivery(raw.copy(), "raw", "the fit delivered the raw target (no band "
                         "where the correction helps)", tuple(bands_hz), weights,
-                        _check(raw, raw, dt_s), onboard_check)
+                        _check(raw, raw, dt_s), onboard_check, sp)
     delta_mean = np.nanmean(onboard - raw, axis=0)
     raw_filled = np.where(np.isfinite(raw), raw, np.nanmean(raw, axis=0))
     if kind not in ("ground", "band_limited"):
-        kind = "on_board" if np.all(weights == 1.0) else "ground"
+        kind = "on_board" if np.all(weights == 1.0) and sp is None else "ground"
     reason = {"on_board": "the on-board correction raises no band's power: the constant "
                           "matrices are delivered",
-              "ground": "the correction is weighted down in the bands where it adds the "
-                        "other sensors' noise (it no longer collapses to the constant "
-                        "matrices)",
+              "ground": ("the correction is weighted down in the bands where it adds the "
+                         "other sensors' noise (it no longer collapses to the constant "
+                         "matrices)" if sp is None or not np.all(weights == 1.0) else
+                         "the correction without its smooth slow part (it no longer "
+                         "collapses to the constant matrices)"),
               "band_limited": "the fitted band-limited correction (left out where it was "
                               "worse than raw)"}[kind]
     for _ in range(max_rounds):
@@ -246,8 +272,10 @@ def deliver(raw: np.ndarray, onboard: np.ndarray, dt_s: float, *, bands_hz=None,
         check = _check(raw, product, dt_s)
         worse = [] if check is None else check.worse_than_raw
         if not worse:
+            if sp is not None:
+                reason += f"; {sp.reason}"
             return Delivery(product, kind, reason, tuple(bands_hz), weights, check,
-                            onboard_check)
+                            onboard_check, sp)
         listed = ", ".join(f"{w['band_hz'][0]:.3g}-{w['band_hz'][1]:.3g} Hz {w['component']}"
                            for w in worse[:4])
         for w in worse:
@@ -263,4 +291,4 @@ def deliver(raw: np.ndarray, onboard: np.ndarray, dt_s: float, *, bands_hz=None,
                   f"{len(worse)} band/component(s) ({listed}): it is left out there")
     return Delivery(raw.copy(), "raw", f"no band-limited correction met the rule ({reason}): "
                     "the raw target is delivered", tuple(bands_hz),
-                    np.zeros_like(weights), _check(raw, raw, dt_s), onboard_check)
+                    np.zeros_like(weights), _check(raw, raw, dt_s), onboard_check, sp)

@@ -275,6 +275,8 @@ class PiCoG:
     warnings_ : list of str (bands worse than raw, a large correction offset G)
     delivery_ : Delivery or None (the product delivered, never worse than raw)
     outliers_ : dict or None (samples left out of the fit as single-sensor glitches)
+    slow_offsets_ : dict or None (``auto``: intervals left out of the fit where a sensor's
+        own slow offset changes fast, :func:`magcal.ac.slow.offset_intervals`)
 
     Examples
     --------
@@ -307,6 +309,7 @@ class PiCoG:
         grid = fit_time_grid(epoch_seconds(frame.index))
         slots, n_grid, grid_t = grid.slots, grid.n_grid, grid.times_s
         self.time_grid_ = grid
+        self.slow_offsets_ = None
         names = sensors_in_frame(frame)
 
         def gridded(sensor):
@@ -325,7 +328,7 @@ class PiCoG:
             data = {s: gridded(s) for s in names}
             require_common_frame(frame, names)
             _check_valid(data)
-            fit_data = self._screen(data)
+            fit_data = self._leave_out_offsets(self._screen(data), target, grid.dt_s)
             plan, report = auto_plan(fit_data, grid_t, target, alpha_method=self.alpha_method)
         else:
             if self.plan is None:
@@ -364,6 +367,16 @@ class PiCoG:
                                   "samples) is too short to compare spectra")
         return self
 
+    def _leave_out_offsets(self, fit_data: dict, target: str, dt_s: float) -> dict:
+        """``--auto`` on records of a day: the intervals where a sensor's own slow offset
+        changes fast are left out of the fit (:func:`magcal.ac.slow.offset_intervals`)."""
+        from magcal.ac.slow import bridge_intervals, offset_intervals
+
+        mask, self.slow_offsets_ = offset_intervals(fit_data, target, dt_s)
+        if not mask.any():
+            return fit_data
+        return {s: bridge_intervals(b, mask, dt_s) for s, b in fit_data.items()}
+
     def _screen(self, data: dict) -> dict:
         """Leave glitches of single sensors out of the fit (:mod:`magcal.ac.robust`)."""
         if not self.robust:
@@ -393,6 +406,10 @@ class PiCoG:
         lines = list((self.auto_report_ or {}).get("choices", []))
         if getattr(self, "screen_note_", None):
             lines.append(self.screen_note_)
+        left = (getattr(self, "slow_offsets_", None) or {}).get("left_out_rows", 0)
+        if left:
+            lines.append(f"{left} sample(s) left out of the fit where a sensor's own slow "
+                         f"offset changes fast ({', '.join(self.slow_offsets_['sensors'])})")
         if self.delivery_ is not None:
             lines.append(f"delivered product: {self.delivery_.kind} ({self.delivery_.reason})")
         check = self.band_check_
@@ -428,6 +445,8 @@ class PiCoG:
         }
         if self.outliers_ is not None:
             payload["outliers"] = self.outliers_
+        if getattr(self, "slow_offsets_", None) is not None:
+            payload["slow_offsets_left_out"] = self.slow_offsets_
         if self.band_check_ is not None:
             payload["band_check"] = self.band_check_.to_dict()
         payload["on_board"] = {
@@ -581,7 +600,8 @@ def deliver_frame(frame: pd.DataFrame, target: str, out: pd.DataFrame, ground: d
     o = np.full((grid.n_grid, 3), np.nan)
     r[grid.slots], o[grid.slots] = raw, onboard + shift
     res = deliver(r, o, grid.dt_s, bands_hz=[tuple(b) for b in ground.get("bands_hz", [])],
-                  weights=ground.get("weights"), kind=ground.get("delivered"))
+                  weights=ground.get("weights"), kind=ground.get("delivered"),
+                  slow=bool((ground.get("slow_offsets") or {}).get("removed", False)))
     new = out.copy()
     vals = res.product[grid.slots] - shift
     bad = ~np.all(np.isfinite(vals), axis=1)
