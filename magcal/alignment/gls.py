@@ -308,8 +308,9 @@ def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bo
         residual (fast and multi-day parts) it fitted a 5-9 day time constant and a
         rotation worse than none, and it is 4x slower: opt-in until a multi-scale
         model holds on both (issue 21). Either model's covariance is the spectral
-        sandwich, with Satterthwaite's degrees of freedom in the Student t intervals
-        (the smaller of them and the noise model's own).
+        sandwich, with its Satterthwaite degrees of freedom in the Student t
+        intervals (the noise model's own, from its effective sample count, fell to 1
+        where the fitted time constant ran to days: 1/f^2 intervals 12.7 std wide).
     robust : bool
         Leave out samples whose residual lies more than ``ROBUST_K`` robust standard
         deviations (median absolute deviation) from the median, first against the
@@ -421,7 +422,9 @@ def _core_ou(t, d, r, names, basis, noise, max_iter, noise_iter, start=None):
         ys, xs = ou_whitened_series(t, d - mu, jac, noise)
         robust = spectral_sandwich(ys, xs, cov)
         if robust is not None:
-            model_cov, cov, dof = cov, robust[0], np.minimum(dof, robust[1])
+            # the sandwich's own degrees of freedom: its variance does not rest on the
+            # noise parameters (a time constant of days left the model dof at 1)
+            model_cov, cov, dof = cov, robust[0], robust[1]
     return theta, cov, dof, noise, d - mu, model_cov
 
 
@@ -478,7 +481,7 @@ def _core_ouw(t, d, r, names, basis, noise, max_iter, noise_iter, start=None,
         # model: 1/f noise was stated 1.2x too wide), its noise in a Student t
         robust = spectral_sandwich(ys, xs, cov)
         if robust is not None:
-            model_cov, cov, dof = cov, robust[0], np.minimum(dof, robust[1])
+            model_cov, cov, dof = cov, robust[0], robust[1]
     return theta, cov, dof, noise, d - mu, model_cov
 
 
