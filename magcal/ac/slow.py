@@ -10,7 +10,8 @@ toggling units, a unit's DC level while on), and faster disturbers (spikes, nois
 have no slow part to speak of.
 
 :func:`slow_part` splits the record's slow variation of ``delta`` into steps at the
-ramps it finds and a cubic spline with knots every :data:`KNOT_S`, fitted together on
+ramps it finds and a cubic spline with knots every :data:`KNOT_S` (the product averages
+the fits with :data:`PRODUCT_KNOTS_S`), fitted together on
 block means (spikes masked, the ramps themselves left out of the fit, so their shape
 and exact time do not matter); the spline is the slow part that is *not* a step. The
 ground product (:func:`magcal.ac.bands.deliver`) removes it from the correction: a
@@ -48,8 +49,10 @@ from magcal.stats import MAD_TO_SIGMA
 #: timescales: the knots and step windows need hours of data around them)
 MIN_RECORD_S = 21600.0
 #: spline knot spacing: a boom sensor's shadow drift (time constants 20-30 min) is
-#: followed, a ramp of a minute is not
+#: followed, a ramp of a minute is not; the product averages the fits with three
+#: spacings around it
 KNOT_S = 1200.0
+PRODUCT_KNOTS_S = (900.0, 1200.0, 1800.0)
 #: block length of the means the fit works on, and the ramps left out of the fit
 BLOCK_S = 10.0
 RAMP_MASK_S = 40.0
@@ -86,11 +89,13 @@ class SlowPart:
     steps_s: np.ndarray       #: times (s from the first sample) of the steps found
     applied: bool
     reason: str
+    knots_s: tuple = ()       #: knot spacings averaged
 
     def to_dict(self) -> dict:
         rms = np.sqrt(np.mean(self.smooth ** 2, axis=0)) if self.smooth.size else np.zeros(3)
         return {"removed": self.applied, "reason": self.reason,
-                "knot_s": KNOT_S, "n_steps": int(len(self.steps_s)),
+                "knot_s": KNOT_S, "knots_s": list(self.knots_s),
+                "n_steps": int(len(self.steps_s)),
                 "removed_rms_nT": [float(v) for v in rms]}
 
 
@@ -161,7 +166,8 @@ def _spread(r: np.ndarray) -> float:
         np.abs(r - np.nanmedian(r, axis=0)), axis=0)))
 
 
-def slow_part(delta: np.ndarray, dt_s: float, *, force: bool = False) -> SlowPart:
+def slow_part(delta: np.ndarray, dt_s: float, *, force: bool = False,
+              knots_s=PRODUCT_KNOTS_S) -> SlowPart:
     """The smooth (non-step) slow part of a correction ``delta`` (module docstring).
 
     Parameters
@@ -172,6 +178,10 @@ def slow_part(delta: np.ndarray, dt_s: float, *, force: bool = False) -> SlowPar
         Sample period.
     force : bool
         Fit even on records shorter than :data:`MIN_RECORD_S`.
+    knots_s : sequence of float
+        Knot spacings; the smooth part is the mean of the fits with each (where the
+        knots fall against a drift's corner moves a single fit; the product averages
+        :data:`PRODUCT_KNOTS_S`, :func:`offset_intervals` uses :data:`KNOT_S`).
 
     Examples
     --------
@@ -198,10 +208,36 @@ def slow_part(delta: np.ndarray, dt_s: float, *, force: bool = False) -> SlowPar
     block_s = b * dt_s
     w = max(2, int(round(STEP_WINDOW_S / block_s)))
     g = int(round(STEP_GAP_S / block_s))
-    if good.sum() < 4 * (w + g) or record_s < 4 * KNOT_S:
+    knots_s = tuple(float(k) for k in knots_s)
+    if good.sum() < 4 * (w + g) or record_s < 4 * max(knots_s):
         return SlowPart(none, np.zeros(0), False, "too few samples to separate steps "
                         "from a smooth part: the whole correction is kept")
-    S = spline_basis(t_b, KNOT_S, 0.0, record_s)
+    # the spline between block centres is a straight line to well under a pT (knots
+    # every 900 s or more, blocks of 10 s): interpolated to the samples
+    t_full = np.arange(n) * dt_s
+    t_knots = np.r_[0.0, t_b, record_s]
+    smooth = np.zeros_like(x)
+    found = []
+    for knot_s in knots_s:
+        coef, steps = _spline_and_steps(means, t_b, good, w, g, knot_s, record_s)
+        on_blocks = spline_basis(t_knots, knot_s, 0.0, record_s) @ coef
+        smooth += np.column_stack([np.interp(t_full, t_knots, on_blocks[:, c])
+                                   for c in range(3)])
+        found.append(steps)
+    smooth /= len(knots_s)
+    smooth -= smooth.mean(axis=0)
+    steps = found[len(found) // 2]
+    spacing = "/".join(f"{k:g}" for k in knots_s)
+    return SlowPart(smooth, np.array(sorted(steps)), True,
+                    f"smooth part (knots every {spacing} s, averaged; {len(steps)} step(s) "
+                    "found) taken for the sensors' own slow offsets and kept out of the "
+                    "correction", knots_s)
+
+
+def _spline_and_steps(means, t_b, good, w, g, knot_s, record_s):
+    """Spline coefficients (knots every ``knot_s``) and the step times found with them
+    on the block means (module docstring)."""
+    S = spline_basis(t_b, knot_s, 0.0, record_s)
     steps: list[float] = []
     blocked = np.zeros(means.shape[0], dtype=bool)
     thr = None
@@ -233,16 +269,7 @@ def slow_part(delta: np.ndarray, dt_s: float, *, force: bool = False) -> SlowPar
                 blocked[j] = True
         if not added:
             break
-    # the spline between block centres is a straight line to well under a pT (knots
-    # every 1200 s, blocks of 10 s): interpolated to the samples
-    t_full = np.arange(n) * dt_s
-    t_knots = np.r_[0.0, t_b, record_s]
-    on_blocks = spline_basis(t_knots, KNOT_S, 0.0, record_s) @ coef[:S.shape[1]]
-    smooth = np.column_stack([np.interp(t_full, t_knots, on_blocks[:, c]) for c in range(3)])
-    smooth -= smooth.mean(axis=0)
-    return SlowPart(smooth, np.array(sorted(steps)), True,
-                    f"smooth part (knots every {KNOT_S:g} s, {len(steps)} step(s) found) "
-                    "taken for the sensors' own slow offsets and kept out of the correction")
+    return coef[:S.shape[1]], steps
 
 
 def offset_intervals(data: dict, target: str, dt_s: float) -> tuple[np.ndarray, dict]:
@@ -284,7 +311,7 @@ def offset_intervals(data: dict, target: str, dt_s: float) -> tuple[np.ndarray, 
     # reference hides small steps, which its spline then takes for fast changes
     for s in sorted(others, key=lambda s: (not np.isfinite(sigma[s]), sigma[s]))[:1]:
         b = data[s]
-        sp = slow_part(x0 - np.asarray(b, dtype=float), dt_s)
+        sp = slow_part(x0 - np.asarray(b, dtype=float), dt_s, knots_s=(KNOT_S,))
         if not sp.applied:
             continue
         rate = np.linalg.norm(np.gradient(sp.smooth, axis=0), axis=1)
