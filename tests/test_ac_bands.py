@@ -217,7 +217,7 @@ def test_auto_day_removes_1000x_through_the_cli(bench, tmp_path, seed):
 def test_simulated_day_delivered_removes_what_the_matrices_remove():
     """A GK-2A-like day, three sensors, four disturbers (truth from the simulator) with
     the boom shadow: the delivered product keeps the on-board removal (measured 440x
-    on-board, 1500x delivered; 342x at a887a98). The inboard sensor's shadow offsets
+    on-board, 1989x delivered; 342x at a887a98). The inboard sensor's shadow offsets
     (not part of fgmo's truth) enter the constant matrices through the pair's weight;
     the delivered product keeps their smooth part out (tests/test_ac_slow.py asks it
     for 1000x)."""

@@ -121,7 +121,7 @@ def test_auto_shadow_day_removes_1000x(tmp_path):
     """``picog fit --auto`` + ``apply`` on a GK-2A-like 1 s day WITH the boom shadow
     (three sensors, four disturbers): at least 1000x of the disturbance power against
     the simulator's truth (seed 1: 470x before the drift was kept out of the product
-    and the shadow out of the fit; measured 1498x)."""
+    and the shadow out of the fit; measured 1989x in process)."""
     import importlib.util
     from pathlib import Path
 
