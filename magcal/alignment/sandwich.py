@@ -12,10 +12,13 @@ The sandwich ``A^-1 B A^-1`` takes the middle term from the data: the whitened r
 it really has, ``B = sum_f Re(X(f)^H X(f)) S(f) / n`` over the whitened design's
 Fourier transform ``X(f)`` is the variance of the estimating equations (a
 frequency-domain heteroscedasticity-and-autocorrelation-consistent estimate). ``S`` is
-the periodogram smoothed over ``2 bins + 1`` neighbouring frequencies (Daniell); when
-the model is right ``S`` is about 1 and the sandwich is ``A^-1`` within its noise. That
-noise is carried into the intervals by a Student t with Satterthwaite's degrees of
-freedom per parameter.
+the periodogram smoothed over ``2 bins + 1`` neighbouring frequencies (Daniell), over
+the share of the window's power the fit left in the residual (the frequencies the
+regressors take are depleted; :func:`frequency_leverage`); when the model is right
+``S`` is about 1 and the sandwich is ``A^-1`` within its noise. That noise is carried
+into the intervals by a Student t with Satterthwaite's degrees of freedom per
+parameter. :func:`difference_variance` gives the same for the change of parameters
+between nested fits (the local-time selection's shift test).
 """
 
 from __future__ import annotations
@@ -109,6 +112,20 @@ def difference_variance(whitened_residuals, whitened_designs, sub_cols, rows,
     -------
     ndarray, shape (len(rows),) or None
         None when a series is too short or a normal matrix is singular.
+
+    Examples
+    --------
+    White unit residuals (the model is right): the variance is the nested fits'
+    ``var_full - var_sub`` within its noise.
+
+    >>> rng = np.random.default_rng(0)
+    >>> k = np.arange(4000)
+    >>> x = np.column_stack([np.ones(4000), np.sin(k / 300.0), np.cos(k / 50.0)])
+    >>> var = difference_variance([rng.normal(size=4000)], [x], [0, 1], [1])
+    >>> a = x.T @ x
+    >>> nested = np.linalg.inv(a)[1, 1] - np.linalg.inv(a[:2, :2])[1, 1]
+    >>> bool(0.7 < var[0] / nested < 1.4)
+    True
     """
     a = sum(x.T @ x for x in whitened_designs)
     a_sub = a[np.ix_(sub_cols, sub_cols)]
