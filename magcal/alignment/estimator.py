@@ -206,7 +206,6 @@ class Aligner:
             fits = {k: fit_alignment(times, data, ref, lt_harmonics=k, **kw),
                     0: fit_alignment(times, data, ref, lt_harmonics=0, **kw)}
             from magcal.alignment.harmonic_test import lt_field_test
-
             from magcal.alignment.shift_test import lt_shift_sigma
 
             field = lt_field_test(fits[0], times, data, ref, k, lon_deg=lon_deg)

@@ -412,20 +412,16 @@ def _core_ou(t, d, r, names, basis, noise, max_iter, noise_iter, start=None):
         noise = _fit_noise_stats(nstats, t)
     a, _ = _normal_equations(stats, noise)
     cov = information_inverse(a)
-    dof = (variance_dof(stats, nstats, noise) if not fixed_noise
-           else np.full(len(names), np.inf))
-    model_cov = None
-    if not fixed_noise:
-        # as for OU + white: the covariance from the whitened residual's own spectrum,
-        # since a single OU process rarely is the residual's true noise (1/f and two
-        # time scales: model-based 95 % intervals held 0.80 and 0.87)
-        ys, xs = ou_whitened_series(t, d - mu, jac, noise)
-        robust = spectral_sandwich(ys, xs, cov)
-        if robust is not None:
-            # the sandwich's own degrees of freedom: its variance does not rest on the
-            # noise parameters (a time constant of days left the model dof at 1)
-            model_cov, cov, dof = cov, robust[0], robust[1]
-    return theta, cov, dof, noise, d - mu, model_cov
+    if fixed_noise:
+        return theta, cov, np.full(len(names), np.inf), noise, d - mu, None
+    # as for OU + white: the covariance from the whitened residual's own spectrum, since
+    # a single OU process rarely is the residual's true noise (1/f and two time scales:
+    # model-based 95 % intervals held 0.80 and 0.87), with the sandwich's own degrees of
+    # freedom (its variance does not rest on the noise parameters)
+    robust = spectral_sandwich(*ou_whitened_series(t, d - mu, jac, noise), cov)
+    if robust is None:
+        return theta, cov, variance_dof(stats, nstats, noise), noise, d - mu, None
+    return theta, robust[0], robust[1], noise, d - mu, cov
 
 
 def ou_whitened_series(t, resid, jac, noise: OUNoise):

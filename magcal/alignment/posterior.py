@@ -332,7 +332,6 @@ def sandwich_transform(start: AlignmentResult, names) -> np.ndarray | None:
 
     Examples
     --------
-    >>> import dataclasses
     >>> from magcal.alignment.synthetic import synthetic_pair
     >>> from magcal.alignment.gls import fit_alignment
     >>> case = synthetic_pair(np.random.default_rng(3), n=2000)
