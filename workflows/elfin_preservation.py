@@ -16,6 +16,9 @@ Three runs of the table, so that each step's share can be read:
 * ``delivered``: :class:`~magcal.missions.elfin.pipeline.ElfinSettings` defaults;
 * ``--settings KEY=VALUE ...``: any other settings (e.g. ``linear_phase_knot_s=30
   refit_knot_s=60``, the phase splines of before);
+* ``--settings detect_disturbed=true``: the disturbed intervals located from the counts
+  (:mod:`magcal.missions.elfin.detect`); the clean day's flagged share per zone and its
+  residual on the unflagged samples are printed too;
 * ``--mask-signal 0.05``: the delivered settings with the samples where the signal
   exceeds 5 % of its peak left out of every fit (``fit_exclude``): what the pipeline
   keeps when the disturbed interval is known from elsewhere.
@@ -71,6 +74,20 @@ def _print(label, tab, clean) -> None:
     print(f"\n== {label}: residual of the clean run (zone medians, nT)")
     print(med[["scalar_rms_nT", "scalar_fast_nT", "scalar_slow_nT", "vector_rms_nT"]]
           .round(2).to_string())
+    if "disturbed_detection" in clean.steps:
+        from magcal.missions.elfin.joint import score_field
+
+        det = clean.steps["disturbed_detection"]
+        print(f"\n== {label}: clean day, share of each zone's used samples flagged "
+              "(detect_disturbed; zones numbered in the calibrated order)")
+        print(det.pivot(index="pass", columns="zone", values="flagged_share").round(3)
+              .to_string())
+        f = clean.calibration.field.copy()
+        f.loc[f["fit"] == 0, "used"] = 0
+        quiet = score_field(f).drop(columns="zone").median()
+        print("clean residual on the unflagged samples only (zone medians, nT): "
+              + ", ".join(f"{k} {quiet[k]:.2f}" for k in ("scalar_rms_nT", "scalar_fast_nT",
+                                                          "vector_rms_nT")))
 
 
 def main(argv=None) -> int:

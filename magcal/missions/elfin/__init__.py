@@ -16,7 +16,9 @@ The calibration path, in the order the pipeline runs it:
 * :mod:`~magcal.missions.elfin.pipeline` - :func:`calibrate_elfin_day` and
   :class:`ElfinSettings`, called by the chain and the workflows;
 * :mod:`~magcal.missions.elfin.injection` - synthetic natural signals injected into the
-  raw counts, to measure what each step keeps.
+  raw counts, to measure what each step keeps;
+* :mod:`~magcal.missions.elfin.detect` - disturbed intervals located from the counts
+  alone (opt-in ``detect_disturbed``; finds localized fields across B only).
 
 :mod:`magcal.missions.elfin.diagnostics` holds what measures the product without
 changing it: the vector evidence, the Sun-locked test, parameter stability, the
