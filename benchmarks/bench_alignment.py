@@ -32,7 +32,7 @@ import time
 
 import numpy as np
 
-from magcal.alignment.gls import fit_alignment, param_names, prepare
+from magcal.alignment.gls import NOISE_MODELS, fit_alignment, param_names, prepare
 from magcal.alignment.posterior import (AlignmentPosterior, log_likelihood_direct,
                                         sample_posterior)
 from magcal.alignment.synthetic import synthetic_pair
@@ -198,7 +198,7 @@ if __name__ == "__main__":
     ap.add_argument("--families", type=int, help="draws per noise family (issue 21)")
     ap.add_argument("--seconds", type=float, help="time limit per family (s)")
     ap.add_argument("--json", help="write the families table here")
-    ap.add_argument("--noise-model", default="ou+white", choices=("ou", "ou+white"),
+    ap.add_argument("--noise-model", default="ou+white", choices=NOISE_MODELS,
                     help="alignment noise model of the families table (default ou+white)")
     ap.add_argument("--only", help="comma-separated families (default: all of "
                     + ", ".join(BENCH_FAMILIES) + ")")

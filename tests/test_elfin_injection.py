@@ -184,7 +184,6 @@ def test_disturbed_rows_and_the_excluded_count_in_the_product(day):
     assert (out.calibration.field["used"].to_numpy()[skip] == 1).all()
 
 
-
 def test_detected_intervals_keep_a_pulse_across_b_and_leave_a_wave_alone(day):
     """The opt-in detector (``detect_disturbed``) against the injected truth on zone 1:
     it flags where an east-west pulse is and the delivered product then keeps it; a

@@ -274,7 +274,8 @@ class Aligner:
                                       fit_scale=self.fit_scale, n_walkers=self.n_walkers,
                                       min_autocorr_times=self.min_autocorr_times,
                                       max_steps=self.max_steps, start=closed,
-                                      lt_harmonics=k, lon_deg=kw["lon_deg"])
+                                      lt_harmonics=k, lon_deg=kw["lon_deg"],
+                                      noise_model=self.noise_model)
             if not result.converged:
                 warnings.append(result.mcmc["message"])
         wd = resolve_window_days(self.window_days, span_days)

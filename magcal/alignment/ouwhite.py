@@ -49,6 +49,10 @@ class Gains:
         """``sum(log f)``: log determinant of the unit-variance covariance."""
         return float(np.sum(np.log(self.f)))
 
+    def whiten(self, x) -> np.ndarray:
+        """Standardised innovations of ``x`` (:func:`whiten`)."""
+        return whiten(x, self)
+
 
 def kalman_gains(times_s, tau_s: float, rho: float, tol: float = 1e-14) -> Gains:
     """Kalman gains of an OU (variance ``1 - rho``) plus white (``rho``) series.
@@ -273,20 +277,26 @@ def fit_noise_ouw(residuals, times_s, jacobian=None, start=None) -> OUWhiteNoise
     return noise_from_components(fits, t)
 
 
-def whitened_series(t, resid, jac, noise: OUWhiteNoise, gains=None):
+def whitened_series(t, resid, jac, noise, gains=None):
     """Per component, the residual and the Jacobian whitened by the Kalman filter and
-    scaled to unit variance: ``([uy_c], [ux_c])``, shapes (n,) and (n, p)."""
+    scaled to unit variance: ``([uy_c], [ux_c])``, shapes (n,) and (n, p).
+
+    ``noise`` is any model with ``gains(c, t)`` (whose result has ``whiten``) and
+    ``total_var``: :class:`OUWhiteNoise` or
+    :class:`~magcal.alignment.twoscale.TwoScaleNoise`.
+    """
     ys, xs = [], []
     for c in range(3):
         g = gains[c] if gains is not None else noise.gains(c, t)
-        u = whiten(np.column_stack([resid[:, c], jac[:, c, :]]), g) / np.sqrt(noise.total_var[c])
+        u = g.whiten(np.column_stack([resid[:, c], jac[:, c, :]])) / np.sqrt(noise.total_var[c])
         ys.append(u[:, 0])
         xs.append(u[:, 1:])
     return ys, xs
 
 
-def whitened_normals(t, resid, jac, noise: OUWhiteNoise, gains=None):
-    """GLS normal matrix, right-hand side and objective under :class:`OUWhiteNoise`."""
+def whitened_normals(t, resid, jac, noise, gains=None):
+    """GLS normal matrix, right-hand side and objective under a Kalman noise model
+    (:class:`OUWhiteNoise` or :class:`~magcal.alignment.twoscale.TwoScaleNoise`)."""
     p = jac.shape[2]
     a = np.zeros((p, p))
     b = np.zeros(p)

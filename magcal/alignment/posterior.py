@@ -202,18 +202,21 @@ def _initial_walkers(start: AlignmentResult, names, n_walkers, rng, post):
         center += list(start.offset_nT)
     if "scale" in names:
         center += [start.scale]
-    center += list(np.log(start.noise.std_nT)) + list(np.log(start.noise.tau_s))
+    sampled_noise = post.ndim > p
+    if sampled_noise:
+        center += list(np.log(start.noise.std_nT)) + list(np.log(start.noise.tau_s))
     center = np.array(center)
     cov = np.zeros((len(center), len(center)))
     sub = [list(start.param_names).index(n) for n in names]
     model = start.param_cov if start.model_param_cov is None else start.model_param_cov
     cov[:p, :p] = model[np.ix_(sub, sub)]
-    cov[p:, p:] = np.eye(6) * 0.05 ** 2
+    if sampled_noise:
+        cov[p:, p:] = np.eye(6) * 0.05 ** 2
     chol = np.linalg.cholesky(cov + 1e-18 * np.eye(len(center)))
     walkers = center + rng.standard_normal((n_walkers, len(center))) @ chol.T
-    # keep the start inside the prior support
-    lo, hi = post.log_tau_bounds
-    walkers[:, p + 3:] = np.clip(walkers[:, p + 3:], lo + 1e-6, hi - 1e-6)
+    if sampled_noise:  # keep the start inside the prior support
+        lo, hi = post.log_tau_bounds
+        walkers[:, p + 3:] = np.clip(walkers[:, p + 3:], lo + 1e-6, hi - 1e-6)
     return walkers
 
 
@@ -222,7 +225,7 @@ def sample_posterior(times, data, ref, rng: np.random.Generator, *, fit_offset: 
                      min_autocorr_times: float = 50.0, max_steps: int = 40000,
                      first_steps: int = 2000, start: AlignmentResult | None = None,
                      progress: bool = False, lt_harmonics: int = 0,
-                     lon_deg: float | None = None) -> AlignmentResult:
+                     lon_deg: float | None = None, noise_model: str = "ou") -> AlignmentResult:
     """Sample the alignment posterior with emcee until converged (or ``max_steps``).
 
     Parameters
@@ -251,6 +254,10 @@ def sample_posterior(times, data, ref, rng: np.random.Generator, *, fit_offset: 
         :class:`AlignmentPosterior`); 0 for none.
     lon_deg : float, optional
         East longitude for the local time (otherwise UT; same fit, other phase).
+    noise_model : {"ou", "ou+white", "ou+ou+white"}
+        The closed form's noise model (:func:`magcal.alignment.gls.fit_alignment`). The
+        OU model's parameters are sampled with the angles; a Kalman model is held at
+        the closed form's fit (:mod:`magcal.alignment.posterior_fixed`).
 
     Returns
     -------
@@ -275,8 +282,14 @@ def sample_posterior(times, data, ref, rng: np.random.Generator, *, fit_offset: 
     basis = lt_basis(times, keep, lt_harmonics, lon_deg)
     if start is None:
         start = fit_alignment(times, data, ref, fit_offset=fit_offset, fit_scale=fit_scale,
-                              lt_harmonics=lt_harmonics, lon_deg=lon_deg)
-    post = AlignmentPosterior(t, d, r, names, basis=basis)
+                              lt_harmonics=lt_harmonics, lon_deg=lon_deg,
+                              noise_model=noise_model)
+    if hasattr(start.noise, "white_std_nT"):  # a Kalman model: held at its fit
+        from magcal.alignment.posterior_fixed import FixedNoisePosterior
+
+        post = FixedNoisePosterior(t, d, r, names, start.noise, basis=basis)
+    else:
+        post = AlignmentPosterior(t, d, r, names, basis=basis)
     walkers = _initial_walkers(start, names, n_walkers, rng, post)
     # Differential-evolution moves mix about 4x faster than the default stretch move on
     # this correlated posterior. DESnookerMove is deliberately not used: measured here,
@@ -311,7 +324,8 @@ def sample_posterior(times, data, ref, rng: np.random.Generator, *, fit_offset: 
                     f"{min_autocorr_times:g} x the autocorrelation time {tau_max:.1f} steps; "
                     "increase max_steps"),
         "priors": "angles uniform |w|<45 deg, offsets flat, scale uniform [0.5, 2], "
-                  "noise std and tau log-uniform"
+                  + ("noise std and tau log-uniform" if post.ndim > len(names) else
+                     "noise held at the closed form's fit")
                   + (", local-time coefficients flat (integrated out)" if lt_harmonics else ""),
         "lt_harmonics": int(lt_harmonics),
     }, tau_max, d, r, t, basis)
@@ -371,8 +385,12 @@ def _summarize_chain(flat, names, post, start, info, tau_max, d, r, t,
                     COMPONENTS, start.std_deg / start.model_std_deg)))
     theta = np.median(flat[:, :p], axis=0)
     cov = np.atleast_2d(np.cov(flat[:, :p], rowvar=False))
-    noise_med = np.exp(np.median(flat[:, p:], axis=0))
-    noise = noise_from_fits([(noise_med[c], noise_med[3 + c], False) for c in range(3)], t)
+    if flat.shape[1] > p:
+        noise_med = np.exp(np.median(flat[:, p:], axis=0))
+        noise = noise_from_fits([(noise_med[c], noise_med[3 + c], False) for c in range(3)],
+                                t)
+    else:  # held at the closed form's fit
+        noise = start.noise
     w, o, s = unpack(theta, names)
     resid = d - s * Rotation.from_rotvec(w).apply(r) - o
     if basis is not None and start.local_time is not None:

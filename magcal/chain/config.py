@@ -189,9 +189,12 @@ def _check_values(s: dict, path: Path, kind: str) -> None:
     if s["input"]["format"] not in ("auto",) + FORMATS:
         raise InputError(f"[input] format {s['input']['format']!r}: use auto or one of "
                          f"{', '.join(FORMATS)}", file=path)
-    if s["alignment"]["noise_model"] not in ("ou", "ou+white"):
+    from magcal.alignment.gls import NOISE_MODELS
+
+    if s["alignment"]["noise_model"] not in NOISE_MODELS:
         raise InputError(f"[alignment] noise_model {s['alignment']['noise_model']!r}: use "
-                         "ou or ou+white", file=path, column="alignment.noise_model")
+                         f"one of {', '.join(NOISE_MODELS)}", file=path,
+                         column="alignment.noise_model")
     if s["output"]["format"] not in ("auto", "csv", "netcdf", "cdf"):
         raise InputError(f"[output] format {s['output']['format']!r}: use auto (the input's "
                          "family), csv, netcdf (CF-1.8) or cdf (ISTP)", file=path,

@@ -56,10 +56,12 @@ def register(subparsers) -> None:
                         "a model, which lacks the storm-time field")
     p.add_argument("--kp-max", type=float, default=1.0,
                    help="largest Kp of a used sample with --kp (default 1.0)")
-    p.add_argument("--noise-model", choices=("ou", "ou+white"), default="ou",
-                   help="residual noise model: OU (default) or OU plus white noise (exact "
-                        "Kalman likelihood; holds its coverage when the residual has a white "
-                        "part, opt-in: see the README's alignment limits)")
+    # magcal.alignment.gls.NOISE_MODELS, spelled out: importing it costs a second here
+    p.add_argument("--noise-model", choices=("ou", "ou+white", "ou+ou+white"), default="ou",
+                   help="residual noise model: OU (default), OU plus white noise (exact "
+                        "Kalman likelihood) or two OU time scales plus white noise (Kalman "
+                        "whitening, Whittle fit; efficient on multi-scale and 1/f "
+                        "residuals); see the README's alignment section")
     p.add_argument("--max-angle", type=float, default=45.0, metavar="DEG",
                    help="physically sensible range of each angle: a rotation the data cannot "
                         "confine to +-DEG is reported as not determinable (default 45)")

@@ -1,0 +1,151 @@
+"""Two OU time scales plus white noise (:mod:`magcal.alignment.twoscale`, issue 21).
+
+Truth: the Kalman whitening against the Cholesky factor of the exact covariance; the
+Whittle fit against the parameters a series was simulated with; the alignment against
+:mod:`magcal.alignment.families` draws with a known rotation and the exact Cramer-Rao
+bound of the true noise covariance.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from magcal.alignment.families import draw
+from magcal.alignment.gls import fit_alignment
+from magcal.alignment.twoscale import (WhittleData, fit_component, fit_noise_two_scale,
+                                       simulate, state_gains, whiten_state)
+
+TAU = (600.0, 21600.0)
+SHARE = np.array([1.0, 4.0, 0.04]) / 5.04
+
+
+def _exact(t, tau, share):
+    lag = np.abs(t[:, None] - t[None, :])
+    return (share[0] * np.exp(-lag / tau[0]) + share[1] * np.exp(-lag / tau[1])
+            + share[2] * (lag == 0))
+
+
+def test_whitening_is_the_cholesky_innovation_with_gaps():
+    """With a 30-sample gap, a 1-sample gap and 1-min spacing, the filter's standardised
+    innovations are ``L^-1 x`` of the exact covariance (to rounding) and its log
+    determinant is ``2 sum log diag L``; the long run reaches the steady-state path."""
+    t = np.arange(900.0) * 60.0
+    keep = np.ones(t.size, dtype=bool)
+    keep[100:130] = False
+    keep[400] = False
+    t = t[keep]
+    chol = np.linalg.cholesky(_exact(t, TAU, SHARE))
+    x = np.random.default_rng(0).standard_normal((t.size, 3))
+    g = state_gains(t, TAU, SHARE, tol=1e-9)
+    assert g.steady, "no run reached constant gains"
+    np.testing.assert_allclose(whiten_state(x, g), np.linalg.solve(chol, x), atol=1e-8)
+    assert g.log_det == pytest.approx(2 * np.sum(np.log(np.diag(chol))), rel=1e-10)
+
+
+def test_one_scale_reduces_to_the_ou_filter():
+    """With the slow and white parts absent the innovation variance is the OU one,
+    ``1 - exp(-2 dt / tau)``."""
+    g = state_gains(np.arange(50.0) * 10.0, (30.0, 3000.0), (1.0, 0.0, 0.0))
+    np.testing.assert_allclose(g.f[1:], 1 - np.exp(-2 * 10.0 / 30.0), rtol=1e-12)
+
+
+@pytest.mark.parametrize("segment", [2 ** 15, 128])
+def test_expected_periodogram_is_the_exact_expectation_under_gaps(segment):
+    """The debiased-Whittle expectation equals ``sum_s e_s^H C e_s / n`` computed from
+    the exact covariance of the observed samples, gaps included, for the whole record
+    and for the periodograms of four segments summed (Bartlett)."""
+    rng = np.random.default_rng(1)
+    t = np.arange(400.0) * 60.0
+    keep = rng.random(t.size) > 0.1
+    keep[0] = keep[-1] = True
+    t = t[keep]
+    data = WhittleData.from_residual(np.zeros(t.size), t, segment=segment)
+    length = data.lag.size
+    assert length == (400 if segment > 400 else 100)
+    cov = _exact(t, TAU, SHARE)
+    k = np.arange(1, data.periodogram.size + 1)
+    idx = np.rint(t / 60.0)
+    exact = 0.0
+    for s in range(400 // length):
+        e = np.exp(-2j * np.pi * np.outer(k, idx) / length) * (idx // length == s)
+        exact = exact + np.real(np.einsum("ki,ij,kj->k", e, cov, e.conj())) / t.size
+    np.testing.assert_allclose(data.expected(TAU, SHARE), exact, rtol=1e-9)
+
+
+def test_whittle_recovers_the_simulated_parameters():
+    """30 days of 1-min samples of fast 1 nT / 10 min, slow 2 nT / 6 h, white 0.2 nT:
+    each part's std within 15 % and the times within 30 % (five seeds; the slow time's
+    scatter over 30 days is about 15 %)."""
+    t = np.arange(43200.0) * 60.0
+    for seed in range(5):
+        x = simulate(np.random.default_rng(seed), t, TAU, (1.0, 2.0, 0.2))
+        std, tau, at_bound = fit_component(x, t)
+        np.testing.assert_allclose(std, [1.0, 2.0, 0.2], rtol=0.15)
+        np.testing.assert_allclose(tau, TAU, rtol=0.3)
+        assert not at_bound
+
+
+def test_noise_model_dictionary_and_total_variance():
+    t = np.arange(5000.0) * 60.0
+    rng = np.random.default_rng(2)
+    r = np.column_stack([simulate(rng, t, TAU, (1.0, 2.0, 0.2)) for _ in range(3)])
+    noise = fit_noise_two_scale(r, t)
+    doc = noise.to_dict()
+    assert set(doc["slow_tau_s"]) == {"Hp", "He", "Hn"}
+    np.testing.assert_allclose(noise.total_var, np.var(r, axis=0), rtol=0.5)
+    assert doc["std_nT"]["Hp"] == pytest.approx(np.hypot(doc["fast_std_nT"]["Hp"],
+                                                         doc["slow_std_nT"]["Hp"]))
+
+
+def _draws(family, n, noise_model="ou+ou+white"):
+    ratio, inside, err = [], [], []
+    for s in range(n):
+        dr = draw(family, np.random.default_rng(5000 + s))
+        res = fit_alignment(dr["times_s"], dr["data"], dr["ref"], noise_model=noise_model)
+        ci = np.asarray(res.ci95_deg)
+        truth = dr["truth_deg"]
+        ratio.append(res.std_deg / dr["crb_std_deg"])
+        err.append((res.angles_deg - truth) / dr["crb_std_deg"])
+        inside.append((ci[:, 0] <= truth) & (truth <= ci[:, 1]))
+    return np.array(ratio), np.array(inside), np.array(err)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("family", ["two-scales", "power-law@2"])
+def test_two_scales_reach_the_bound_on_multi_scale_noise(family):
+    """20 draws, 60 intervals: the stated std sits at the bound (median at most 1.12x;
+    the pure OU model states 1.10-1.15x on two time scales and 1.22-1.25x on 1/f^2)
+    and 52 or more 95 % intervals hold the truth (P < 0.3 % at a true 95 %)."""
+    ratio, inside, err = _draws(family, 20)
+    assert np.all(np.median(ratio, axis=0) <= 1.12), np.median(ratio, axis=0)
+    assert inside.sum() >= 52, inside.mean(axis=0)
+    assert np.all(np.sqrt(np.mean(err ** 2, axis=0)) <= 1.35)
+
+
+def test_unknown_noise_model_is_refused():
+    from magcal.errors import InputError
+
+    dr = draw("ou", np.random.default_rng(0), n=200)
+    with pytest.raises(InputError, match="ou\\+ou\\+white"):
+        fit_alignment(dr["times_s"], dr["data"], dr["ref"], noise_model="two")
+
+
+def test_posterior_samples_the_chosen_noise_model():
+    """``--mcmc`` under a Kalman noise model samples the angles with that model held at
+    its fit (it sampled the OU likelihood, which moved the demo's angles by 0.6-0.8 deg
+    to a rotation that fit worse than none): the posterior is the closed form's within
+    a tenth of a std, as wide (both take the sandwich), and holds the truth."""
+    from magcal.alignment.posterior import sample_posterior
+    from magcal.alignment.twoscale import TwoScaleNoise
+
+    dr = draw("two-scales", np.random.default_rng(5002))
+    closed = fit_alignment(dr["times_s"], dr["data"], dr["ref"], noise_model="ou+ou+white")
+    res = sample_posterior(dr["times_s"], dr["data"], dr["ref"], np.random.default_rng(1),
+                           start=closed, noise_model="ou+ou+white")
+    assert res.converged
+    assert isinstance(res.noise, TwoScaleNoise)
+    assert "held" in res.mcmc["priors"]
+    assert np.all(np.abs(res.angles_deg - closed.angles_deg) < 0.1 * closed.std_deg)
+    np.testing.assert_allclose(res.std_deg, closed.std_deg, rtol=0.1)
+    assert np.all(np.abs(res.angles_deg - dr["truth_deg"]) < 4 * res.std_deg)
