@@ -29,8 +29,9 @@ import dataclasses
 
 import numpy as np
 
-from magcal.alignment.gls import (_normal_equations, component_stats, information_inverse,
-                                  param_names, predict_and_jacobian, prepare)
+from magcal.alignment.gls import (DEFAULT_NOISE_MODEL, _normal_equations, component_stats,
+                                  information_inverse, param_names, predict_and_jacobian,
+                                  prepare)
 from magcal.alignment.localtime import DAY_S
 from magcal.alignment.noise import COMPONENTS
 from magcal.alignment.result import AlignmentResult
@@ -142,7 +143,8 @@ class Determinability:
 
 
 def identity_fit(times, data, ref, *, fit_offset: bool = True, fit_scale: bool = False,
-                 lt_harmonics: int = 0, lon_deg=None, noise_model: str = "ou") -> AlignmentResult:
+                 lt_harmonics: int = 0, lon_deg=None,
+                 noise_model: str = DEFAULT_NOISE_MODEL) -> AlignmentResult:
     """Fit of the nuisance terms alone (rotation fixed at the identity): the baseline a
     rotation must beat, and the noise model of the bound.
 
@@ -158,6 +160,10 @@ def identity_fit(times, data, ref, *, fit_offset: bool = True, fit_scale: bool =
                              noise_model=noise_model)
     t, d, r, _ = prepare(times, data, ref)
     resid = d - r
+    if noise_model == "ou+ou+white":
+        from magcal.alignment.twoscale import fit_noise_two_scale as fit_noise
+    elif noise_model == "ou+white":
+        from magcal.alignment.ouwhite import fit_noise_ouw as fit_noise
     return AlignmentResult(
         angles_deg=np.zeros(3), cov_deg2=np.full((3, 3), np.nan),
         ci95_deg=np.full((3, 2), np.nan), offset_nT=None, offset_std_nT=None, scale=None,
@@ -192,7 +198,8 @@ def rotation_bound(times, data, ref, identity: AlignmentResult, *, fit_offset: b
     >>> from magcal.alignment.gls import fit_alignment
     >>> from magcal.alignment.synthetic import synthetic_pair
     >>> case = synthetic_pair(np.random.default_rng(3), n=2000)
-    >>> ident = fit_alignment(case.times, case.data, case.ref, fit_rotation=False)
+    >>> ident = fit_alignment(case.times, case.data, case.ref, fit_rotation=False,
+    ...                       noise_model="ou")
     >>> crb, alone, _ = rotation_bound(case.times, case.data, case.ref, ident)
     >>> crb.round(1), bool(np.all(alone <= crb))
     (array([3.4, 2.6, 3.6]), True)
@@ -206,7 +213,13 @@ def rotation_bound(times, data, ref, identity: AlignmentResult, *, fit_offset: b
     if fit_scale:
         theta[names.index("scale")] = 1.0 if identity.scale is None else identity.scale
     mu, jac = predict_and_jacobian(theta, names, r, basis)
-    a, _ = _normal_equations(component_stats(t, d, mu, jac), identity.noise)
+    if hasattr(identity.noise, "gains"):  # a Kalman noise model: whiten with it
+        from magcal.alignment.ouwhite import WhitenedBase
+
+        _, xs = WhitenedBase(t, d, r, basis, identity.noise).series(mu, jac)
+        a = sum(x.T @ x for x in xs)
+    else:
+        a, _ = _normal_equations(component_stats(t, d, mu, jac), identity.noise)
     full = information_inverse(a)
     crb = np.sqrt(np.diag(full)[:3]) if np.all(np.isfinite(full)) else np.full(3, np.inf)
     alone = information_inverse(a[:3, :3])
@@ -220,7 +233,8 @@ def rotation_bound(times, data, ref, identity: AlignmentResult, *, fit_offset: b
 
 def check_before(times, data, ref, identity: AlignmentResult, *, fit_offset: bool = True,
                  fit_scale: bool = False, lt_harmonics: int = 0, lon_deg=None,
-                 max_angle_deg: float = MAX_ANGLE_DEG, noise_model: str = "ou") -> Determinability:
+                 max_angle_deg: float = MAX_ANGLE_DEG,
+                 noise_model: str = DEFAULT_NOISE_MODEL) -> Determinability:
     """Decide, before fitting, whether the data can determine the rotation.
 
     Parameters

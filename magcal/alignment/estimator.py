@@ -12,7 +12,7 @@ from magcal.alignment.checks import (add_systematic, inflate, local_time_check,
                                      window_consistency)
 from magcal.alignment.determinability import (MAX_ANGLE_DEG, check_after, check_before,
                                               identity_fit, not_determinable)
-from magcal.alignment.gls import fit_alignment, prepare
+from magcal.alignment.gls import DEFAULT_NOISE_MODEL, fit_alignment, prepare
 from magcal.alignment.noise import COMPONENTS
 from magcal.alignment.posterior import sample_posterior
 from magcal.alignment.windows import angles_by_window
@@ -137,9 +137,9 @@ class Aligner:
     max_angle_deg : float
         Physically sensible range of each angle: a rotation the data cannot confine to
         it is reported as not determinable (default 45, the posterior's prior range).
-    noise_model : {"ou", "ou+white"}
-        Residual noise model (:func:`magcal.alignment.gls.fit_alignment`; OU + white is
-        opt-in, see there).
+    noise_model : {"ou+ou+white", "ou", "ou+white"}
+        Residual noise model (:func:`magcal.alignment.gls.fit_alignment`; default two
+        OU time scales plus white noise, see there).
 
     Attributes
     ----------
@@ -168,7 +168,8 @@ class Aligner:
                  rng: np.random.Generator | None = None, n_walkers: int = 32,
                  min_autocorr_times: float = 50.0, max_steps: int = 40000,
                  lt_harmonics="auto", window_days="auto", inflate_inconsistent: bool = True,
-                 max_angle_deg: float = MAX_ANGLE_DEG, noise_model: str = "ou"):
+                 max_angle_deg: float = MAX_ANGLE_DEG,
+                 noise_model: str = DEFAULT_NOISE_MODEL):
         self.fit_offset = fit_offset
         self.fit_scale = fit_scale
         self.mcmc = mcmc

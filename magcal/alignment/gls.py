@@ -31,6 +31,12 @@ from magcal.errors import InputError
 Z95 = 1.959963984540054
 
 
+#: Residual noise models of :func:`fit_alignment`.
+NOISE_MODELS = ("ou", "ou+white", "ou+ou+white")
+#: The default: two OU time scales plus white noise (issue 21; README, alignment).
+DEFAULT_NOISE_MODEL = "ou+ou+white"
+
+
 def prepare(times, data, ref, min_samples: int = 10):
     """Validate and drop rows where either series is not finite.
 
@@ -265,7 +271,7 @@ def initial_guess(d, r, names):
 def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bool = True,
                   fit_scale: bool = False, noise: OUNoise | None = None,
                   max_iter: int = 20, noise_iter: int = 2, lt_harmonics: int = 0,
-                  lon_deg: float | None = None, noise_model: str = "ou",
+                  lon_deg: float | None = None, noise_model: str = DEFAULT_NOISE_MODEL,
                   robust: bool = True) -> AlignmentResult:
     """Rotation (plus offset, scale) of ``data`` against ``ref`` with calibrated errors.
 
@@ -370,9 +376,6 @@ def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bo
                      lon_deg=lon_deg, warnings=warnings, **extra)
 
 
-#: Residual noise models of :func:`fit_alignment`.
-NOISE_MODELS = ("ou", "ou+white", "ou+ou+white")
-
 
 def _core_for(noise_model: str, noise):
     """The fitting core of ``noise_model``, or of the model of a fixed ``noise``."""
@@ -465,7 +468,7 @@ def _core_ouw(t, d, r, names, basis, noise, max_iter, noise_iter, start=None,
     ``fit_noise(residual, t, jacobian, start)`` fits the noise model (default OU +
     white, :func:`magcal.alignment.ouwhite.fit_noise_ouw`).
     """
-    from magcal.alignment.ouwhite import fit_noise_ouw, whitened_normals, whitened_series
+    from magcal.alignment.ouwhite import WhitenedBase, fit_noise_ouw
 
     fit_noise = fit_noise_ouw if fit_noise is None else fit_noise
 
@@ -477,14 +480,14 @@ def _core_ouw(t, d, r, names, basis, noise, max_iter, noise_iter, start=None,
         if not fixed_noise:
             noise = fit_noise(d - mu, t, jac, start=prev)
             prev = noise
-        gains = [noise.gains(c, t) for c in range(3)]
-        a, b, current = whitened_normals(t, d - mu, jac, noise, gains)
+        white = WhitenedBase(t, d, r, basis, noise)
+        a, b, current = white.normals(mu, jac)
         for _ in range(max_iter):
             step = np.linalg.lstsq(a, b, rcond=None)[0]
             for _ in range(max_halvings):
                 trial = theta + step
                 mu_t, jac_t = predict_and_jacobian(trial, names, r, basis)
-                a_t, b_t, value = whitened_normals(t, d - mu_t, jac_t, noise, gains)
+                a_t, b_t, value = white.normals(mu_t, jac_t)
                 if value <= current * (1.0 + 1e-12):
                     break
                 step = 0.5 * step
@@ -496,7 +499,7 @@ def _core_ouw(t, d, r, names, basis, noise, max_iter, noise_iter, start=None,
     mu, jac = predict_and_jacobian(theta, names, r, basis)
     if not fixed_noise:
         noise = fit_noise(d - mu, t, jac, start=prev)
-    ys, xs = whitened_series(t, d - mu, jac, noise)
+    ys, xs = WhitenedBase(t, d, r, basis, noise).series(mu, jac)
     cov = information_inverse(sum(x.T @ x for x in xs))
     # uncertainty of the noise model itself: Student t with the effective sample count
     dof = np.full(len(names), np.inf if fixed_noise

@@ -24,8 +24,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from magcal.alignment.gls import (fit_alignment, lt_basis, param_names, prepare, summarize,
-                                  unpack)
+from magcal.alignment.gls import (DEFAULT_NOISE_MODEL, fit_alignment, lt_basis, param_names,
+                                  prepare, summarize, unpack)
 from magcal.alignment.noise import COMPONENTS, LagStats, lag_stats, noise_from_fits
 from magcal.alignment.result import AlignmentResult
 
@@ -225,7 +225,8 @@ def sample_posterior(times, data, ref, rng: np.random.Generator, *, fit_offset: 
                      min_autocorr_times: float = 50.0, max_steps: int = 40000,
                      first_steps: int = 2000, start: AlignmentResult | None = None,
                      progress: bool = False, lt_harmonics: int = 0,
-                     lon_deg: float | None = None, noise_model: str = "ou") -> AlignmentResult:
+                     lon_deg: float | None = None,
+                     noise_model: str = DEFAULT_NOISE_MODEL) -> AlignmentResult:
     """Sample the alignment posterior with emcee until converged (or ``max_steps``).
 
     Parameters

@@ -19,6 +19,7 @@ from collections.abc import Iterable
 import numpy as np
 
 from magcal.alignment.estimator import Aligner
+from magcal.alignment.gls import DEFAULT_NOISE_MODEL
 from magcal.alignment.noise import COMPONENTS
 from magcal.alignment.result import AlignmentResult
 from magcal.alignment.windows import WindowAngles
@@ -187,7 +188,8 @@ class AlignSettings:
         Physically sensible range of an angle (see
         :mod:`magcal.alignment.determinability`).
     noise_model : str
-        ``ou`` or ``ou+white`` (:func:`magcal.alignment.gls.fit_alignment`).
+        ``ou+ou+white`` (default), ``ou`` or ``ou+white``
+        (:func:`magcal.alignment.gls.fit_alignment`).
     """
 
     fit_offset: bool = True
@@ -198,7 +200,7 @@ class AlignSettings:
     window_days: object = "auto"
     lt_harmonics: object = "auto"
     max_angle_deg: float = 45.0
-    noise_model: str = "ou"
+    noise_model: str = DEFAULT_NOISE_MODEL
 
     def aligner(self, rng: np.random.Generator | None) -> Aligner:
         """The estimator these settings describe."""

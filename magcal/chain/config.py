@@ -40,7 +40,7 @@ SCHEMA: dict[str, dict[str, tuple]] = {
     "alignment": {"reference": (str, "model"), "mcmc": (bool, False), "seed": (int, 0),
                   "lt_harmonics": ((str, int), "auto"), "window_days": ((str, int, float), "auto"),
                   "kp_max": ((int, float), 1.0), "enabled": (bool, True),
-                  "cadence_s": ((int, float), 60.0), "noise_model": (str, "ou")},
+                  "cadence_s": ((int, float), 60.0), "noise_model": (str, "ou+ou+white")},
     "discover": {"enabled": (bool, True), "max_effects": (int, 8), "covariates": (str, None)},
     "report": {"enabled": (bool, True), "pdf": (bool, False)},
     "truth": {"file": (str, None)},

@@ -57,7 +57,8 @@ def register(subparsers) -> None:
     p.add_argument("--kp-max", type=float, default=1.0,
                    help="largest Kp of a used sample with --kp (default 1.0)")
     # magcal.alignment.gls.NOISE_MODELS, spelled out: importing it costs a second here
-    p.add_argument("--noise-model", choices=("ou", "ou+white", "ou+ou+white"), default="ou",
+    p.add_argument("--noise-model", choices=("ou", "ou+white", "ou+ou+white"),
+                   default="ou+ou+white",
                    help="residual noise model: OU (default), OU plus white noise (exact "
                         "Kalman likelihood) or two OU time scales plus white noise (Kalman "
                         "whitening, Whittle fit; efficient on multi-scale and 1/f "
