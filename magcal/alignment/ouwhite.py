@@ -98,6 +98,13 @@ def kalman_gains(times_s, tau_s: float, rho: float, tol: float = 1e-14) -> Gains
     return Gains(phi=phi, a=a, k=k, f=f)
 
 
+def as_columns(x) -> tuple[np.ndarray, bool]:
+    """``x`` as an (n, m) float array, and whether it was one series (n,)."""
+    x = np.asarray(x, dtype=float)
+    one = x.ndim == 1
+    return (x[:, None] if one else x), one
+
+
 def whiten(x, gains: Gains) -> np.ndarray:
     """Standardised innovations of ``x`` (n,) or the columns of ``x`` (n, m).
 
@@ -112,9 +119,7 @@ def whiten(x, gains: Gains) -> np.ndarray:
     >>> float(np.std(whiten(x, g)) / np.sqrt(4.09)).__round__(1)
     1.0
     """
-    x = np.asarray(x, dtype=float)
-    one = x.ndim == 1
-    y = x[:, None] if one else x
+    y, one = as_columns(x)
     n = y.shape[0]
     xhat = np.empty_like(y)
     change = np.flatnonzero((np.diff(gains.a) != 0) | (np.diff(gains.k) != 0)) + 1

@@ -33,7 +33,38 @@ NOISE_NAMES = tuple(f"log_std_{c}" for c in COMPONENTS) + tuple(f"log_tau_{c}" f
 MAX_ANGLE_RAD = np.pi / 4
 
 
-class AlignmentPosterior:
+class WalkerPosterior:
+    """What the vectorised alignment posteriors share: the model parameters' columns
+    (angles, offsets, scale; :func:`magcal.alignment.gls.param_names`) in the walkers'
+    parameter vector, and the log-posterior over walkers. Subclasses define
+    ``log_prior`` and ``log_likelihood`` and call :meth:`_index`."""
+
+    def _index(self, names) -> None:
+        self.names = tuple(names)
+        idx = {name: i for i, name in enumerate(self.names)}
+        self._iw = [idx[k] for k in ("w_Hp", "w_He", "w_Hn")] if "w_Hp" in idx else None
+        self._io = [idx[k] for k in ("o_Hp", "o_He", "o_Hn")] if "o_Hp" in idx else None
+        self._is = idx.get("scale")
+
+    def _model_params(self, theta):
+        """Rotation vectors, offsets and scales of the walkers ``theta`` (w, ndim)."""
+        nw = theta.shape[0]
+        w = theta[:, self._iw] if self._iw is not None else np.zeros((nw, 3))
+        o = theta[:, self._io] if self._io is not None else np.zeros((nw, 3))
+        s = theta[:, self._is] if self._is is not None else np.ones(nw)
+        return w, o, s
+
+    def __call__(self, theta) -> np.ndarray:
+        """Log-posterior, vectorised over walkers (emcee ``vectorize=True``)."""
+        theta = np.atleast_2d(theta)
+        lp = self.log_prior(theta)
+        good = np.isfinite(lp)
+        if np.any(good):
+            lp[good] += self.log_likelihood(theta[good])
+        return lp
+
+
+class AlignmentPosterior(WalkerPosterior):
     """Vectorised log-posterior of the alignment model.
 
     Parameters
@@ -56,7 +87,7 @@ class AlignmentPosterior:
         self.times_s = np.asarray(times_s, dtype=float)
         self.data = np.asarray(data, dtype=float)
         self.ref = np.asarray(ref, dtype=float)
-        self.names = tuple(names)
+        self._index(names)
         self.all_names = self.names + NOISE_NAMES
         ones = np.ones((self.ref.shape[0], 1))
         self.basis = (np.zeros((self.ref.shape[0], 0)) if basis is None
@@ -71,10 +102,6 @@ class AlignmentPosterior:
         self._dt = self.stats[0].dt_s
         self._count = self.stats[0].count
         self.n = self.data.shape[0]
-        idx = {name: i for i, name in enumerate(self.names)}
-        self._iw = [idx[k] for k in ("w_Hp", "w_He", "w_Hn")] if "w_Hp" in idx else None
-        self._io = [idx[k] for k in ("o_Hp", "o_He", "o_Hn")] if "o_Hp" in idx else None
-        self._is = idx.get("scale")
         self.log_tau_bounds = (np.log(0.1 * float(np.min(self.stats[0].dt_s))),
                                np.log(max(float(self.times_s[-1] - self.times_s[0]),
                                           float(np.min(self.stats[0].dt_s)))))
@@ -85,11 +112,7 @@ class AlignmentPosterior:
 
     def _split(self, theta):
         p = len(self.names)
-        nw = theta.shape[0]
-        w = theta[:, self._iw] if self._iw is not None else np.zeros((nw, 3))
-        o = theta[:, self._io] if self._io is not None else np.zeros((nw, 3))
-        s = theta[:, self._is] if self._is is not None else np.ones(nw)
-        return w, o, s, theta[:, p:p + 3], theta[:, p + 3:p + 6]
+        return (*self._model_params(theta), theta[:, p:p + 3], theta[:, p + 3:p + 6])
 
     def log_prior(self, theta) -> np.ndarray:
         """Log-prior (0 or -inf) for parameters of shape (w, ndim)."""
@@ -144,15 +167,6 @@ class AlignmentPosterior:
         return np.sum(-0.5 * rss * np.exp(-2.0 * log_std)
                       - (self.n - self.n_basis) * log_std - 0.5 * log_det
                       - 0.5 * np.sum(self._count * np.log(k2), axis=2), axis=1)
-
-    def __call__(self, theta) -> np.ndarray:
-        """Log-posterior, vectorised over walkers (emcee ``vectorize=True``)."""
-        theta = np.atleast_2d(theta)
-        lp = self.log_prior(theta)
-        good = np.isfinite(lp)
-        if np.any(good):
-            lp[good] += self.log_likelihood(theta[good])
-        return lp
 
 
 def _rotation_matrices(w) -> np.ndarray:

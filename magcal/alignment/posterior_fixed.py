@@ -20,24 +20,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from magcal.alignment.posterior import MAX_ANGLE_RAD, _rotation_matrices
+from magcal.alignment.posterior import MAX_ANGLE_RAD, WalkerPosterior, _rotation_matrices
 
 
-class FixedNoisePosterior:
+class FixedNoisePosterior(WalkerPosterior):
     """Vectorised log-posterior of the alignment under a fixed Kalman noise model.
 
-    Parameters
-    ----------
-    times_s : ndarray, shape (n,)
-    data, ref : ndarray, shape (n, 3)
-        Finite, matched samples.
-    names : tuple of str
-        Model parameter names (:func:`magcal.alignment.gls.param_names`, without
-        local-time terms).
-    noise : OUWhiteNoise or TwoScaleNoise
-        The closed form's fitted noise model (``gains(c, t)`` and ``total_var``).
-    basis : ndarray, shape (n, 2K), optional
-        Local-time harmonics, integrated out.
+    Parameters as :class:`~magcal.alignment.posterior.AlignmentPosterior` (samples,
+    model parameter names without local-time terms, local-time ``basis`` integrated
+    out), plus ``noise``: the closed form's fitted :class:`OUWhiteNoise` or
+    :class:`TwoScaleNoise` (``gains(c, t)`` and ``total_var``), held fixed; the walkers
+    carry the model parameters only.
 
     Examples
     --------
@@ -60,7 +53,7 @@ class FixedNoisePosterior:
         t = np.asarray(times_s, dtype=float)
         d = np.asarray(data, dtype=float)
         r = np.asarray(ref, dtype=float)
-        self.names = tuple(names)
+        self._index(names)
         self.all_names = self.names
         self.noise = noise
         self.basis = np.zeros((t.size, 0)) if basis is None else np.asarray(basis, float)
@@ -71,33 +64,22 @@ class FixedNoisePosterior:
             z = noise.gains(c, t).whiten(cols) / np.sqrt(noise.total_var[c])
             grams.append(z.T @ z)
         self._gram = np.stack(grams)  # (3, m, m)
-        idx = {name: i for i, name in enumerate(self.names)}
-        self._iw = [idx[k] for k in ("w_Hp", "w_He", "w_Hn")] if "w_Hp" in idx else None
-        self._io = [idx[k] for k in ("o_Hp", "o_He", "o_Hn")] if "o_Hp" in idx else None
-        self._is = idx.get("scale")
 
     @property
     def ndim(self) -> int:
         return len(self.names)
 
-    def _split(self, theta):
-        nw = theta.shape[0]
-        w = theta[:, self._iw] if self._iw is not None else np.zeros((nw, 3))
-        o = theta[:, self._io] if self._io is not None else np.zeros((nw, 3))
-        s = theta[:, self._is] if self._is is not None else np.ones(nw)
-        return w, o, s
-
     def log_prior(self, theta) -> np.ndarray:
         """Log-prior (0 or -inf): angles within 45 deg, scale in [0.5, 2]."""
         theta = np.atleast_2d(np.asarray(theta, dtype=float))
-        w, _, s = self._split(theta)
+        w, _, s = self._model_params(theta)
         ok = (np.abs(w).max(axis=1) < MAX_ANGLE_RAD) & (s > 0.5) & (s < 2.0)
         return np.where(ok, 0.0, -np.inf)
 
     def log_likelihood(self, theta) -> np.ndarray:
         """Log-likelihood (constants dropped) for parameters of shape (walkers, ndim)."""
         theta = np.atleast_2d(np.asarray(theta, dtype=float))
-        w, o, s = self._split(theta)
+        w, o, s = self._model_params(theta)
         rot = _rotation_matrices(w) * s[:, None, None]
         nw = theta.shape[0]
         gamma = np.concatenate([np.ones((nw, 3, 1)), -rot, -o[:, :, None]], axis=2)
@@ -109,12 +91,3 @@ class FixedNoisePosterior:
             sol = np.linalg.solve(g[None, :, nr:, nr:], b[..., None])[..., 0]
             q = q - np.einsum("wci,wci->wc", b, sol)
         return -0.5 * np.sum(q, axis=1)
-
-    def __call__(self, theta) -> np.ndarray:
-        """Log-posterior, vectorised over walkers (emcee ``vectorize=True``)."""
-        theta = np.atleast_2d(theta)
-        lp = self.log_prior(theta)
-        good = np.isfinite(lp)
-        if np.any(good):
-            lp[good] += self.log_likelihood(theta[good])
-        return lp

@@ -33,6 +33,7 @@ from scipy.optimize import minimize
 from scipy.signal import lfilter
 
 from magcal.alignment.noise import COMPONENTS, noise_warning
+from magcal.alignment.ouwhite import as_columns
 
 #: Smallest ratio of the slow to the fast correlation time (keeps the two scales apart
 #: and the steady-state recursion diagonalisable).
@@ -141,9 +142,7 @@ def whiten_state(x, gains: StateGains) -> np.ndarray:
     >>> round(float(np.std(whiten_state(x, g)) / np.sqrt(5.04)), 1)
     1.0
     """
-    x = np.asarray(x, dtype=float)
-    one = x.ndim == 1
-    y = x[:, None] if one else x
+    y, one = as_columns(x)
     n = y.shape[0]
     e = np.empty_like(y)
     state = np.zeros((2, y.shape[1]))
