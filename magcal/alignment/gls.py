@@ -276,8 +276,8 @@ def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bo
     """Rotation (plus offset, scale) of ``data`` against ``ref`` with calibrated errors.
 
     Model: ``data = scale * R(w) @ ref + offset + L(LT) + e`` where each component of
-    ``e`` is an Ornstein-Uhlenbeck process (standard deviation and correlation time
-    fitted) and ``L`` is an optional field fixed in local time (``lt_harmonics``
+    ``e`` is correlated noise (by default two Ornstein-Uhlenbeck time scales plus white
+    noise, fitted; ``noise_model``) and ``L`` is an optional field fixed in local time (``lt_harmonics``
     harmonics per component, nuisance parameters, see
     :mod:`magcal.alignment.localtime`). The estimate starts at Wahba's closed form and
     is refined by Gauss-Newton generalised least squares. The covariance is the
@@ -309,10 +309,10 @@ def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bo
         East longitude, to express the local-time field in local time (otherwise UT;
         for a fixed longitude the fit is the same, only the phase differs).
     noise_model : {"ou", "ou+white", "ou+ou+white"}
-        Residual noise model per component: pure OU (:mod:`magcal.alignment.noise`;
-        default), OU plus white noise (exact Kalman likelihood,
-        :mod:`magcal.alignment.ouwhite`) or two OU time scales plus white noise
-        (Kalman whitening, debiased Whittle fit, :mod:`magcal.alignment.twoscale`).
+        Residual noise model per component: two OU time scales plus white noise
+        (Kalman whitening, debiased Whittle fit, :mod:`magcal.alignment.twoscale`;
+        the default), pure OU (:mod:`magcal.alignment.noise`) or OU plus white noise
+        (exact Kalman likelihood, :mod:`magcal.alignment.ouwhite`).
         A single time scale whitens a multi-scale or power-law residual poorly: the
         angles scatter up to 1.3x the Cramer-Rao bound and the stated std exceeds
         1.3x the bound in a third of 1/f records; two time scales stay within 1.3x in
@@ -374,7 +374,6 @@ def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bo
         extra["model_param_cov"] = model[0]
     return summarize(theta, cov, names, noise, resid, method=method, dof=dof,
                      lon_deg=lon_deg, warnings=warnings, **extra)
-
 
 
 def _core_for(noise_model: str, noise):
