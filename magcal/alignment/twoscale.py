@@ -264,12 +264,26 @@ class WhittleData:
         return spec[1:self.periodogram.size + 1]
 
 
+#: Range of the unbounded shape parameters (beyond it a share is ~1e-5 of the largest).
+LOGIT = 12.0
+
+
+def _outside(p, lo: float, hi: float) -> float:
+    """Squared distance of ``p`` from the box :func:`_unpack` clips it to: a penalty that
+    brings the simplex back instead of letting it drift along a flat direction (a share
+    at its floor), which cost up to 1300 evaluations per fit."""
+    box_lo = np.array([lo, -LOGIT, -LOGIT, -LOGIT])
+    box_hi = np.array([hi, LOGIT, LOGIT, LOGIT])
+    return float(np.sum(np.maximum(box_lo - p, 0) ** 2 + np.maximum(p - box_hi, 0) ** 2))
+
+
 def _unpack(p, lo: float, hi: float):
     """Shape parameters -> ((tau1, tau2), shares): log tau1, log of tau2 / tau1 above
     MIN_RATIO, two softmax logits of the shares (the white part's logit is 0)."""
     lt1 = float(np.clip(p[0], lo, hi))
-    lt2 = min(lt1 + np.log(MIN_RATIO) + np.logaddexp(0.0, p[1]), hi + np.log(MIN_RATIO))
-    z = np.array([p[2], p[3], 0.0])
+    lt2 = min(lt1 + np.log(MIN_RATIO) + np.logaddexp(0.0, np.clip(p[1], -LOGIT, LOGIT)),
+              hi + np.log(MIN_RATIO))
+    z = np.array([*np.clip(p[2:4], -LOGIT, LOGIT), 0.0])
     w = np.exp(z - z.max())
     share = MIN_SHARE + (1 - 3 * MIN_SHARE) * w / w.sum()
     return (float(np.exp(lt1)), float(np.exp(lt2))), share
@@ -309,7 +323,7 @@ def fit_component(x, times_s, design=None, start=None):
     lo, hi = np.log(0.1 * data.dt), np.log(span)
 
     def obj(p):
-        return whittle_objective(p, data, lo, hi)[0]
+        return whittle_objective(p, data, lo, hi)[0] + 1e3 * _outside(p, lo, hi)
 
     # Nelder-Mead from the two best points of a small grid: from a single one it stopped
     # in a local optimum (an 8-day slow part of 9 nT for a 6 h one of 2 nT) in 1 of 5
@@ -317,13 +331,18 @@ def fit_component(x, times_s, design=None, start=None):
     # Tolerances: a change of 0.05 in the log-likelihood moves nothing that matters.
     opts = {"xatol": 0.02, "fatol": 0.05, "maxiter": 800}
     if start is not None:
-        ranked = [_pack(*start)]
+        # a previous fit is near the optimum: a simplex of 0.1 in each (log) parameter
+        # instead of scipy's 5 % of it (3x fewer evaluations)
+        p0 = _pack(*start)
+        simplex = np.vstack([p0, p0 + 0.1 * np.eye(p0.size)])
+        fits = [minimize(obj, p0, method="Nelder-Mead",
+                         options=dict(opts, initial_simplex=simplex, maxfev=300))]
     else:
         starts = [_pack((m1 * data.dt, t2), (0.3, 0.6, 0.1))
                   for m1 in (2.0, 10.0) for t2 in (50 * data.dt, 500 * data.dt, span / 5)
                   if t2 > MIN_RATIO * m1 * data.dt]
-        ranked = sorted(starts, key=obj)[:2]
-    fits = [minimize(obj, p0, method="Nelder-Mead", options=opts) for p0 in ranked]
+        fits = [minimize(obj, p0, method="Nelder-Mead", options=opts)
+                for p0 in sorted(starts, key=obj)[:2]]
     res = min(fits, key=lambda f: f.fun)
     tau, share = _unpack(res.x, lo, hi)
     v = whittle_objective(res.x, data, lo, hi)[1]
