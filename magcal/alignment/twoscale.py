@@ -316,7 +316,7 @@ def fit_component(x, times_s, design=None, start=None):
     (std_nT, tau_s, at_bound)
         ``std_nT`` (3,): fast OU, slow OU and white standard deviations (nT);
         ``tau_s`` (2,): the two correlation times (s); ``at_bound``: the slow time
-        reached the record's span.
+        reached the span of the record (or of its Bartlett segments).
     """
     data = WhittleData.from_residual(x, times_s, design)
     span = max(float(data.lag[-1]), 10 * data.dt)
