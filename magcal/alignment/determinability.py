@@ -151,8 +151,7 @@ def identity_fit(times, data, ref, *, fit_offset: bool = True, fit_scale: bool =
     Without any nuisance term the residual is ``data - ref`` and only the noise model is
     fitted (``method="identity"``).
     """
-    from magcal.alignment.gls import fit_alignment
-    from magcal.alignment.noise import fit_noise
+    from magcal.alignment.gls import fit_alignment, noise_fitter
 
     if fit_offset or fit_scale or lt_harmonics:
         return fit_alignment(times, data, ref, fit_rotation=False, fit_offset=fit_offset,
@@ -160,14 +159,11 @@ def identity_fit(times, data, ref, *, fit_offset: bool = True, fit_scale: bool =
                              noise_model=noise_model)
     t, d, r, _ = prepare(times, data, ref)
     resid = d - r
-    if noise_model == "ou+ou+white":
-        from magcal.alignment.twoscale import fit_noise_two_scale as fit_noise
-    elif noise_model == "ou+white":
-        from magcal.alignment.ouwhite import fit_noise_ouw as fit_noise
     return AlignmentResult(
         angles_deg=np.zeros(3), cov_deg2=np.full((3, 3), np.nan),
         ci95_deg=np.full((3, 2), np.nan), offset_nT=None, offset_std_nT=None, scale=None,
-        scale_std=None, n_used=int(d.shape[0]), method="identity", noise=fit_noise(resid, t),
+        scale_std=None, n_used=int(d.shape[0]), method="identity",
+        noise=noise_fitter(noise_model)(resid, t),
         residual_rms_nT=np.sqrt(np.mean(resid ** 2, axis=0)), param_names=(),
         param_cov=np.zeros((0, 0)))
 
@@ -213,7 +209,7 @@ def rotation_bound(times, data, ref, identity: AlignmentResult, *, fit_offset: b
     if fit_scale:
         theta[names.index("scale")] = 1.0 if identity.scale is None else identity.scale
     mu, jac = predict_and_jacobian(theta, names, r, basis)
-    if hasattr(identity.noise, "gains"):  # a Kalman noise model: whiten with it
+    if identity.noise.kind != "ou":  # a Kalman noise model: whiten with it
         from magcal.alignment.ouwhite import WhitenedBase
 
         _, xs = WhitenedBase(t, d, r, basis, identity.noise).series(mu, jac)

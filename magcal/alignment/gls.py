@@ -18,8 +18,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.stats import t as student_t
 
-from magcal.alignment.noise import (OUNoise, as_seconds, component_basis, fit_ou_stats,
-                                    lag_correlation, lag_stats, noise_from_fits,
+from magcal.alignment.noise import (OUNoise, as_seconds, component_basis, fit_noise,
+                                    fit_ou_stats, lag_correlation, lag_stats, noise_from_fits,
                                     restricted_nll_stats, whiten_with)
 from magcal.alignment.localtime import (describe_harmonics, harmonic_basis, harmonic_names,
                                        local_time_hours)
@@ -376,21 +376,22 @@ def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bo
                      lon_deg=lon_deg, warnings=warnings, **extra)
 
 
-def _core_for(noise_model: str, noise):
-    """The fitting core of ``noise_model``, or of the model of a fixed ``noise``."""
-    if noise is not None:
-        if hasattr(noise, "slow_tau_s"):
-            return functools.partial(_core_ouw, fit_noise=_fit_two_scale)
-        return _core_ouw if hasattr(noise, "white_std_nT") else _core_ou
-    if noise_model == "ou+ou+white":
-        return functools.partial(_core_ouw, fit_noise=_fit_two_scale)
-    return _core_ou if noise_model == "ou" else _core_ouw
-
-
-def _fit_two_scale(resid, t, jac, start=None):
+def noise_fitter(noise_model: str):
+    """``fit(residuals, times_s, jacobian=None)`` of the noise model ``noise_model``
+    (the Kalman models' also take ``start``, a previous fit)."""
+    from magcal.alignment.ouwhite import fit_noise_ouw
     from magcal.alignment.twoscale import fit_noise_two_scale
 
-    return fit_noise_two_scale(resid, t, jac, start=start)
+    return {"ou": fit_noise, "ou+white": fit_noise_ouw,
+            "ou+ou+white": fit_noise_two_scale}[noise_model]
+
+
+def _core_for(noise_model: str, noise):
+    """The fitting core of ``noise_model``, or of the model of a fixed ``noise``."""
+    model = noise_model if noise is None else noise.kind
+    if model == "ou":
+        return _core_ou
+    return functools.partial(_core_ouw, fit_noise=noise_fitter(model))
 
 
 ROBUST_K_REFERENCE = 12.0
@@ -460,16 +461,14 @@ def ou_whitened_series(t, resid, jac, noise: OUNoise):
     return ys, xs
 
 
-def _core_ouw(t, d, r, names, basis, noise, max_iter, noise_iter, start=None,
-              max_halvings: int = 30, fit_noise=None):
+def _core_ouw(t, d, r, names, basis, noise, max_iter, noise_iter, start=None, *,
+              fit_noise, max_halvings: int = 30):
     """Wahba start, GLS under a Kalman noise model: as :func:`_core_ou`.
 
-    ``fit_noise(residual, t, jacobian, start)`` fits the noise model (default OU +
-    white, :func:`magcal.alignment.ouwhite.fit_noise_ouw`).
+    ``fit_noise(residual, t, jacobian, start)`` fits the noise model
+    (:func:`noise_fitter`).
     """
-    from magcal.alignment.ouwhite import WhitenedBase, fit_noise_ouw
-
-    fit_noise = fit_noise_ouw if fit_noise is None else fit_noise
+    from magcal.alignment.ouwhite import WhitenedBase
 
     theta = starting_point(d, r, names, basis) if start is None else np.asarray(start)
     fixed_noise = noise is not None
@@ -496,9 +495,10 @@ def _core_ouw(t, d, r, names, basis, noise, max_iter, noise_iter, start=None,
             if np.all(np.abs(step) <= 1e-9 * (1.0 + np.abs(theta))):
                 break
     mu, jac = predict_and_jacobian(theta, names, r, basis)
-    if not fixed_noise:
+    if not fixed_noise:  # a fixed model keeps the loop's whitening
         noise = fit_noise(d - mu, t, jac, start=prev)
-    ys, xs = WhitenedBase(t, d, r, basis, noise).series(mu, jac)
+        white = WhitenedBase(t, d, r, basis, noise)
+    ys, xs = white.series(mu, jac)
     cov = information_inverse(sum(x.T @ x for x in xs))
     # uncertainty of the noise model itself: Student t with the effective sample count
     dof = np.full(len(names), np.inf if fixed_noise

@@ -16,6 +16,7 @@ squares into ordinary least squares; :func:`ou_whiten` does that.
 from __future__ import annotations
 
 import dataclasses
+from typing import ClassVar
 
 import numpy as np
 
@@ -415,6 +416,8 @@ class OUNoise:
     tau_s: np.ndarray
     effective_n: np.ndarray
     tau_at_bound: tuple
+    #: The ``noise_model`` name of :func:`magcal.alignment.gls.fit_alignment`.
+    kind: ClassVar[str] = "ou"
 
     def to_dict(self) -> dict:
         """Plain dictionary keyed by component name."""
@@ -484,6 +487,32 @@ def fit_noise(residuals, times_s, jacobian=None) -> OUNoise:
         basis = None if jacobian is None else component_basis(jacobian, c)
         fits.append(fit_ou(r[:, c], t, design=basis))
     return noise_from_fits(fits, t)
+
+
+def effective_count(ou_std_nT, ou_tau_s, white_std_nT, times_s) -> np.ndarray:
+    """Effective sample count of a mean per component under OU parts plus white noise.
+
+    ``ou_std_nT`` and ``ou_tau_s`` have shape (3, k) (k OU parts per component, each
+    at the median spacing), ``white_std_nT`` shape (3,). The count is the total
+    variance over the variance of the mean, at most the number of samples.
+
+    Examples
+    --------
+    One OU part of correlation time equal to the spacing, no white part:
+    ``n (1 - e^-1) / (1 + e^-1)``.
+
+    >>> effective_count([[1.0]], [[60.0]], [0.0], np.arange(1000) * 60.0).round(1)
+    array([462.1])
+    """
+    t = np.asarray(times_s, dtype=float)
+    n = t.size
+    dt = float(np.median(np.diff(t))) if n > 1 else 1.0
+    ou_var = np.asarray(ou_std_nT, dtype=float) ** 2
+    white_var = np.asarray(white_std_nT, dtype=float) ** 2
+    phi = np.exp(-dt / np.asarray(ou_tau_s, dtype=float))
+    var_mean = (np.sum(ou_var * (1 + phi) / (1 - phi), axis=-1) + white_var) / n
+    total = np.sum(ou_var, axis=-1) + white_var
+    return np.minimum(total / np.maximum(var_mean, 1e-300), n)
 
 
 def noise_from_fits(fits, times_s) -> OUNoise:

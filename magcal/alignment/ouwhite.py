@@ -21,12 +21,14 @@ plain OU model of :mod:`magcal.alignment.noise`.
 from __future__ import annotations
 
 import dataclasses
+from typing import ClassVar
+import functools
 
 import numpy as np
 from scipy.optimize import minimize
 from scipy.signal import lfilter
 
-from magcal.alignment.noise import lag_correlation, noise_dict, noise_warning
+from magcal.alignment.noise import effective_count, lag_correlation, noise_dict, noise_warning
 
 RHO_MAX = 0.999
 
@@ -219,6 +221,8 @@ class OUWhiteNoise:
     white_std_nT: np.ndarray
     effective_n: np.ndarray
     tau_at_bound: tuple
+    #: The ``noise_model`` name of :func:`magcal.alignment.gls.fit_alignment`.
+    kind: ClassVar[str] = "ou+white"
 
     @property
     def total_var(self) -> np.ndarray:
@@ -246,12 +250,8 @@ def noise_from_components(fits, times_s) -> OUWhiteNoise:
     std = np.array([f[0] for f in fits])
     tau = np.array([f[1] for f in fits])
     white = np.array([f[2] for f in fits])
-    dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
-    phi = np.exp(-dt / tau)
-    var_mean = std ** 2 * (1 + phi) / ((1 - phi) * t.size) + white ** 2 / t.size
-    n_eff = (std ** 2 + white ** 2) / np.maximum(var_mean, 1e-300)
     return OUWhiteNoise(std_nT=std, tau_s=tau, white_std_nT=white,
-                        effective_n=np.minimum(n_eff, t.size),
+                        effective_n=effective_count(std[:, None], tau[:, None], white, t),
                         tau_at_bound=tuple(f[3] for f in fits))
 
 
@@ -282,7 +282,7 @@ def fit_noise_ouw(residuals, times_s, jacobian=None, start=None) -> OUWhiteNoise
     return noise_from_components(fits, t)
 
 
-def whitened_series(t, resid, jac, noise, gains=None):
+def whitened_series(t, resid, jac, noise):
     """Per component, the residual and the Jacobian whitened by the Kalman filter and
     scaled to unit variance: ``([uy_c], [ux_c])``, shapes (n,) and (n, p).
 
@@ -292,25 +292,10 @@ def whitened_series(t, resid, jac, noise, gains=None):
     """
     ys, xs = [], []
     for c in range(3):
-        g = gains[c] if gains is not None else noise.gains(c, t)
-        u = g.whiten(np.column_stack([resid[:, c], jac[:, c, :]])) / np.sqrt(noise.total_var[c])
+        u = noise.gains(c, t).whiten(np.column_stack([resid[:, c], jac[:, c, :]])) / np.sqrt(noise.total_var[c])
         ys.append(u[:, 0])
         xs.append(u[:, 1:])
     return ys, xs
-
-
-def whitened_normals(t, resid, jac, noise, gains=None):
-    """GLS normal matrix, right-hand side and objective under a Kalman noise model
-    (:class:`OUWhiteNoise` or :class:`~magcal.alignment.twoscale.TwoScaleNoise`)."""
-    p = jac.shape[2]
-    a = np.zeros((p, p))
-    b = np.zeros(p)
-    obj = 0.0
-    for uy, ux in zip(*whitened_series(t, resid, jac, noise, gains)):
-        a += ux.T @ ux
-        b += ux.T @ uy
-        obj += float(uy @ uy)
-    return a, b, obj
 
 
 class WhitenedBase:
@@ -339,14 +324,18 @@ class WhitenedBase:
         if basis is not None and basis.shape[1]:
             cols.append(basis)
         self._base = np.concatenate(cols, axis=1)
-        self._pinv = np.linalg.pinv(self._base)
         self._checked = False
-        self._wd, self._wb = [], []
-        for c in range(3):
-            u = noise.gains(c, t).whiten(np.column_stack([d[:, c], self._base]))
-            u = u / np.sqrt(noise.total_var[c])
-            self._wd.append(u[:, 0])
-            self._wb.append(u[:, 1:])
+        # per component the whitened [d_c, base] at unit variance
+        self._white = [noise.gains(c, t).whiten(np.column_stack([d[:, c], self._base]))
+                       / np.sqrt(noise.total_var[c]) for c in range(3)]
+
+    @functools.cached_property
+    def _pinv(self) -> np.ndarray:
+        return np.linalg.pinv(self._base)
+
+    def gram(self, c: int) -> np.ndarray:
+        """Whitened Gram matrix of ``[d_c, ref, 1, basis]`` of component ``c``."""
+        return self._white[c].T @ self._white[c]
 
     def series(self, mu, jac):
         """``(ys, xs)`` as :func:`whitened_series` for the model ``mu`` (n, 3) and
@@ -360,14 +349,15 @@ class WhitenedBase:
                 if not miss <= 1e-8 * max(float(np.max(np.abs(cols))), 1.0):
                     raise ValueError("the model's columns are not in the span of the "
                                      f"reference, a constant and the harmonics ({miss:.3g})")
-            w = self._wb[c] @ coef
-            ys.append(self._wd[c] - w[:, 0])
+            w = self._white[c][:, 1:] @ coef
+            ys.append(self._white[c][:, 0] - w[:, 0])
             xs.append(w[:, 1:])
         self._checked = True
         return ys, xs
 
     def normals(self, mu, jac):
-        """GLS normal matrix, right-hand side and objective (as :func:`whitened_normals`)."""
+        """GLS normal matrix, right-hand side and objective (whitened residual sum of
+        squares) for the model ``mu`` and Jacobian ``jac``."""
         ys, xs = self.series(mu, jac)
         a = sum(x.T @ x for x in xs)
         b = sum(x.T @ y for x, y in zip(xs, ys))

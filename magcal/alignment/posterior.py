@@ -299,7 +299,7 @@ def sample_posterior(times, data, ref, rng: np.random.Generator, *, fit_offset: 
         start = fit_alignment(times, data, ref, fit_offset=fit_offset, fit_scale=fit_scale,
                               lt_harmonics=lt_harmonics, lon_deg=lon_deg,
                               noise_model=noise_model)
-    if hasattr(start.noise, "white_std_nT"):  # a Kalman model: held at its fit
+    if start.noise.kind != "ou":  # a Kalman model: held at its fit
         from magcal.alignment.posterior_fixed import FixedNoisePosterior
 
         post = FixedNoisePosterior(t, d, r, names, start.noise, basis=basis)

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from magcal.alignment.ouwhite import WhitenedBase
 from magcal.alignment.posterior import MAX_ANGLE_RAD, WalkerPosterior, _rotation_matrices
 
 
@@ -51,19 +52,14 @@ class FixedNoisePosterior(WalkerPosterior):
 
     def __init__(self, times_s, data, ref, names, noise, basis=None):
         t = np.asarray(times_s, dtype=float)
-        d = np.asarray(data, dtype=float)
-        r = np.asarray(ref, dtype=float)
         self._index(names)
         self.all_names = self.names
         self.noise = noise
         self.basis = np.zeros((t.size, 0)) if basis is None else np.asarray(basis, float)
         self.n_basis = self.basis.shape[1]
-        grams = []
-        for c in range(3):
-            cols = np.column_stack([d[:, c], r, np.ones(t.size), self.basis])
-            z = noise.gains(c, t).whiten(cols) / np.sqrt(noise.total_var[c])
-            grams.append(z.T @ z)
-        self._gram = np.stack(grams)  # (3, m, m)
+        white = WhitenedBase(t, np.asarray(data, dtype=float), np.asarray(ref, dtype=float),
+                             self.basis, noise)
+        self._gram = np.stack([white.gram(c) for c in range(3)])  # (3, m, m)
 
     @property
     def ndim(self) -> int:

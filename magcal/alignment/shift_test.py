@@ -77,7 +77,7 @@ def lt_shift_sigma(without_lt: AlignmentResult, with_lt: AlignmentResult, times,
     mu, jac = predict_and_jacobian(theta, names, r, basis)
     use = ~outlier_rows(d - mu, ROBUST_K)
     noise = without_lt.noise
-    if hasattr(noise, "white_std_nT"):
+    if noise.kind != "ou":
         from magcal.alignment.ouwhite import whitened_series
 
         ys, xs = whitened_series(t[use], (d - mu)[use], jac[use], noise)

@@ -27,12 +27,13 @@ spectral sandwich (:mod:`magcal.alignment.sandwich`), which does not rest on it.
 from __future__ import annotations
 
 import dataclasses
+from typing import ClassVar
 
 import numpy as np
 from scipy.optimize import minimize
 from scipy.signal import lfilter
 
-from magcal.alignment.noise import COMPONENTS, noise_warning
+from magcal.alignment.noise import COMPONENTS, effective_count, noise_warning
 from magcal.alignment.ouwhite import as_columns
 
 #: Smallest ratio of the slow to the fast correlation time (keeps the two scales apart
@@ -372,6 +373,8 @@ class TwoScaleNoise:
     slow_tau_s: np.ndarray
     effective_n: np.ndarray
     tau_at_bound: tuple
+    #: The ``noise_model`` name of :func:`magcal.alignment.gls.fit_alignment`.
+    kind: ClassVar[str] = "ou+ou+white"
 
     @property
     def std_nT(self) -> np.ndarray:
@@ -417,15 +420,6 @@ class TwoScaleNoise:
         return (float(self.fast_tau_s[c]), float(self.slow_tau_s[c])), share
 
 
-def effective_count(std3, tau2, dt: float, n: int) -> float:
-    """Effective sample count of a mean under the model (each OU part at spacing ``dt``)."""
-    var_mean = std3[2] ** 2 / n
-    for s, tau in zip(std3[:2], tau2):
-        phi = np.exp(-dt / tau)
-        var_mean += s ** 2 * (1 + phi) / ((1 - phi) * n)
-    return float(min(np.sum(np.asarray(std3) ** 2) / max(var_mean, 1e-300), n))
-
-
 def fit_noise_two_scale(residuals, times_s, jacobian=None, start=None) -> TwoScaleNoise:
     """Fit :class:`TwoScaleNoise` to (n, 3) residuals (debiased Whittle per component).
 
@@ -437,7 +431,6 @@ def fit_noise_two_scale(residuals, times_s, jacobian=None, start=None) -> TwoSca
 
     r = np.asarray(residuals, dtype=float)
     t = np.asarray(times_s, dtype=float)
-    dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
     fits = []
     for c in range(r.shape[1]):
         basis = None if jacobian is None else component_basis(jacobian, c)
@@ -445,7 +438,7 @@ def fit_noise_two_scale(residuals, times_s, jacobian=None, start=None) -> TwoSca
                                   start=None if start is None else start.start(c)))
     std = np.array([f[0] for f in fits])
     tau = np.array([f[1] for f in fits])
-    n_eff = np.array([effective_count(std[c], tau[c], dt, t.size) for c in range(len(fits))])
+    n_eff = effective_count(std[:, :2], tau, std[:, 2], t)
     return TwoScaleNoise(fast_std_nT=std[:, 0], slow_std_nT=std[:, 1], white_std_nT=std[:, 2],
                          fast_tau_s=tau[:, 0], slow_tau_s=tau[:, 1], effective_n=n_eff,
                          tau_at_bound=tuple(f[2] for f in fits))
