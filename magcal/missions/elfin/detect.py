@@ -48,6 +48,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pandas as pd
 
+from magcal.missions.elfin.timing import true_runs
+
 #: Component names of :func:`zone_residuals` (despun frame; ``z`` the spin axis).
 COMPONENTS = ("x", "y", "z", "scalar")
 
@@ -171,13 +173,6 @@ def robust_baseline(t_s, values, use, *, degree: int = 3, c: float = 4.685,
     return a @ coef, sigma
 
 
-def _runs(mask) -> list[tuple[int, int]]:
-    """(start, stop) index pairs of the True runs of a boolean array."""
-    m = np.r_[False, np.asarray(mask, bool), False].astype(int)
-    d = np.diff(m)
-    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
-
-
 def flag_excursions(t_s, z, dev_nT, use, settings: DetectSettings | None = None
                     ) -> np.ndarray:
     """Samples of one zone inside a localized excursion of a standardised residual.
@@ -218,7 +213,7 @@ def flag_excursions(t_s, z, dev_nT, use, settings: DetectSettings | None = None
     hot = use & np.any((za > s.threshold) & (dev > s.min_nT), axis=1)
     warm = use & np.any(za > s.extend, axis=1)
     out = np.zeros(t.size, bool)
-    for a, b in _runs(hot):
+    for a, b in true_runs(hot):
         if t[b - 1] - t[a] < s.min_s:
             continue
         while a > 0 and warm[a - 1]:

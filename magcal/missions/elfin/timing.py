@@ -169,8 +169,12 @@ class TimingCheck:
         return int(sum(e["n_samples"] for e in self.events if e["kind"] == "unpaired_repaired"))
 
 
-def _runs(flags) -> list[tuple[int, int]]:
-    """``[start, stop)`` of the runs of True."""
+def true_runs(flags) -> list[tuple[int, int]]:
+    """``[start, stop)`` of the runs of True.
+
+    >>> true_runs([0, 1, 1, 0, 1])
+    [(1, 3), (4, 5)]
+    """
     f = np.r_[False, np.asarray(flags, bool), False].astype(int)
     edges = np.flatnonzero(np.diff(f))
     return list(zip(edges[::2].tolist(), edges[1::2].tolist()))
@@ -255,7 +259,7 @@ def check_timing(t_s, counts, anomalies=(), *, mask=None, flag_factor: float = 3
     if events:
         size, scale, shift = _screen(t, c, screened, kw)
     bad = np.nan_to_num(size, nan=0.0) > flag_factor * scale
-    for lo, hi in _runs(bad):
+    for lo, hi in true_runs(bad):
         events.append({"kind": "flagged", "index": lo, "end_index": hi, "n_samples": hi - lo,
                        "max_residual_ratio": float(size[lo:hi].max() / scale),
                        "implied_shift_s": float(np.median(shift[lo:hi]))})
