@@ -33,6 +33,35 @@ def test_synthetic_counts_recover_gains_offsets_and_period():
     assert max(abs(j) for j in z.phase_jumps_rad) < 1e-6
 
 
+def test_mirror_solution_flips_a_field_across_b_and_handedness_decides():
+    """The two spin senses of the counts' phase give mirror solutions that fit a model
+    field turning slowly in the spin plane equally well; the mirror returns a natural
+    field across B in the spin plane with its sign flipped. Truth: a right-handed triad,
+    a 200 nT 40 s pulse across B left out of the reference."""
+    t = np.arange(0.0, 360.0, 0.1)
+    phase = 2 * np.pi * t / 2.85
+    turn = 0.002 * t                                        # B turns 41 deg in the pass
+    ref = np.column_stack([45000 * np.cos(turn), 45000 * np.sin(turn), 2000 + 0 * t])
+    across = np.column_stack([-np.sin(turn), np.cos(turn), 0 * t])
+    pulse = 200 * np.exp(-4 * np.log(2) * (t - 180) ** 2 / 40 ** 2)[:, None] * across
+    a_true = np.array([[0.0090, 0.0004, 0.0002], [-0.0003, 0.0100, 0.0005],
+                       [0.0010, -0.0020, 0.0089]])
+    counts = np.linalg.solve(a_true, (spin(ref + pulse, phase) - [300.0, -150.0, 80.0]).T).T
+    gains = {}
+    for hand in (1, -1):
+        fit = fit_zone(t, counts, ref, skip_s=0.0, offset_degree=0, axis_degree=0,
+                       phase_knot_s=None, handedness=hand)
+        assert fit.summary.det_coupling_sign == hand
+        # both senses fit to within 0.1 nT: the fit alone cannot choose
+        assert abs(np.diff(fit.summary.rms_by_sense_nT)[0]) < 0.1
+        rec = fit.b_despun - ref
+        gains[hand] = float(np.sum(rec * pulse) / np.sum(pulse * pulse))
+    # closed form: the quadratic phase takes 35.6 % of the pulse (gain 0.644); measured
+    # 0.635 right-handed and -0.635 mirrored
+    assert gains[1] == pytest.approx(0.644, abs=0.03)
+    assert gains[-1] == pytest.approx(-gains[1], abs=1e-3)
+
+
 def test_timing_helpers():
     t = np.arange(20) * 0.1
     t[5:9] += 0.0088
@@ -57,6 +86,23 @@ def elfin_cal():
     assert len(split_zones((fgs.index.asi8 - fgs.index.asi8[0]) / 1e9)) == 12
     # zone 1 has paired time-stamp jumps and 2.6 s packet gaps; 5, 6 are gap-free
     return calibrate_elfin(fgs, state, zones=[1, 5, 6])
+
+
+def test_quadratic_phase_keeps_the_right_handed_solution_where_the_mirror_fits_better():
+    """2022-01-12 zones 5 and 6 with the delivered quadratic phase: the mirror solution
+    (phase sense +1 of the counts, det C < 0) fits IGRF better (measured 82.8 against
+    93.3 nT and 77.7 against 96.5 nT) but the instrument's triad is right-handed."""
+    from conftest import real_data_path
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+
+    base = real_data_path("elfin")
+    cal = calibrate_elfin(read_elfin_fgs(base / "ela_l1_fgs_20220112_v01.cdf"),
+                          read_elfin_state(base / "ela_l1_state_defn_20220112_v01.cdf"),
+                          zones=[5, 6], phase_knot_s=None)
+    for z in cal.zones:
+        assert z.det_sign_by_sense == [-1, 1]
+        assert z.rms_by_sense_nT[0] < z.rms_by_sense_nT[1] - 5.0
+        assert z.det_coupling_sign == 1 and z.spin_sense == 1
 
 
 def test_elfin_residual_against_igrf_per_zone(elfin_cal):
