@@ -197,6 +197,31 @@ def zone_mean_share(signal) -> float:
     return float(s.shape[0] * np.sum(s.mean(axis=0) ** 2) / np.sum(s * s))
 
 
+def polynomial_share(signal, t_s, degree: int) -> float:
+    """Share of a signal's energy in its projection on polynomials in time over the zone.
+
+    What a per-zone drift of that degree fitted against a model takes of the signal
+    when nothing else competes for it (the least-squares projection, component by
+    component): degree 0 is :func:`zone_mean_share`; the gain drift is a cubic, the
+    linear fit's phase and tilt quadratics. A signal whose share is large cannot be
+    told from such a drift by the fit, whatever else the data hold.
+
+    Examples
+    --------
+    >>> t = np.linspace(0.0, 360.0, 3601)
+    >>> x = 2 * t / 360 - 1
+    >>> s = np.column_stack([x ** 2, np.zeros_like(t), np.zeros_like(t)])
+    >>> round(polynomial_share(s, t, 2), 6), round(polynomial_share(s, t, 1), 3)
+    (1.0, 0.556)
+    """
+    s = np.asarray(signal, float)
+    t = np.asarray(t_s, float)
+    x = 2.0 * (t - t[0]) / max(t[-1] - t[0], 1e-12) - 1.0
+    basis = np.polynomial.legendre.legvander(x, int(degree))
+    fit = basis @ np.linalg.lstsq(basis, s, rcond=None)[0]
+    return float(np.sum(fit * fit) / np.sum(s * s))
+
+
 def preservation(clean_day, injected_day, signals: dict, kind: str) -> pd.DataFrame:
     """Per product and zone: what of the injected signal the product keeps.
 
@@ -230,7 +255,8 @@ def preservation(clean_day, injected_day, signals: dict, kind: str) -> pd.DataFr
 
 def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
                    kinds=tuple(SIGNALS), zones=None, hold: bool = False,
-                   mask_signal: float = 0.0, progress=None) -> tuple[pd.DataFrame, object]:
+                   mask_signal: float = 0.0, mask_clean: bool = True,
+                   progress=None) -> tuple[pd.DataFrame, object]:
     """Inject each signal kind into each chosen zone and measure what every product keeps.
 
     Parameters
@@ -246,12 +272,20 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         Zone numbers (0-based, default all). Only the FGS rows of these zones are
         calibrated.
     hold : bool
-        Hold the spin phase at the clean linear solution (the machinery check).
+        Hold the spin phase at the clean linear solution (the machinery check; no phase
+        refit and no detection of disturbed intervals, so that only the linear fit can
+        absorb).
     mask_signal : float
         If positive, leave the samples where the signal exceeds this fraction of its
         peak out of every fit (clean and injected runs alike): what a fit on quiet
         intervals only would keep, given where the signal is (an upper bound for a
         detected disturbance mask).
+    mask_clean : bool
+        With ``mask_signal``, also leave those samples out of the clean run's fits
+        (default). False: only the injected run is fitted without them, as a detector
+        would that flags exactly the signal and nothing on the clean day; the
+        distortion is then the calibration's own change when that interval is left
+        out, the floor of any detect-and-exclude scheme.
     progress : callable, optional
         Called with one line per run.
 
@@ -278,7 +312,7 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
     clean = calibrate_elfin_day(fgs, state, s, diagnostics=False)
     hold_phase = None
     if hold:
-        s = replace(s, phase_refit=False)
+        s = replace(s, phase_refit=False, detect_disturbed=False)
         hold_phase = clean.linear.field["phase"].to_numpy()
         clean = calibrate_elfin_day(fgs, state, s, hold_phase=hold_phase, diagnostics=False)
     f = clean.linear.field
@@ -294,8 +328,9 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
             for k, dg in signals.items():
                 size = np.linalg.norm(dg, axis=1)
                 skip[np.flatnonzero(zone == k)] = size > mask_signal * size.max()
-            base = calibrate_elfin_day(fgs, state, s, hold_phase=hold_phase,
-                                       fit_exclude=skip, diagnostics=False)
+            if mask_clean:
+                base = calibrate_elfin_day(fgs, state, s, hold_phase=hold_phase,
+                                           fit_exclude=skip, diagnostics=False)
         day = calibrate_elfin_day(injected, state, s, hold_phase=hold_phase,
                                   fit_exclude=skip, diagnostics=False)
         tab = preservation(base, day, signals, kind)

@@ -290,8 +290,11 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
     x = (c - c_mean) / _SCALE
     span = t[used][-1] - t[used][0]
     T = 2.0 * (t - t[used][0]) / span - 1.0
-    raw_phase, _ = phase_from_counts(t[used], c[used])
-    raw = np.interp(t, t[used], raw_phase)
+    # the rough phase comes from the counts alone (no model), so it is taken on every
+    # usable sample, the fit-excluded ones too: unwrapping across a minute left out of
+    # the fit can slip whole turns, and a natural field turns it by at most B_nat / |B|
+    raw_phase, _ = phase_from_counts(t[out_used], c[out_used])
+    raw = np.interp(t, t[out_used], raw_phase)
     knots = None if phase_knot_s is None else float(phase_knot_s)
 
     best, tried, dets = None, [], []
