@@ -100,13 +100,17 @@ def runs(day):
     from magcal.missions.elfin.injection import run_injections
     from magcal.missions.elfin.pipeline import ElfinSettings
 
+    # each step's own absorption, without the detection that leaves the signal out
     fgs, state = day
     kinds = ("gauss_ew", "gauss_along", "pulse_b")
-    held = run_injections(fgs, state, kinds=kinds, hold=True)[0]
-    delivered = run_injections(fgs, state, kinds=kinds)[0]
-    free = run_injections(fgs, state, ElfinSettings(gain_drift_2x=True), kinds=kinds)[0]
+    steps = ElfinSettings(detect_disturbed=False)
+    held = run_injections(fgs, state, steps, kinds=kinds, hold=True)[0]
+    delivered = run_injections(fgs, state, steps, kinds=kinds)[0]
+    free = run_injections(fgs, state, ElfinSettings(gain_drift_2x=True, detect_disturbed=False),
+                          kinds=kinds)[0]
     splines = run_injections(fgs, state, ElfinSettings(linear_phase_knot_s=30.0,
-                                                       phase_refit=True),
+                                                       phase_refit=True,
+                                                       detect_disturbed=False),
                              kinds=("gauss_along",))[0]
     return held, delivered, free, splines
 
@@ -159,9 +163,11 @@ def test_a_disturbed_interval_left_out_of_the_fits_comes_back_whole(day):
     distortion) is met for an along-track pulse and a pulse along B, the two that the
     delivered product loses most of without it."""
     from magcal.missions.elfin.injection import run_injections
+    from magcal.missions.elfin.pipeline import ElfinSettings
 
     fgs, state = day
-    tab = run_injections(fgs, state, kinds=("gauss_along", "pulse_b"), mask_signal=0.05)[0]
+    tab = run_injections(fgs, state, ElfinSettings(detect_disturbed=False),
+                         kinds=("gauss_along", "pulse_b"), mask_signal=0.05)[0]
     last = tab["product"].iloc[-1]
     for kind in ("gauss_along", "pulse_b"):
         r = _row(tab, kind, last)
@@ -179,16 +185,18 @@ def test_disturbed_rows_and_the_excluded_count_in_the_product(day):
                                        str((t0 + pd.Timedelta("30s")).tz_convert(None)))])
     n = int(skip.sum())
     assert 250 < n < 350                      # 30 s of 10 Hz samples
-    out = calibrate_elfin_day(fgs, state, ElfinSettings(), fit_exclude=skip, diagnostics=False)
+    out = calibrate_elfin_day(fgs, state, ElfinSettings(detect_disturbed=False),
+                              fit_exclude=skip, diagnostics=False)
     assert out.to_json()["fit_excluded"]["n_samples"] == n
     assert (out.calibration.field["used"].to_numpy()[skip] == 1).all()
 
 
-def test_detected_intervals_keep_a_pulse_across_b_and_leave_a_wave_alone(day):
-    """The opt-in detector (``detect_disturbed``) against the injected truth on zone 1:
-    it flags where an east-west pulse is and the delivered product then keeps it; a
-    5 nT wave flags nothing new; what it flags of the clean zone stays small. (It does
-    not find a pulse along B or a lasting sheet: README, preservation table.)"""
+def test_detected_intervals_keep_pulses_across_b_and_leave_a_wave_alone(day):
+    """The detector (``detect_disturbed``, delivered) against the injected truth on
+    zone 1: it flags where an east-west pulse is and the delivered product then keeps
+    it, and an along-track one; a 5 nT wave flags nothing new; what it flags of the
+    clean zone stays small and costs no residual. (It does not find a pulse along B or a
+    lasting sheet: README, preservation table.)"""
     from magcal.missions.elfin.detect import detect_disturbed
     from magcal.missions.elfin.injection import run_injections
     from magcal.missions.elfin.linear import calibrate_elfin
@@ -198,8 +206,8 @@ def test_detected_intervals_keep_a_pulse_across_b_and_leave_a_wave_alone(day):
     clean = calibrate_elfin(fgs, state)
     used = clean.field["used"].to_numpy() == 1
     quiet, _ = detect_disturbed(fgs, state)
-    # measured: 0.088 of the clean zone (its end holds a 50 nT excursion)
-    assert quiet[used].mean() <= 0.15
+    # measured: 0.17 of the clean zone (a 60 s excursion of 50-100 nT near its end)
+    assert quiet[used].mean() <= 0.25
     sig = signal_gei("gauss_ew", clean.field, state)
     flags, table = detect_disturbed(inject_counts(fgs, clean, {0: sig}), state)
     energy = np.sum(sig ** 2, axis=1)
@@ -208,12 +216,35 @@ def test_detected_intervals_keep_a_pulse_across_b_and_leave_a_wave_alone(day):
     wave = signal_gei("wave_2hz", clean.field, state)
     assert not (detect_disturbed(inject_counts(fgs, clean, {0: wave}), state)[0]
                 & ~quiet).any()
-    s = ElfinSettings(detect_disturbed=True)
-    tab = run_injections(fgs, state, s, kinds=("gauss_ew",))[0]
-    r = _row(tab, "gauss_ew", tab["product"].iloc[-1])
-    assert r["energy_kept"] >= 0.90                             # measured: 0.94 (0.69 off)
-    doc = calibrate_elfin_day(fgs, state, s, diagnostics=False).to_json()
+    s = ElfinSettings()
+    assert s.detect_disturbed
+    tab = run_injections(fgs, state, s, kinds=("gauss_ew", "gauss_along"))[0]
+    last = tab["product"].iloc[-1]
+    # measured: 0.95 and 0.98 (0.69 and 0.26 without detection)
+    assert _row(tab, "gauss_ew", last)["energy_kept"] >= 0.90
+    assert _row(tab, "gauss_along", last)["energy_kept"] >= 0.90
+    day_ = calibrate_elfin_day(fgs, state, s, diagnostics=False)
+    off = calibrate_elfin_day(fgs, state, ElfinSettings(detect_disturbed=False),
+                              diagnostics=False)
+    # the clean zone's |B| residual is not worse than without detection (measured 5.59
+    # / 5.20 nT against 5.65 / 5.23, scalar / fast part), nor the vector residual where
+    # nothing is left out (10.6 against 11.5 nT); the run left out keeps its field
+    # (vector 15.8 against 13.2 nT over the zone)
+    from magcal.missions.elfin.joint import score_field
+
+    for name in ("scalar_rms_nT", "scalar_fast_nT"):
+        assert day_.scores[last][name].iloc[0] <= 1.02 * off.scores[last][name].iloc[0]
+    out = day_.calibration.field["fit"].to_numpy() == 0
+    quiet_on, quiet_off = day_.calibration.field.copy(), off.calibration.field.copy()
+    quiet_on.loc[out, "used"] = 0
+    quiet_off.loc[out, "used"] = 0
+    assert (score_field(quiet_on)["vector_rms_nT"].iloc[0]
+            <= 1.02 * score_field(quiet_off)["vector_rms_nT"].iloc[0])
+    doc = day_.to_json()
     assert doc["settings"]["detect_disturbed"] is True
     assert doc["signal_trade"]["switches"]["detect_disturbed"] is True
-    assert doc["disturbed_detection"]["zones"][0]["flagged_share"] == pytest.approx(
-        quiet[used].mean())
+    det = doc["disturbed_detection"]
+    assert det["zones"][0]["flagged_share"] == pytest.approx(quiet[used].mean())
+    runs = pd.DataFrame(det["runs"])
+    assert (runs["kept"] == (runs["slow_change_nT"] >= runs["tone_change_nT"])).all()
+    assert det["zones"][0]["kept_share"] <= det["zones"][0]["flagged_share"] + 1e-12

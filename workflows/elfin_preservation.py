@@ -9,25 +9,37 @@ the day is calibrated again and ``calibrated(injected) - calibrated(clean)`` in 
 compared with the signal for every product of the pipeline
 (:func:`magcal.missions.elfin.injection.run_injections`).
 
-Three runs of the table, so that each step's share can be read:
+The runs of the table, so that each step's share can be read:
 
-* ``held``: the spin phase held at its clean solution, no phase refit (the machinery
-  check: only the per-zone linear fit can absorb, and it takes the zone mean);
-* ``delivered``: :class:`~magcal.missions.elfin.pipeline.ElfinSettings` defaults;
-* ``--settings KEY=VALUE ...``: any other settings (e.g. ``linear_phase_knot_s=30
-  refit_knot_s=60``, the phase splines of before);
-* ``--settings detect_disturbed=true``: the disturbed intervals located from the counts
-  (:mod:`magcal.missions.elfin.detect`); the clean day's flagged share per zone and its
+* ``held``: the spin phase held at its clean solution, no phase refit and no detection
+  (the machinery check: only the per-zone linear fit can absorb, and it takes the zone
+  mean);
+* ``delivered``: :class:`~magcal.missions.elfin.pipeline.ElfinSettings` defaults, with
+  the disturbed intervals located from the counts (:mod:`magcal.missions.elfin.detect`);
+  the clean day's flagged share per zone, what the bridge check leaves out and the
   residual on the unflagged samples are printed too;
-* ``--mask-signal 0.05``: the delivered settings with the samples where the signal
+* ``--settings KEY=VALUE ...``: any other settings (e.g. ``detect_disturbed=false``:
+  every step fitted on every sample; ``linear_phase_knot_s=30 refit_knot_s=60``, the
+  phase splines of before);
+* ``--mask-signal 0.05``: the steps without detection, the samples where the signal
   exceeds 5 % of its peak left out of every fit (``fit_exclude``): what the pipeline
-  keeps when the disturbed interval is known from elsewhere.
+  keeps when the disturbed interval is known from elsewhere;
+* ``--mask-injected-only 0.05``: the same samples left out of the injected run's fits
+  only, as a detector would that flags exactly the signal and nothing on the clean
+  day; its distortion is the calibration's own change when that interval is left out
+  (the floor of any detect-and-exclude scheme).
+
+Before the runs, the share of each signal's energy in its projection on polynomials
+in time over the zone (degree 0 the zone mean, up to the gain drift's cubic) is
+printed: what a per-zone drift of that degree fitted against the model takes when
+nothing else competes (:func:`magcal.missions.elfin.injection.polynomial_share`).
 
 Usage::
 
     python workflows/elfin_preservation.py [--zones 1,4,7,10] [--signals gauss_ew,...]
                                            [--no-held] [--settings KEY=VALUE ...]
                                            [--mask-signal FRACTION]
+                                           [--mask-injected-only FRACTION]
 
 About 10 s per signal and run for the whole day (12 zones) on an idle core; the
 default zones (4) take about a third of that. Reads ``../shared/real-data/elfin/``.
@@ -82,6 +94,11 @@ def _print(label, tab, clean) -> None:
               "(detect_disturbed; zones numbered in the calibrated order)")
         print(det.pivot(index="pass", columns="zone", values="flagged_share").round(3)
               .to_string())
+        if "kept_share" in det.columns:
+            last = det[det["pass"] == det["pass"].max()]
+            print("left out of the fits after the bridge check (runs that brought back "
+                  "more spin tones than slow field are put back): "
+                  + ", ".join(f"{v:.3f}" for v in last["kept_share"]))
         f = clean.calibration.field.copy()
         f.loc[f["fit"] == 0, "used"] = 0
         quiet = score_field(f).drop(columns="zone").median()
@@ -90,10 +107,28 @@ def _print(label, tab, clean) -> None:
                                                           "vector_rms_nT")))
 
 
+def _print_shares(kinds) -> None:
+    """Closed-form shares of each signal's energy in polynomials over a 6-min zone."""
+    import numpy as np
+
+    from magcal.missions.elfin.injection import polynomial_share, signal_shape
+
+    t = np.arange(0.0, 370.0, 0.1)
+    print("\n== share p of each signal's energy in polynomials of degree d over a 370 s "
+          "zone, signal centred: what a per-zone drift of that degree takes when nothing "
+          "else competes; energy_kept is then (1 - p)^2 (in brackets)")
+    for kind in kinds:
+        s = signal_shape(kind, t, t0=t[-1] / 2)[:, None]
+        shares = [polynomial_share(s, t, d) for d in range(4)]
+        print(f"  {kind:12s} " + "  ".join(f"d={d}: {p:.3f} ({(1 - p) ** 2:.3f})"
+                                           for d, p in enumerate(shares)))
+
+
 def main(argv=None) -> int:
     from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
     from magcal.missions.elfin.injection import SIGNALS, run_injections
     from magcal.missions.elfin.linear import CREDIT
+    from magcal.missions.elfin.pipeline import ElfinSettings
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", type=Path, default=DATA)
@@ -107,6 +142,9 @@ def main(argv=None) -> int:
                     help="also a run with the samples where the signal exceeds this "
                          "fraction of its peak left out of every fit (what a fit on "
                          "intervals known to be quiet would keep), e.g. 0.05")
+    ap.add_argument("--mask-injected-only", type=float, default=0.0, metavar="FRACTION",
+                    help="also a run with those samples left out of the injected run's "
+                         "fits only (a detector that flags exactly the signal)")
     args = ap.parse_args(argv)
     if not (args.data / FGS_FILE).is_file():
         print(f"real data not found: {args.data / FGS_FILE}", file=sys.stderr)
@@ -114,19 +152,26 @@ def main(argv=None) -> int:
     fgs, state = read_elfin_fgs(args.data / FGS_FILE), read_elfin_state(args.data / STATE_FILE)
     zones = None if args.zones == "all" else [int(z) for z in args.zones.split(",")]
     kinds = args.signals.split(",")
-    runs = [] if args.no_held else [("held phase (machinery check)", None, True, 0.0)]
-    runs.append(("delivered", None, False, 0.0))
+    runs = [] if args.no_held else [("held phase (machinery check)", None, True, 0.0, True)]
+    runs.append(("delivered", None, False, 0.0, True))
     if args.settings:
         runs.append((f"settings {' '.join(args.settings)}", _settings(args.settings), False,
-                     0.0))
+                     0.0, True))
+    given = ElfinSettings(detect_disturbed=False)      # the interval is given, not found
     if args.mask_signal > 0:
-        runs.append((f"delivered, fitted without the samples above {args.mask_signal:g} of "
-                     "the signal's peak", None, False, args.mask_signal))
+        runs.append((f"delivered without detection, fitted without the samples above "
+                     f"{args.mask_signal:g} of the signal's peak", given, False,
+                     args.mask_signal, True))
+    if args.mask_injected_only > 0:
+        runs.append((f"delivered without detection, the injected run fitted without the "
+                     f"samples above {args.mask_injected_only:g} of the signal's peak (the "
+                     "clean run with them)", given, False, args.mask_injected_only, False))
     print(f"ELFIN-A 2022-01-12, zones {args.zones}, signals {', '.join(kinds)}\n{CREDIT}")
-    for label, settings, hold, mask in runs:
+    _print_shares(kinds)
+    for label, settings, hold, mask, mask_clean in runs:
         t0 = time.perf_counter()
         tab, clean = run_injections(fgs, state, settings, kinds=kinds, zones=zones,
-                                    hold=hold, mask_signal=mask,
+                                    hold=hold, mask_signal=mask, mask_clean=mask_clean,
                                     progress=lambda line: print("  " + line))
         _print(f"{label} ({time.perf_counter() - t0:.0f} s)", tab, clean)
     return 0

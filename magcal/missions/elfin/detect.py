@@ -1,42 +1,49 @@
-"""Disturbed intervals of an ELFIN day located from the counts alone (opt-in).
+"""Disturbed intervals of an ELFIN day located from the counts alone (delivered).
 
 Every time-varying step of the calibration is fitted against IGRF and takes part of a
 natural field that IGRF lacks; left out of every fit (``fit_exclude`` of
 :func:`~magcal.missions.elfin.pipeline.calibrate_elfin_day`), a disturbed interval comes
-back whole. This module tries to find such intervals without an outside source:
+back whole. This module finds such intervals without an outside source
+(:func:`locate_disturbed`) and calibrates the day without them
+(:func:`calibrate_detected`, what ``ElfinSettings.detect_disturbed`` runs):
 
 1. the day is calibrated with a *stiff* variant of the settings (the gain drift tied
    to the reference-free 2x-spin harmonic, ``gain_drift_2x``, so that a field along B
    is not turned into a gain cubic);
 2. per zone and per component of the residual against the model (despun ``x, y``, the
-   spin axis ``z`` and ``|B|``), averaged over one spin, a robust cubic in time is
-   taken as the instrument's slow part (Tukey biweights, :func:`robust_baseline`): what
-   the drift steps can make over a pass;
-3. what departs from it by more than ``threshold`` robust sigmas (and ``min_nT``) is
-   flagged, grown while it stays above ``extend`` sigmas, padded by ``pad_s``
-   (:func:`flag_excursions`);
-4. the day is calibrated again without the flagged samples and step 2-3 repeated on
-   that residual (``passes``), the flags accumulating.
+   spin axis ``z`` and ``|B|``), averaged over one spin, two robust baselines in time
+   are taken as the instrument's slow part: a spline with 90 s knots and a cubic
+   (Tukey biweights from a least-absolute-deviation start, :func:`robust_baseline`);
+3. what departs from either by more than ``threshold`` robust sigmas (and ``min_nT``)
+   is flagged, grown while it stays above ``extend`` sigmas, padded by ``pad_s``, unless
+   it comes within ``edge_s`` of a zone end, where the calibration would be
+   extrapolated over it (:func:`flag_excursions`); ``|B|`` and the vector components
+   are flagged apart;
+4. the day is calibrated with the ``|B|`` flags out of every fit and the vector flags
+   out of the vector fits (a field across B leaves ``|B|`` alone to first order), and
+   with no flags; a flagged run where leaving it out changed the product more in spin
+   tones (calibration errors the fits could not bridge) than in its slow field (a
+   natural field kept) is put back and the day calibrated again (:func:`bridge_check`).
 
-The result is a boolean row mask for ``fit_exclude``. What it cannot do is tell a
-slow natural field from the instrument's slow drift (anything the 90 s baseline spline
-makes is the instrument's to it), and it flags real natural fields on a "clean" day
-too (on 2022-01-12 zone 7 holds a 150 nT east-west excursion of about 40 s), which is
-what it is for.
+What it cannot do is tell a slow natural field from the instrument's slow drift
+(anything the baselines make is the instrument's to it): a 100 nT pulse along B of
+90 s FWHM spans half a zone and 71 % of its energy is a cubic in time, the gain drift's
+own shape, and a current sheet lasting to the zone's end is, past its rise, a level
+that the zone's spin-axis offset and tilt take. It flags real natural fields on a
+"clean" day too (on 2022-01-12 east-west excursions of 100-200 nT over 40-90 s in zones
+5-8), which is what it is for.
 
-Measured on 2022-01-12, zones 1, 4, 7, 10 (``workflows/elfin_preservation.py
---settings detect_disturbed=true``; defaults of :class:`DetectSettings`): the 200 nT
-40 s pulses across B are found (kept 99.5 % east-west, 86 % along-track, against 65 %
-and 26 % without detection) but the clean and injected days flag different intervals
-(distortion 35 % and 21 %); a 100 nT pulse along B of 90 s FWHM is not found (a
-cubic-like bump of |B| on the 25-60 nT the 2x-tied drift leaves; kept 6 %), a current
-sheet to the zone's end is found only at its rise (kept 3 %). On the clean day it
-flags 9, 0, 18 and 10 % of the zones' samples, mostly at the zone ends where natural
-excursions of 50-150 nT are seen, and the clean residual grows from 7.2 / 5.2 / 16.3
-to 9.8 / 7.0 / 24.9 nT (scalar / fast / vector zone medians; 6.4 / 5.1 / 13.4 on the
-unflagged samples): a flagged zone end is extrapolated. Looser settings (threshold 5,
-extend 2.5, 15 nT, two passes) flag 20-36 % of the clean zones for a scalar residual
-of 28 nT.
+Measured on 2022-01-12, zones 1, 4, 7, 10 (``workflows/elfin_preservation.py``;
+defaults of :class:`DetectSettings`): the 200 nT 40 s pulses across B are kept (108 %
+of the energy east-west, distortion 24 %; 97.5 % along-track, distortion 19 %; 65 %
+and 26 % without detection); a pulse along B keeps 8 % and a current sheet 2 %. The
+clean residual is unchanged (7.19 / 5.14 / 16.40 nT scalar / fast / vector, zone
+medians; 7.19 / 5.16 / 16.40 without detection); the clean zones are 17, 0, 18 and 0 %
+flagged. The whole day: 0-36 % of each zone flagged, four runs (zones 2, 9, 11) put
+back by the bridge check, 6.7 / 5.2 / 16.4 nT as without detection. A detector that
+flagged exactly the injected signal and nothing else would still leave a distortion of
+19-20 %: leaving 70 s out of the fits moves the calibration elsewhere by that much
+(``workflows/elfin_preservation.py --mask-injected-only 0.05``).
 
 Data: ELFIN SOC (PI V. Angelopoulos, UCLA), "Open Data for Scientific Use".
 """
@@ -81,6 +88,12 @@ class DetectSettings:
         If positive, the baseline is a cubic B-spline with knots this many seconds
         apart instead (it follows the zone edges; it also follows a field slower than
         about the knot spacing).
+    also_polynomial : bool
+        With ``baseline_knot_s``, also flag the departures from the robust polynomial
+        of ``baseline_degree``: the spline follows part of a 40 s pulse (on 2022-01-12
+        an east-west one in zone 7 went unflagged), the cubic cannot, while the spline
+        catches what the cubic leaves at the zone edges (an along-track pulse in zone 4).
+        The flags of both are joined.
     tukey_c : float
         Tukey biweight tuning constant of the baseline, in robust sigmas.
     passes : int
@@ -88,6 +101,12 @@ class DetectSettings:
         pass's flags, where a signal the fits absorbed comes back). Default 1: a second
         pass found nothing more of the injected signals on the real day and grew zone
         10's clean flags from 10 to 32 %.
+    edge_s : float
+        A flagged interval that comes closer than this to the zone's first or last used
+        sample is not flagged: the calibration would be extrapolated over it instead of
+        bridged, and on 2022-01-12 that made spin-tone errors of 200-400 nT at the ends
+        of 5 of the 12 zones (whole-day vector residual 16.4 -> 39 nT). A natural field
+        at a zone end stays absorbed, as without detection.
     max_share : float
         Largest share of a zone's used samples that may be flagged: above it the
         zone's flags are dropped (a zone that is mostly disturbed cannot be calibrated
@@ -103,14 +122,23 @@ class DetectSettings:
     smooth_s: float = 3.0
     baseline_degree: int = 3
     baseline_knot_s: float = 90.0
+    also_polynomial: bool = True
     tukey_c: float = 4.685
     passes: int = 1
+    edge_s: float = 20.0
     max_share: float = 0.6
 
 
 def robust_baseline(t_s, values, use, *, degree: int = 3, c: float = 4.685,
-                    n_iter: int = 20, knot_s: float = 0.0) -> tuple[np.ndarray, float]:
+                    n_iter: int = 20, knot_s: float = 0.0,
+                    l1_iter: int = 30) -> tuple[np.ndarray, float]:
     """Polynomial in time fitted by Tukey-biweighted least squares, and its robust sigma.
+
+    The biweights start from a least-absolute-deviation fit (``l1_iter`` reweighting
+    passes), not from ordinary least squares: a 200 nT pulse of 40 s in a 6 min zone
+    pulls the least-squares cubic so far that its departures no longer stand out and
+    the biweights never reject it (zone 7 of 2022-01-12), where the L1 cubic passes
+    under it.
 
     Parameters
     ----------
@@ -127,6 +155,9 @@ def robust_baseline(t_s, values, use, *, degree: int = 3, c: float = 4.685,
     knot_s : float
         If positive, a cubic B-spline with knots every ``knot_s`` seconds instead of
         the polynomial.
+    l1_iter : int
+        Reweighting passes of the least-absolute-deviation start (0: start from
+        ordinary least squares).
 
     Returns
     -------
@@ -157,19 +188,29 @@ def robust_baseline(t_s, values, use, *, degree: int = 3, c: float = 4.685,
     else:
         x = 2.0 * (t - t[use][0]) / max(t[use][-1] - t[use][0], 1e-12) - 1.0
         a = np.column_stack([x ** d for d in range(degree + 1)])
-    w = np.ones(int(use.sum()))
-    coef = np.zeros(a.shape[1])
+    au, vu = a[use], v[use]
+
+    def solve(w):
+        sw = np.sqrt(w)
+        coef = np.linalg.lstsq(au * sw[:, None], vu * sw, rcond=None)[0]
+        return coef, vu - au @ coef
+
+    coef, r = solve(np.ones(vu.size))
+    for _ in range(max(0, l1_iter)):
+        # iteratively reweighted least squares towards the least absolute deviations
+        floor = 1e-3 * float(np.std(r)) + 1e-9
+        coef, r = solve(1.0 / np.maximum(np.abs(r), floor))
+    w = np.ones(vu.size)
     sigma = 0.0
     for _ in range(max(1, n_iter)):
-        sw = np.sqrt(w)
-        coef = np.linalg.lstsq(a[use] * sw[:, None], v[use] * sw, rcond=None)[0]
-        r = v[use] - a[use] @ coef
         sigma = 1.4826 * float(np.median(np.abs(r - np.median(r))))
         u = r / max(c * sigma, 1e-12)
         w_new = np.where(np.abs(u) < 1.0, (1.0 - u ** 2) ** 2, 0.0)
         if np.allclose(w_new, w):
             break
         w = w_new
+        coef, r = solve(w)
+    sigma = 1.4826 * float(np.median(np.abs(r - np.median(r))))
     return a @ coef, sigma
 
 
@@ -213,6 +254,9 @@ def flag_excursions(t_s, z, dev_nT, use, settings: DetectSettings | None = None
     hot = use & np.any((za > s.threshold) & (dev > s.min_nT), axis=1)
     warm = use & np.any(za > s.extend, axis=1)
     out = np.zeros(t.size, bool)
+    if not use.any():
+        return out
+    first, last = t[use][0], t[use][-1]
     for a, b in true_runs(hot):
         if t[b - 1] - t[a] < s.min_s:
             continue
@@ -220,7 +264,10 @@ def flag_excursions(t_s, z, dev_nT, use, settings: DetectSettings | None = None
             a -= 1
         while b < t.size and warm[b]:
             b += 1
-        out |= (t >= t[a] - s.pad_s) & (t <= t[b - 1] + s.pad_s)
+        lo, hi = t[a] - s.pad_s, t[b - 1] + s.pad_s
+        if lo - first < s.edge_s or last - hi < s.edge_s:
+            continue                      # the calibration would be extrapolated over it
+        out |= (t >= lo) & (t <= hi)
     return out
 
 
@@ -254,6 +301,10 @@ def detect_in_field(field: pd.DataFrame, settings: DetectSettings | None = None
                     ) -> tuple[np.ndarray, pd.DataFrame]:
     """Flag localized excursions of the residual of a calibrated field, zone by zone.
 
+    The vector components (despun ``x, y, z``) and ``|B|`` are flagged apart: a field
+    across B shows in the first and leaves ``|B|`` alone to first order, so the fits to
+    ``|B|`` need not lose those samples (:func:`~magcal.missions.elfin.drift.fit_samples`).
+
     Parameters
     ----------
     field : DataFrame
@@ -262,14 +313,17 @@ def detect_in_field(field: pd.DataFrame, settings: DetectSettings | None = None
 
     Returns
     -------
-    flags : ndarray of bool (len(field),)
+    flags : ndarray of bool (len(field), 2)
+        Column 0: flagged from the vector components; column 1: from ``|B|``.
     table : DataFrame
-        Per zone: ``zone``, ``flagged_share`` (of the used samples), ``sigma_<c>_nT``
-        (robust sigma per component), ``dropped`` (flags dropped by ``max_share``).
+        Per zone: ``zone``, ``flagged_share`` (of the used samples, either column),
+        ``scalar_flagged_share`` (column 1), ``sigma_<c>_nT`` (robust sigma per
+        component about the first baseline), ``dropped`` (flags dropped by
+        ``max_share``).
     """
     s = settings or DetectSettings()
     zone = field["zone"].to_numpy()
-    flags = np.zeros(len(field), bool)
+    flags = np.zeros((len(field), 2), bool)
     rows = []
     for k in dict.fromkeys(zone):
         sel = np.flatnonzero(zone == k)
@@ -277,28 +331,73 @@ def detect_in_field(field: pd.DataFrame, settings: DetectSettings | None = None
         use = z["used"].to_numpy() == 1
         t = (z.index.asi8 - z.index.asi8[0]) / 1e9
         r = zone_residuals(z, s.smooth_s)
-        dev = np.zeros_like(r)
-        score = np.zeros_like(r)
         sigmas = {}
-        for j, name in enumerate(COMPONENTS):
-            base, sigma = robust_baseline(t, r[:, j], use, degree=s.baseline_degree,
-                                          c=s.tukey_c, knot_s=s.baseline_knot_s)
-            dev[:, j] = r[:, j] - base
-            score[:, j] = dev[:, j] / max(sigma, 1e-9)
-            sigmas[f"sigma_{name}_nT"] = sigma
-        f = flag_excursions(t, score, dev, use, s)
-        share = float(f[use].mean()) if use.any() else 0.0
+        f = np.zeros((len(z), 2), bool)
+        knots = (s.baseline_knot_s, 0.0) if s.also_polynomial and s.baseline_knot_s > 0 \
+            else (s.baseline_knot_s,)
+        for knot_s in knots:
+            dev = np.zeros_like(r)
+            score = np.zeros_like(r)
+            for j, name in enumerate(COMPONENTS):
+                base, sigma = robust_baseline(t, r[:, j], use, degree=s.baseline_degree,
+                                              c=s.tukey_c, knot_s=knot_s)
+                dev[:, j] = r[:, j] - base
+                score[:, j] = dev[:, j] / max(sigma, 1e-9)
+                sigmas.setdefault(f"sigma_{name}_nT", sigma)
+            f |= np.column_stack([flag_excursions(t, score[:, :3], dev[:, :3], use, s),
+                                  flag_excursions(t, score[:, 3:], dev[:, 3:], use, s)])
+        share = float(f[use].any(axis=1).mean()) if use.any() else 0.0
         dropped = share > s.max_share
         if not dropped:
             flags[sel] = f
         rows.append({"zone": int(k), "flagged_share": 0.0 if dropped else share,
+                     "scalar_flagged_share": 0.0 if dropped or not use.any()
+                     else float(f[use, 1].mean()),
                      "dropped": dropped, **sigmas})
     return flags, pd.DataFrame(rows)
+
+
+@dataclass(frozen=True)
+class Disturbed:
+    """Rows of an ELFIN day flagged by :func:`locate_disturbed`.
+
+    Attributes
+    ----------
+    vector : ndarray of bool (n,)
+        Flagged from the vector components (or known beforehand): left out of the
+        vector fits (linear, vector step, phase refit).
+    scalar : ndarray of bool (n,)
+        Flagged from ``|B|`` (or known beforehand): left out of every fit.
+    table : DataFrame
+        :func:`detect_in_field`'s table for each pass (column ``pass``, from 1), with
+        ``flagged_share`` the share of each zone's used samples flagged after that pass.
+    """
+
+    vector: np.ndarray
+    scalar: np.ndarray
+    table: pd.DataFrame
+
+    @property
+    def any(self) -> np.ndarray:
+        """Rows flagged either way (the vector fits' ``fit_exclude``)."""
+        return self.vector | self.scalar
 
 
 def detect_disturbed(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
                      detect: DetectSettings | None = None, fit_exclude=None,
                      hold_phase=None) -> tuple[np.ndarray, pd.DataFrame]:
+    """Rows of an ELFIN day inside disturbed intervals, flagged either way.
+
+    :func:`locate_disturbed` with its two masks joined: ``(found.any, found.table)``.
+    """
+    found = locate_disturbed(fgs, state, settings, detect=detect, fit_exclude=fit_exclude,
+                             hold_phase=hold_phase)
+    return found.any, found.table
+
+
+def locate_disturbed(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
+                     detect: DetectSettings | None = None, fit_exclude=None,
+                     hold_phase=None) -> Disturbed:
     """Rows of an ELFIN day inside disturbed intervals found from the counts alone.
 
     Parameters
@@ -316,12 +415,9 @@ def detect_disturbed(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
 
     Returns
     -------
-    flags : ndarray of bool (len(fgs),)
-        The rows to leave out of every fit (``fit_exclude``), including ``fit_exclude``.
-    table : DataFrame
-        :func:`detect_in_field`'s table for each pass (column ``pass``, from 1), with
-        ``flagged_share`` the share of each zone's used samples flagged after that
-        pass (all passes so far and ``fit_exclude``).
+    Disturbed
+        ``vector`` and ``scalar`` masks (both include ``fit_exclude``) and the table
+        (``flagged_share``: all passes so far and ``fit_exclude``).
     """
     from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
 
@@ -329,20 +425,147 @@ def detect_disturbed(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
     stiff = replace(settings or ElfinSettings(), gain_drift_2x=True, gain_drift_robust_c=0.0,
                     detect_disturbed=False, joint=False, scan=False)
     known = np.zeros(len(fgs), bool) if fit_exclude is None else np.asarray(fit_exclude, bool)
-    flags = known.copy()
+    flags = np.column_stack([known, known])
     tables = []
     for _ in range(max(1, d.passes)):
+        either = flags.any(axis=1)
         day = calibrate_elfin_day(fgs, state, stiff, hold_phase=hold_phase,
-                                  fit_exclude=flags if flags.any() else None,
+                                  fit_exclude=either if either.any() else None,
                                   diagnostics=False)
         f = day.calibration.field
         new, table = detect_in_field(f, d)
         settled = not (new & ~flags).any()
         flags = flags | new
         used = f["used"].to_numpy() == 1
-        table["flagged_share"] = [float(flags[used & (f["zone"].to_numpy() == k)].mean())
+        zone = f["zone"].to_numpy()
+        table["flagged_share"] = [float(flags[used & (zone == k)].any(axis=1).mean())
                                   for k in table["zone"]]
+        table["scalar_flagged_share"] = [float(flags[used & (zone == k), 1].mean())
+                                         for k in table["zone"]]
         tables.append(table.assign(**{"pass": len(tables) + 1}))
         if settled:
             break
-    return flags, pd.concat(tables, ignore_index=True)
+    return Disturbed(vector=flags[:, 0], scalar=flags[:, 1],
+                     table=pd.concat(tables, ignore_index=True))
+
+
+def spin_split(field: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """Despun field of each zone split into its mean over one spin and the rest.
+
+    A natural field is slow in the despun frame; calibration errors of the spin-plane
+    sensors (offsets, gains, coupling) make spin tones there. The window is the zone's
+    spin period from its ``phase`` column.
+
+    Returns
+    -------
+    slow, tone : ndarray (n, 3)
+        ``bx_despun ..`` as running mean over one spin, and the field minus it (nT).
+    """
+    from scipy.ndimage import uniform_filter1d
+
+    b = field[["bx_despun", "by_despun", "bz_despun"]].to_numpy(float)
+    slow = np.empty_like(b)
+    zone = field["zone"].to_numpy()
+    for k in dict.fromkeys(zone):
+        sel = np.flatnonzero(zone == k)
+        t = (field.index.asi8[sel] - field.index.asi8[sel][0]) / 1e9
+        dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+        rate = np.median(np.abs(np.diff(field["phase"].to_numpy(float)[sel])) / max(dt, 1e-9))
+        width = max(1, int(round(2.0 * np.pi / max(rate, 1e-9) / dt)))
+        slow[sel] = uniform_filter1d(b[sel], width, axis=0, mode="nearest")
+    return slow, b - slow
+
+
+def bridge_check(flagged_field: pd.DataFrame, plain_field: pd.DataFrame, flags
+                 ) -> pd.DataFrame:
+    """What leaving each flagged run out of the fits changed: slow field or spin tones.
+
+    Parameters
+    ----------
+    flagged_field, plain_field : DataFrame
+        The same rows calibrated without and with the flagged rows in the fits.
+    flags : array_like of bool (n,)
+        The rows left out (detected).
+
+    Returns
+    -------
+    DataFrame
+        One row per run of ``flags``: ``zone``, ``start_s``, ``end_s`` (from the zone's
+        first sample), ``slow_change_nT`` and ``tone_change_nT`` (RMS over the run of
+        the product's change in its spin mean and in its spin tones), and ``kept``:
+        True when the slow change is at least the tone change. A natural field that
+        the fits no longer absorb comes back slow; spin tones grow when the fits
+        cannot bridge the run (2022-01-12 zone 11: 67 nT of tones for 13 nT of slow
+        field over 100 s), and such a run is not worth flagging.
+    """
+    flags = np.asarray(flags, bool)
+    s1, t1 = spin_split(flagged_field)
+    s0, t0 = spin_split(plain_field)
+    zone = flagged_field["zone"].to_numpy()
+    ts = flagged_field.index.asi8 / 1e9
+    rows = []
+    for a, b in true_runs(flags):
+        first = ts[np.flatnonzero(zone == zone[a])[0]]
+        slow = float(np.sqrt(np.mean(np.sum((s1[a:b] - s0[a:b]) ** 2, axis=1))))
+        tone = float(np.sqrt(np.mean(np.sum((t1[a:b] - t0[a:b]) ** 2, axis=1))))
+        rows.append({"zone": int(zone[a]), "start_s": float(ts[a] - first),
+                     "end_s": float(ts[b - 1] - first), "slow_change_nT": slow,
+                     "tone_change_nT": tone, "kept": slow >= tone})
+    return pd.DataFrame(rows, columns=["zone", "start_s", "end_s", "slow_change_nT",
+                                       "tone_change_nT", "kept"])
+
+
+def calibrate_detected(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, provenance=None,
+                       hold_phase=None, fit_exclude=None, diagnostics: bool = True,
+                       detect: DetectSettings | None = None):
+    """The day calibrated without the disturbed intervals found from the counts.
+
+    :func:`locate_disturbed`, then the day calibrated with the flagged rows left out
+    of the fits (the ``|B|`` flags out of every fit, the vector flags out of the
+    vector fits only) and, for comparison, with them in; a flagged run where that
+    changed the product more in spin tones than in its slow field is put back
+    (:func:`bridge_check`) and the day calibrated again.
+
+    Returns
+    -------
+    ElfinDay
+        With ``settings`` as given and ``steps["disturbed_detection"]`` (per zone and
+        pass, :func:`locate_disturbed`; ``kept_share``: the share of each zone's used
+        samples left out after the check) and ``steps["disturbed_runs"]``
+        (:func:`bridge_check`).
+    """
+    from magcal.missions.elfin.pipeline import calibrate_elfin_day
+
+    base = replace(settings, detect_disturbed=False)
+    known = np.zeros(len(fgs), bool) if fit_exclude is None else np.asarray(fit_exclude, bool)
+    found = locate_disturbed(fgs, state, settings, detect=detect, fit_exclude=known,
+                             hold_phase=hold_phase)
+
+    def run(vector, scalar, diag=False):
+        return calibrate_elfin_day(fgs, state, base, provenance=provenance,
+                                   hold_phase=hold_phase,
+                                   fit_exclude=(vector | scalar) if (vector | scalar).any()
+                                   else None,
+                                   fit_exclude_scalar=scalar, diagnostics=diag)
+
+    plain = run(known, known)
+    vector, scalar = found.vector, found.scalar
+    day = run(vector, scalar, diagnostics)
+    runs = bridge_check(day.calibration.field, plain.calibration.field,
+                        (vector | scalar) & ~known)
+    drop = np.zeros(len(fgs), bool)
+    ts = day.calibration.field.index.asi8 / 1e9
+    zone = day.calibration.field["zone"].to_numpy()
+    for r in runs[~runs["kept"]].itertuples():
+        first = ts[np.flatnonzero(zone == r.zone)[0]]
+        drop |= (zone == r.zone) & (ts >= first + r.start_s) & (ts <= first + r.end_s)
+    if drop.any():
+        vector, scalar = (vector & ~drop) | known, (scalar & ~drop) | known
+        day = run(vector, scalar, diagnostics)
+    table = found.table.copy()
+    used = day.calibration.field["used"].to_numpy() == 1
+    left = vector | scalar
+    table["kept_share"] = [float(left[used & (zone == k)].mean()) for k in table["zone"]]
+    steps = {**day.steps, "disturbed_detection": table, "disturbed_runs": runs}
+    return replace(day, settings=settings, steps=steps)
+

@@ -346,14 +346,21 @@ def _zone_body(z):
     return t, spin(desp, phase), np.linalg.norm(ref, axis=1), phase, desp, ref
 
 
-def fit_samples(z) -> np.ndarray:
+def fit_samples(z, scalar: bool = False) -> np.ndarray:
     """Samples a step fits on: ``used`` and, where the field has it, ``fit`` (0/1, rows
-    left out of every fit but kept in the product)."""
+    left out of every fit but kept in the product).
+
+    With ``scalar`` (the steps fitted to ``|B|`` only: spin harmonics, gain drift, fast
+    drift) the column ``fit_scalar`` is read instead where the field has it: a field
+    across B, which leaves ``|B|`` alone to first order, need not be left out of them
+    (:mod:`magcal.missions.elfin.detect` flags ``|B|`` and the vector apart).
+    """
     use = z["used"].to_numpy() == 1
-    return use & (z["fit"].to_numpy() == 1) if "fit" in z.columns else use
+    col = "fit_scalar" if scalar and "fit_scalar" in z.columns else "fit"
+    return use & (z[col].to_numpy() == 1) if col in z.columns else use
 
 
-def map_zones(cal, step, note: str, params: dict):
+def map_zones(cal, step, note: str, params: dict, *, scalar: bool = False):
     """Run ``step`` on each zone of an ElfinCalibration and write back its vectors.
 
     Parameters
@@ -366,6 +373,8 @@ def map_zones(cal, step, note: str, params: dict):
         Key under which ``params`` are recorded in the calibration's parameters.
     params : dict
         The step's parameters (recorded as strings).
+    scalar : bool
+        The step fits ``|B|`` only (:func:`fit_samples`).
 
     Returns
     -------
@@ -383,7 +392,7 @@ def map_zones(cal, step, note: str, params: dict):
         sel = (f["zone"] == k).to_numpy()
         z = f.loc[sel]
         t = (z.index.asi8 - z.index.asi8[0]) / 1e9
-        new_d, info = step(t, z, fit_samples(z))
+        new_d, info = step(t, z, fit_samples(z, scalar))
         basis = despun_basis(z[["spin_axis_gei_x", "spin_axis_gei_y",
                                 "spin_axis_gei_z"]].to_numpy(float))
         f.loc[sel, ["bx_despun", "by_despun", "bz_despun"]] = new_d
@@ -433,7 +442,8 @@ def correct_gain_drift(cal, *, shape_from=None, robust_start_from=None, **kw):
                        "vector_rms_after_nT": rms((new_d - ref)[used])}
 
     return map_zones(cal, step, "gain_drift",
-                     {**kw, "shape": "2x-spin harmonic" if shape_from is not None else "cubic"})
+                     {**kw, "shape": "2x-spin harmonic" if shape_from is not None else "cubic"},
+                     scalar=True)
 
 
 def drift_agreement_table(cal, **kw) -> pd.DataFrame:

@@ -128,7 +128,7 @@ def correct_elfin_calibration(cal, **kw):
         sel = (f["zone"] == k).to_numpy()
         z = f.loc[sel]
         t = (z.index.asi8 - z.index.asi8[0]) / 1e9
-        used = fit_samples(z)
+        used = fit_samples(z, scalar=True)
         phase = z["phase"].to_numpy()
         desp = z[["bx_despun", "by_despun", "bz_despun"]].to_numpy()
         ref_d = z[["igrf_x_despun", "igrf_y_despun", "igrf_z_despun"]].to_numpy()
@@ -263,4 +263,4 @@ def correct_fast_drift(cal, **kw):
         return new_d, {**info, "vector_rms_before_nT": rms((desp - ref)[used]),
                        "vector_rms_after_nT": rms((new_d - ref)[used])}
 
-    return map_zones(cal, step, "fast_drift", kw)
+    return map_zones(cal, step, "fast_drift", kw, scalar=True)
