@@ -397,7 +397,7 @@ def detect_disturbed(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
 
 def locate_disturbed(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
                      detect: DetectSettings | None = None, fit_exclude=None,
-                     hold_phase=None) -> Disturbed:
+                     hold_phase=None, linear=None) -> Disturbed:
     """Rows of an ELFIN day inside disturbed intervals found from the counts alone.
 
     Parameters
@@ -412,6 +412,9 @@ def locate_disturbed(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         Rows already known to be disturbed (kept flagged and left out from the start).
     hold_phase : array_like, optional
         Passed to the calibration (the injection tests' machinery check).
+    linear : ElfinCalibration, optional
+        The linear calibration of these rows with ``fit_exclude`` (first pass only;
+        see :func:`~magcal.missions.elfin.pipeline.calibrate_elfin_day`).
 
     Returns
     -------
@@ -431,7 +434,7 @@ def locate_disturbed(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         either = flags.any(axis=1)
         day = calibrate_elfin_day(fgs, state, stiff, hold_phase=hold_phase,
                                   fit_exclude=either if either.any() else None,
-                                  diagnostics=False)
+                                  diagnostics=False, linear=linear if not tables else None)
         f = day.calibration.field
         new, table = detect_in_field(f, d)
         settled = not (new & ~flags).any()
@@ -538,17 +541,17 @@ def calibrate_detected(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, prov
 
     base = replace(settings, detect_disturbed=False)
     known = np.zeros(len(fgs), bool) if fit_exclude is None else np.asarray(fit_exclude, bool)
-    found = locate_disturbed(fgs, state, settings, detect=detect, fit_exclude=known,
-                             hold_phase=hold_phase)
 
-    def run(vector, scalar, diag=False):
+    def run(vector, scalar, diag=False, linear=None):
         return calibrate_elfin_day(fgs, state, base, provenance=provenance,
                                    hold_phase=hold_phase,
                                    fit_exclude=(vector | scalar) if (vector | scalar).any()
                                    else None,
-                                   fit_exclude_scalar=scalar, diagnostics=diag)
+                                   fit_exclude_scalar=scalar, diagnostics=diag, linear=linear)
 
     plain = run(known, known)
+    found = locate_disturbed(fgs, state, settings, detect=detect, fit_exclude=known,
+                             hold_phase=hold_phase, linear=plain.linear)
     vector, scalar = found.vector, found.scalar
     day = run(vector, scalar, diagnostics)
     runs = bridge_check(day.calibration.field, plain.calibration.field,

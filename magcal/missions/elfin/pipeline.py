@@ -441,7 +441,7 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
                         settings: ElfinSettings | None = None, *,
                         provenance: dict | None = None, hold_phase=None,
                         fit_exclude=None, fit_exclude_scalar=None,
-                        diagnostics: bool = True) -> ElfinDay:
+                        diagnostics: bool = True, linear=None) -> ElfinDay:
     """Calibrate one day of ELFIN FGS counts against IGRF through the configured steps.
 
     Parameters
@@ -466,6 +466,11 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
     diagnostics : bool
         Also the spin-ripple cross-check and the parameter stability (False: the
         calibration only, e.g. for repeated injection runs).
+    linear : ElfinCalibration, optional
+        The linear calibration of these rows with the same ``hold_phase``,
+        ``fit_exclude`` and linear settings, to continue from instead of fitting it
+        again (the linear fit is about two thirds of the time; the detection of
+        disturbed intervals calibrates the same rows with two settings).
 
     Returns
     -------
@@ -487,10 +492,11 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
         return calibrate_detected(fgs, state, s, provenance=provenance, hold_phase=hold_phase,
                                   fit_exclude=fit_exclude, diagnostics=diagnostics)
     knot = s.linear_phase_knot_s or None
-    linear = calibrate_elfin(fgs, state, provenance=provenance, hold_phase=hold_phase,
-                             fit_exclude=fit_exclude, phase_knot_s=knot,
-                             axis_degree=s.linear_axis_degree,
-                             phase_degree=s.linear_phase_degree)
+    if linear is None:
+        linear = calibrate_elfin(fgs, state, provenance=provenance, hold_phase=hold_phase,
+                                 fit_exclude=fit_exclude, phase_knot_s=knot,
+                                 axis_degree=s.linear_axis_degree,
+                                 phase_degree=s.linear_phase_degree)
     if fit_exclude_scalar is not None:
         # e.g. flagged across B only: still fitted by the steps that fit |B| alone
         lf = linear.field
