@@ -229,7 +229,7 @@ def test_detected_intervals_keep_pulses_across_b_and_leave_a_wave_alone(day):
     # the clean zone's |B| residual is not worse than without detection (measured 5.59
     # / 5.20 nT against 5.65 / 5.23, scalar / fast part), nor the vector residual where
     # nothing is left out (10.6 against 11.5 nT); the run left out keeps its field
-    # (vector 15.8 against 13.2 nT over the zone)
+    # (vector 15.1 against 13.2 nT over the zone)
     from magcal.missions.elfin.joint import score_field
 
     for name in ("scalar_rms_nT", "scalar_fast_nT"):

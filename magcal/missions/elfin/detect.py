@@ -20,10 +20,12 @@ back whole. This module finds such intervals without an outside source
    extrapolated over it (:func:`flag_excursions`); ``|B|`` and the vector components
    are flagged apart;
 4. the day is calibrated with the ``|B|`` flags out of every fit and the vector flags
-   out of the vector fits (a field across B leaves ``|B|`` alone to first order), and
-   with no flags; a flagged run where leaving it out changed the product more in spin
-   tones (calibration errors the fits could not bridge) than in its slow field (a
-   natural field kept) is put back and the day calibrated again (:func:`bridge_check`).
+   out of the slow vector fits (a field across B leaves ``|B|`` alone to first order;
+   the vector step's body-fixed harmonics, spin tones in the despun frame, are fitted
+   on every sample), and with no flags; a flagged run where leaving it out changed the
+   product more in spin tones (calibration errors the fits could not bridge) than in
+   its slow field (a natural field kept) is put back and the day calibrated again
+   (:func:`bridge_check`).
 
 What it cannot do is tell a slow natural field from the instrument's slow drift
 (anything the baselines make is the instrument's to it): a 100 nT pulse along B of
@@ -35,14 +37,15 @@ that the zone's spin-axis offset and tilt take. It flags real natural fields on 
 
 Measured on 2022-01-12, zones 1, 4, 7, 10 (``workflows/elfin_preservation.py``;
 defaults of :class:`DetectSettings`): the 200 nT 40 s pulses across B are kept (108 %
-of the energy east-west, distortion 24 %; 97.5 % along-track, distortion 19 %; 65 %
-and 26 % without detection); a pulse along B keeps 8 % and a current sheet 2 %. The
-clean residual is unchanged (7.19 / 5.14 / 16.40 nT scalar / fast / vector, zone
-medians; 7.19 / 5.16 / 16.40 without detection); the clean zones are 17, 0, 18 and 0 %
-flagged. The whole day: 0-36 % of each zone flagged, four runs (zones 2, 9, 11) put
-back by the bridge check, 6.7 / 5.2 / 16.4 nT as without detection. A detector that
-flagged exactly the injected signal and nothing else would still leave a distortion of
-19-20 %: leaving 70 s out of the fits moves the calibration elsewhere by that much
+of the energy east-west, 97 % along-track, distortion 14 and 15 %; 65 % and 26 %
+without detection); a pulse along B keeps 8 % and a current sheet 3 %. The clean
+residual is unchanged (7.19 / 5.14 / 16.40 nT scalar / fast / vector, zone medians;
+7.19 / 5.16 / 16.40 without detection); the clean zones are 17, 0, 18 and 0 % flagged.
+The whole day: 103 % and 91 % of the pulses kept (distortion 12.5 and 14 %), 0-36 % of
+each zone left out of the slow fits, no run put back by the bridge check, 6.8 / 5.2 /
+17.0 nT (16.4 without detection: the natural fields kept). A detector that flagged
+exactly the injected signal and nothing else would leave a distortion of 15-17 %:
+leaving 70 s out of the slow fits moves the calibration elsewhere by that much
 (``workflows/elfin_preservation.py --mask-injected-only 0.05``).
 
 Data: ELFIN SOC (PI V. Angelopoulos, UCLA), "Open Data for Scientific Use".
@@ -498,8 +501,9 @@ def bridge_check(flagged_field: pd.DataFrame, plain_field: pd.DataFrame, flags
         the product's change in its spin mean and in its spin tones), and ``kept``:
         True when the slow change is at least the tone change. A natural field that
         the fits no longer absorb comes back slow; spin tones grow when the fits
-        cannot bridge the run (2022-01-12 zone 11: 67 nT of tones for 13 nT of slow
-        field over 100 s), and such a run is not worth flagging.
+        cannot bridge the run (2022-01-12 zone 11, before the vector step's tones were
+        fitted on every sample: 116 nT of tones for 22 nT of slow field over 100 s),
+        and such a run is not worth flagging.
     """
     flags = np.asarray(flags, bool)
     s1, t1 = spin_split(flagged_field)

@@ -123,14 +123,14 @@ class ElfinSettings:
         Locate disturbed intervals from the counts alone and leave them out of the fits
         (:func:`magcal.missions.elfin.detect.calibrate_detected`: localized excursions
         of the residual of a stiff calibration, not within 20 s of a zone end; ``|B|``
-        flags out of every fit, vector flags out of the vector fits; a run is put back
-        when leaving it out adds more spin tones than slow field). Signal trade: False
-        fits every step on every sample and takes a localized field across B (zones 1,
-        4, 7, 10: an east-west 40 s pulse 108 % kept with detection, 65 % without; an
-        along-track one 97.5 % against 26 %) for the same zone-median residual
-        (7.19 / 5.14 / 16.40 against 7.19 / 5.16 / 16.40 nT scalar / fast / vector).
-        About 3.5 times the calibration time (a stiff calibration, one without flags
-        for the bridge check, one or two with them).
+        flags out of every fit, vector flags out of the slow vector fits; a run is put
+        back when leaving it out adds more spin tones than slow field). Signal trade:
+        False fits every step on every sample and takes a localized field across B
+        (zones 1, 4, 7, 10: an east-west 40 s pulse 108 % kept with detection, 65 %
+        without; an along-track one 97 % against 26 %) for the same zone-median
+        residual (7.19 / 5.14 / 16.40 against 7.19 / 5.16 / 16.40 nT scalar / fast /
+        vector). About 2.5 times the calibration time (a stiff calibration from the
+        same linear fit, one without flags for the bridge check, one or two with them).
     """
 
     harmonic: bool = True
