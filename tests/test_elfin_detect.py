@@ -1,17 +1,12 @@
 """The disturbed-interval detector's parts on synthetic fields with known truth
-(magcal.missions.elfin.detect); the detector on the real day is in test_elfin_injection."""
+(magcal.missions.elfin.detect, .disturbed); on the real day: test_elfin_injection."""
 
 import numpy as np
 import pandas as pd
 import pytest
 
-from magcal.missions.elfin.detect import (
-    DetectSettings,
-    bridge_check,
-    flag_excursions,
-    robust_baseline,
-    spin_split,
-)
+from magcal.missions.elfin.detect import DetectSettings, flag_excursions, robust_baseline
+from magcal.missions.elfin.disturbed import bridge_check, spin_split
 
 PERIOD_S = 2.85
 

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from magcal.spin.despin import spin
 from magcal.missions.elfin.linear import calibrate_elfin, fit_zone
 from magcal.missions.elfin.phase import repair_timestamps, split_zones, unwrap_predictive, wrap
+from magcal.spin.despin import spin
 
 
 def test_synthetic_counts_recover_gains_offsets_and_period():
@@ -78,6 +78,7 @@ def test_timing_helpers():
 @pytest.fixture(scope="module")
 def elfin_cal():
     from conftest import real_data_path
+
     from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
 
     base = real_data_path("elfin")
@@ -93,6 +94,7 @@ def test_quadratic_phase_keeps_the_right_handed_solution_where_the_mirror_fits_b
     (phase sense +1 of the counts, det C < 0) fits IGRF better (measured 82.8 against
     93.3 nT and 77.7 against 96.5 nT) but the instrument's triad is right-handed."""
     from conftest import real_data_path
+
     from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
 
     base = real_data_path("elfin")

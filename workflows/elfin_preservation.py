@@ -159,13 +159,14 @@ def main(argv=None) -> int:
                      0.0, True))
     given = ElfinSettings(detect_disturbed=False)      # the interval is given, not found
     if args.mask_signal > 0:
-        runs.append((f"delivered without detection, fitted without the samples above "
-                     f"{args.mask_signal:g} of the signal's peak", given, False,
-                     args.mask_signal, True))
+        label = (f"delivered without detection, fitted without the samples above "
+                 f"{args.mask_signal:g} of the signal's peak")
+        runs.append((label, given, False, args.mask_signal, True))
     if args.mask_injected_only > 0:
-        runs.append((f"delivered without detection, the injected run fitted without the "
-                     f"samples above {args.mask_injected_only:g} of the signal's peak (the "
-                     "clean run with them)", given, False, args.mask_injected_only, False))
+        label = (f"delivered without detection, the injected run fitted without the "
+                 f"samples above {args.mask_injected_only:g} of the signal's peak (the "
+                 "clean run with them)")
+        runs.append((label, given, False, args.mask_injected_only, False))
     print(f"ELFIN-A 2022-01-12, zones {args.zones}, signals {', '.join(kinds)}\n{CREDIT}")
     _print_shares(kinds)
     for label, settings, hold, mask, mask_clean in runs:

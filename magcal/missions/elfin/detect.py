@@ -4,8 +4,8 @@ Every time-varying step of the calibration is fitted against IGRF and takes part
 natural field that IGRF lacks; left out of every fit (``fit_exclude`` of
 :func:`~magcal.missions.elfin.pipeline.calibrate_elfin_day`), a disturbed interval comes
 back whole. This module finds such intervals without an outside source
-(:func:`locate_disturbed`) and calibrates the day without them
-(:func:`calibrate_detected`, what ``ElfinSettings.detect_disturbed`` runs):
+(:func:`locate_disturbed`); :func:`magcal.missions.elfin.disturbed.calibrate_detected`
+calibrates the day without them (what ``ElfinSettings.detect_disturbed`` runs):
 
 1. the day is calibrated with a *stiff* variant of the settings (the gain drift tied
    to the reference-free 2x-spin harmonic, ``gain_drift_2x``, so that a field along B
@@ -25,7 +25,7 @@ back whole. This module finds such intervals without an outside source
    on every sample), and with no flags; a flagged run where leaving it out changed the
    product more in spin tones (calibration errors the fits could not bridge) than in
    its slow field (a natural field kept) is put back and the day calibrated again
-   (:func:`bridge_check`).
+   (:func:`magcal.missions.elfin.disturbed.bridge_check`).
 
 What it cannot do is tell a slow natural field from the instrument's slow drift
 (anything the baselines make is the instrument's to it): a 100 nT pulse along B of
@@ -368,7 +368,7 @@ class Disturbed:
     ----------
     vector : ndarray of bool (n,)
         Flagged from the vector components (or known beforehand): left out of the
-        vector fits (linear, vector step, phase refit).
+        slow vector fits (linear, the vector step's tilt, phase refit).
     scalar : ndarray of bool (n,)
         Flagged from ``|B|`` (or known beforehand): left out of every fit.
     table : DataFrame
@@ -453,126 +453,3 @@ def locate_disturbed(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
             break
     return Disturbed(vector=flags[:, 0], scalar=flags[:, 1],
                      table=pd.concat(tables, ignore_index=True))
-
-
-def spin_split(field: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
-    """Despun field of each zone split into its mean over one spin and the rest.
-
-    A natural field is slow in the despun frame; calibration errors of the spin-plane
-    sensors (offsets, gains, coupling) make spin tones there. The window is the zone's
-    spin period from its ``phase`` column.
-
-    Returns
-    -------
-    slow, tone : ndarray (n, 3)
-        ``bx_despun ..`` as running mean over one spin, and the field minus it (nT).
-    """
-    from scipy.ndimage import uniform_filter1d
-
-    b = field[["bx_despun", "by_despun", "bz_despun"]].to_numpy(float)
-    slow = np.empty_like(b)
-    zone = field["zone"].to_numpy()
-    for k in dict.fromkeys(zone):
-        sel = np.flatnonzero(zone == k)
-        t = (field.index.asi8[sel] - field.index.asi8[sel][0]) / 1e9
-        dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
-        rate = np.median(np.abs(np.diff(field["phase"].to_numpy(float)[sel])) / max(dt, 1e-9))
-        width = max(1, int(round(2.0 * np.pi / max(rate, 1e-9) / dt)))
-        slow[sel] = uniform_filter1d(b[sel], width, axis=0, mode="nearest")
-    return slow, b - slow
-
-
-def bridge_check(flagged_field: pd.DataFrame, plain_field: pd.DataFrame, flags
-                 ) -> pd.DataFrame:
-    """What leaving each flagged run out of the fits changed: slow field or spin tones.
-
-    Parameters
-    ----------
-    flagged_field, plain_field : DataFrame
-        The same rows calibrated without and with the flagged rows in the fits.
-    flags : array_like of bool (n,)
-        The rows left out (detected).
-
-    Returns
-    -------
-    DataFrame
-        One row per run of ``flags``: ``zone``, ``start_s``, ``end_s`` (from the zone's
-        first sample), ``slow_change_nT`` and ``tone_change_nT`` (RMS over the run of
-        the product's change in its spin mean and in its spin tones), and ``kept``:
-        True when the slow change is at least the tone change. A natural field that
-        the fits no longer absorb comes back slow; spin tones grow when the fits
-        cannot bridge the run (2022-01-12 zone 11, before the vector step's tones were
-        fitted on every sample: 116 nT of tones for 22 nT of slow field over 100 s),
-        and such a run is not worth flagging.
-    """
-    flags = np.asarray(flags, bool)
-    s1, t1 = spin_split(flagged_field)
-    s0, t0 = spin_split(plain_field)
-    zone = flagged_field["zone"].to_numpy()
-    ts = flagged_field.index.asi8 / 1e9
-    rows = []
-    for a, b in true_runs(flags):
-        first = ts[np.flatnonzero(zone == zone[a])[0]]
-        slow = float(np.sqrt(np.mean(np.sum((s1[a:b] - s0[a:b]) ** 2, axis=1))))
-        tone = float(np.sqrt(np.mean(np.sum((t1[a:b] - t0[a:b]) ** 2, axis=1))))
-        rows.append({"zone": int(zone[a]), "start_s": float(ts[a] - first),
-                     "end_s": float(ts[b - 1] - first), "slow_change_nT": slow,
-                     "tone_change_nT": tone, "kept": slow >= tone})
-    return pd.DataFrame(rows, columns=["zone", "start_s", "end_s", "slow_change_nT",
-                                       "tone_change_nT", "kept"])
-
-
-def calibrate_detected(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, provenance=None,
-                       hold_phase=None, fit_exclude=None, diagnostics: bool = True,
-                       detect: DetectSettings | None = None):
-    """The day calibrated without the disturbed intervals found from the counts.
-
-    :func:`locate_disturbed`, then the day calibrated with the flagged rows left out
-    of the fits (the ``|B|`` flags out of every fit, the vector flags out of the
-    vector fits only) and, for comparison, with them in; a flagged run where that
-    changed the product more in spin tones than in its slow field is put back
-    (:func:`bridge_check`) and the day calibrated again.
-
-    Returns
-    -------
-    ElfinDay
-        With ``settings`` as given and ``steps["disturbed_detection"]`` (per zone and
-        pass, :func:`locate_disturbed`; ``kept_share``: the share of each zone's used
-        samples left out after the check) and ``steps["disturbed_runs"]``
-        (:func:`bridge_check`).
-    """
-    from magcal.missions.elfin.pipeline import calibrate_elfin_day
-
-    base = replace(settings, detect_disturbed=False)
-    known = np.zeros(len(fgs), bool) if fit_exclude is None else np.asarray(fit_exclude, bool)
-
-    def run(vector, scalar, diag=False, linear=None):
-        return calibrate_elfin_day(fgs, state, base, provenance=provenance,
-                                   hold_phase=hold_phase,
-                                   fit_exclude=(vector | scalar) if (vector | scalar).any()
-                                   else None,
-                                   fit_exclude_scalar=scalar, diagnostics=diag, linear=linear)
-
-    plain = run(known, known)
-    found = locate_disturbed(fgs, state, settings, detect=detect, fit_exclude=known,
-                             hold_phase=hold_phase, linear=plain.linear)
-    vector, scalar = found.vector, found.scalar
-    day = run(vector, scalar, diagnostics)
-    runs = bridge_check(day.calibration.field, plain.calibration.field,
-                        (vector | scalar) & ~known)
-    drop = np.zeros(len(fgs), bool)
-    ts = day.calibration.field.index.asi8 / 1e9
-    zone = day.calibration.field["zone"].to_numpy()
-    for r in runs[~runs["kept"]].itertuples():
-        first = ts[np.flatnonzero(zone == r.zone)[0]]
-        drop |= (zone == r.zone) & (ts >= first + r.start_s) & (ts <= first + r.end_s)
-    if drop.any():
-        vector, scalar = (vector & ~drop) | known, (scalar & ~drop) | known
-        day = run(vector, scalar, diagnostics)
-    table = found.table.copy()
-    used = day.calibration.field["used"].to_numpy() == 1
-    left = vector | scalar
-    table["kept_share"] = [float(left[used & (zone == k)].mean()) for k in table["zone"]]
-    steps = {**day.steps, "disturbed_detection": table, "disturbed_runs": runs}
-    return replace(day, settings=settings, steps=steps)
-

@@ -121,7 +121,7 @@ class ElfinSettings:
         for each of :data:`SHIFTS_S`; diagnostic, 7 more linear fits).
     detect_disturbed : bool
         Locate disturbed intervals from the counts alone and leave them out of the fits
-        (:func:`magcal.missions.elfin.detect.calibrate_detected`: localized excursions
+        (:func:`magcal.missions.elfin.disturbed.calibrate_detected`: localized excursions
         of the residual of a stiff calibration, not within 20 s of a zone end; ``|B|``
         flags out of every fit, vector flags out of the slow vector fits; a run is put
         back when leaving it out adds more spin tones than slow field). Signal trade:
@@ -487,7 +487,7 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
 
     s = settings or ElfinSettings()
     if s.detect_disturbed:
-        from magcal.missions.elfin.detect import calibrate_detected
+        from magcal.missions.elfin.disturbed import calibrate_detected
 
         return calibrate_detected(fgs, state, s, provenance=provenance, hold_phase=hold_phase,
                                   fit_exclude=fit_exclude, diagnostics=diagnostics)
