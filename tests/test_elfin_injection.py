@@ -248,3 +248,32 @@ def test_detected_intervals_keep_pulses_across_b_and_leave_a_wave_alone(day):
     runs = pd.DataFrame(det["runs"])
     assert (runs["kept"] == (runs["slow_change_nT"] >= runs["tone_change_nT"])).all()
     assert det["zones"][0]["kept_share"] <= det["zones"][0]["flagged_share"] + 1e-12
+
+
+def test_a_run_the_bridge_check_rejects_goes_back_into_the_fits(day, monkeypatch):
+    """The plumbing of the bridge check on zone 1: a run marked as not bridged is put
+    back into every fit and the day calibrated again (on 2022-01-12 no run is rejected,
+    so the rejection is forced here)."""
+    import magcal.missions.elfin.disturbed as disturbed
+    from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
+
+    fgs, state = day
+    honest = calibrate_elfin_day(fgs, state, ElfinSettings(), diagnostics=False)
+    left_out = honest.calibration.field["fit"].to_numpy() == 0
+    assert left_out.any()                         # measured: 0.17 of the zone
+    real = disturbed.bridge_check
+
+    def reject_all(*args):
+        return real(*args).assign(kept=False)
+
+    monkeypatch.setattr(disturbed, "bridge_check", reject_all)
+    forced = calibrate_elfin_day(fgs, state, ElfinSettings(), diagnostics=False)
+    f = forced.calibration.field
+    assert (f.loc[f["used"] == 1, "fit"] == 1).all()
+    assert forced.steps["disturbed_detection"]["kept_share"].iloc[0] == 0.0
+    assert not forced.steps["disturbed_runs"]["kept"].any()
+    # with every run back in, the product is the one without detection
+    plain = calibrate_elfin_day(fgs, state, ElfinSettings(detect_disturbed=False),
+                                diagnostics=False).calibration.field
+    cols = ["bx_gei", "by_gei", "bz_gei"]
+    assert np.abs(f[cols].to_numpy() - plain[cols].to_numpy()).max() < 1e-6

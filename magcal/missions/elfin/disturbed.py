@@ -96,7 +96,7 @@ def calibrate_detected(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, prov
     """The day calibrated without the disturbed intervals found from the counts.
 
     :func:`locate_disturbed`, then the day calibrated with the flagged rows left out
-    of the fits (the ``|B|`` flags out of every fit, the vector flags out of the
+    of the fits (the ``|B|`` flags out of every fit, the vector flags out of the slow
     vector fits only) and, for comparison, with them in; a flagged run where that
     changed the product more in spin tones than in its slow field is put back
     (:func:`bridge_check`) and the day calibrated again.
@@ -126,19 +126,17 @@ def calibrate_detected(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, prov
                              hold_phase=hold_phase, linear=plain.linear)
     vector, scalar = found.vector, found.scalar
     day = run(vector, scalar, diagnostics)
-    runs = bridge_check(day.calibration.field, plain.calibration.field,
-                        (vector | scalar) & ~known)
+    left_out = (vector | scalar) & ~known
+    runs = bridge_check(day.calibration.field, plain.calibration.field, left_out)
     drop = np.zeros(len(fgs), bool)
-    ts = day.calibration.field.index.asi8 / 1e9
-    zone = day.calibration.field["zone"].to_numpy()
-    for r in runs[~runs["kept"]].itertuples():
-        first = ts[np.flatnonzero(zone == r.zone)[0]]
-        drop |= (zone == r.zone) & (ts >= first + r.start_s) & (ts <= first + r.end_s)
+    for (a, b), kept in zip(true_runs(left_out), runs["kept"]):   # one row per run
+        drop[a:b] = not kept
     if drop.any():
         vector, scalar = (vector & ~drop) | known, (scalar & ~drop) | known
         day = run(vector, scalar, diagnostics)
     table = found.table.copy()
     used = day.calibration.field["used"].to_numpy() == 1
+    zone = day.calibration.field["zone"].to_numpy()
     left = vector | scalar
     table["kept_share"] = [float(left[used & (zone == k)].mean()) for k in table["zone"]]
     steps = {**day.steps, "disturbed_detection": table, "disturbed_runs": runs}
