@@ -133,3 +133,44 @@ def test_elfin_gains_period_sense_and_timing(elfin_cal):
     assert all(j["n_samples"] == 25 for j in jumps)
     payload = elfin_cal.to_json()
     assert payload["schema_version"] == 1 and "ELFIN SOC" in payload["credit"]
+
+
+def test_axis_row_prior_keeps_an_east_west_pulse_where_the_axis_field_is_flat():
+    """Zone 3 of 2022-01-12 (spin-axis field std 74 nT) fitted with zone 0 (992 nT):
+    on its own the zone's spin-axis row takes an injected 200 nT east-west pulse as a
+    gain change even with the phase held; drawn towards zone 0's row it keeps it.
+    Truth: the injected pulse (phase held, so only the zone mean may go: 16 %)."""
+    from conftest import real_data_path
+
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.injection import inject_counts, signal_gei
+
+    base = real_data_path("elfin")
+    fgs = read_elfin_fgs(base / "ela_l1_fgs_20220112_v01.cdf")
+    state = read_elfin_state(base / "ela_l1_state_defn_20220112_v01.cdf")
+    t = (fgs.index.asi8 - fgs.index.asi8[0]) / 1e9
+    ranges = split_zones(t)
+    rows = np.zeros(len(fgs), bool)
+    for k in (0, 3):
+        rows[slice(*ranges[k])] = True
+    day = fgs[rows]
+    gains = {}
+    for weight in (0.0, 1.0):
+        clean = calibrate_elfin(day, state, phase_knot_s=None, axis_prior_weight=weight)
+        f = clean.field
+        z3 = (f["zone"] == 1).to_numpy()              # the subset's zones are 0 and 1
+        sig = signal_gei("gauss_ew", f[z3], state)
+        held = calibrate_elfin(inject_counts(day, clean, {1: sig}), state, phase_knot_s=None,
+                               axis_prior_weight=weight, hold_phase=f["phase"].to_numpy())
+        cols = ["bx_gei", "by_gei", "bz_gei"]
+        rec = held.field[cols].to_numpy()[z3] - f[cols].to_numpy()[z3]
+        gains[weight] = float(np.sum(rec * sig) / np.sum(sig * sig))
+        if weight:
+            prior = clean.parameters["axis_prior"]
+            assert prior["zones"] == [0]
+            row3 = np.linalg.norm(clean.zones[1].coupling[2])
+            # drawn to within 25 % of zone 0's row (measured 7.8e-3 against 8.1e-3; alone 2.5e-3)
+            assert row3 == pytest.approx(np.linalg.norm(prior["row_nT_per_count"]), rel=0.25)
+    # measured: -0.09 alone, 0.75 with the prior (1 - zone-mean share: 0.84)
+    assert gains[0.0] < 0.2
+    assert gains[1.0] > 0.6

@@ -154,7 +154,8 @@ def _powers(T, degree: int, first: int = 0) -> np.ndarray:
 
 
 def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, n_iter,
-             fit_attitude=False, hold=False, phase_degree=2):
+             fit_attitude=False, hold=False, phase_degree=2, axis_prior=None,
+             axis_prior_weight=0.0):
     """Alternate calibration (linear) and phase steps; return weights, body field, phase.
 
     Spin-plane rows: ``[counts, 1, T, .., T^offset_degree]``. Spin-axis row:
@@ -165,6 +166,9 @@ def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, 
     spin-axis gain. The phase correction is a cubic spline (``knots``) or, without
     knots, such that the whole phase is a polynomial of ``phase_degree`` (2: the
     base's quadratic plus a quadratic). ``hold``: the phase stays ``base`` (no phase step).
+    ``axis_prior``: a spin-axis row (nT per count) that the row's count coefficients are
+    drawn towards, with ``axis_prior_weight`` times their squared difference in nT per
+    10^6 counts added to the sum of squares (nT^2).
     """
     from scipy.interpolate import make_lsq_spline
 
@@ -182,7 +186,13 @@ def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, 
         tilt = _powers(T, axis_degree, first=1)
         att = -target[:, :2] if fit_attitude else np.zeros((T.size, 2))
         z = np.column_stack([x, np.ones_like(T), bx[:, None] * tilt, by[:, None] * tilt, att])
-        wz = np.linalg.lstsq(z[used], tgt[used, 2], rcond=None)[0]
+        a_z, y_z = z[used], tgt[used, 2]
+        if axis_prior is not None and axis_prior_weight > 0:
+            ridge = np.zeros((3, z.shape[1]))
+            ridge[:, :3] = np.sqrt(axis_prior_weight) * np.eye(3)
+            a_z = np.vstack([a_z, ridge])
+            y_z = np.r_[y_z, np.sqrt(axis_prior_weight) * np.asarray(axis_prior) * _SCALE]
+        wz = np.linalg.lstsq(a_z, y_z, rcond=None)[0]
         if not fit_attitude:
             wz[-2:] = 0.0
         # the last two columns are the attitude correction: not part of the data
@@ -222,7 +232,8 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
              axis_degree: int = 2, phase_knot_s: float | None = 30.0, n_iter: int = 8,
              fit_attitude: bool = False, times_iso=("", ""), timestamp_anomalies=(),
              exclude=None, phase=None, fit_exclude=None, phase_degree: int = 2,
-             handedness: int = 1) -> _ZoneFit:
+             handedness: int = 1, axis_prior=None, axis_prior_weight: float = 0.0
+             ) -> _ZoneFit:
     """Calibrate one zone of raw counts against a reference field in the despun frame.
 
     Parameters
@@ -268,6 +279,13 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
         of 12 zones with a quadratic phase); the mirror flips the sign of every field
         across B in the spin plane, a natural one included, so the instrument's
         handedness decides, not the fit.
+    axis_prior : array_like (3,), optional
+        A spin-axis row of the coupling (nT per count) to draw this zone's towards,
+        with ``axis_prior_weight`` (nT^2 per (nT per 10^6 counts)^2; 0: none). The row's
+        gain along the spin axis is set only by how much the spin-axis field changes
+        over the pass; where that is small the tilt terms and the offset can rebuild
+        it, and a natural field along the spin axis is taken as a gain change
+        (:func:`calibrate_elfin`, ``axis_prior_weight``).
 
     Returns
     -------
@@ -308,7 +326,8 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
             base = np.polyval(coef, t - t[0])
         out = _iterate(t, x, T, ref, base, used, offset_degree=offset_degree,
                        axis_degree=axis_degree, knots=knots, n_iter=n_iter,
-                       fit_attitude=fit_attitude, hold=held, phase_degree=phase_degree)
+                       fit_attitude=fit_attitude, hold=held, phase_degree=phase_degree,
+                       axis_prior=axis_prior, axis_prior_weight=axis_prior_weight)
         fitted = out[4]
         rms = float(np.sqrt(np.mean((fitted - ref)[used] ** 2)))
         tried.append(rms)
@@ -381,6 +400,42 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
         n_timing_flagged=int(np.sum(exclude)) if exclude is not None else 0)
     return _ZoneFit(b_despun=fitted, phase=phase, used=out_used, summary=summary,
                     fit=used)
+
+
+#: Standard deviation (nT) of the spin-axis field over a pass above which a zone's own
+#: spin-axis row is trusted (:func:`axis_row_prior`; 2022-01-12: zones 0, 1, 2, 11).
+AXIS_PRIOR_MIN_STD_NT = 500.0
+
+
+def axis_row_prior(fits, axis_fields) -> dict:
+    """The day's spin-axis row: the median over the zones whose spin-axis field changes.
+
+    The spin axis is fixed in the body, so the coupling's spin-axis row (nT per count)
+    is one for the day, but each zone sees its gain along the spin axis only through
+    how much the spin-axis field changes over the pass (2022-01-12: 74-992 nT std; the
+    rows spread over a factor 1.8 and zone 3's, at 74 nT, is a quarter of the others).
+
+    Parameters
+    ----------
+    fits : sequence of _ZoneFit
+        The zones fitted on their own.
+    axis_fields : sequence of ndarray
+        Each zone's reference spin-axis component (nT) on its samples.
+
+    Returns
+    -------
+    dict
+        ``row_nT_per_count`` (3,), ``from_zones`` (positions in ``fits`` whose
+        spin-axis field's standard deviation on the used samples is at least
+        :data:`AXIS_PRIOR_MIN_STD_NT`, or the one with the largest) and
+        ``axis_field_std_nT`` per zone.
+    """
+    stds = [float(np.std(np.asarray(bz)[f.used])) for f, bz in zip(fits, axis_fields)]
+    chosen = [i for i, v in enumerate(stds) if v >= AXIS_PRIOR_MIN_STD_NT] or \
+        [int(np.argmax(stds))]
+    rows = np.array([fits[i].summary.coupling[2] for i in chosen])
+    return {"row_nT_per_count": np.median(rows, axis=0), "from_zones": chosen,
+            "axis_field_std_nT": stds}
 
 
 def igrf_gei(times, pos_gei_km) -> np.ndarray:
@@ -471,7 +526,8 @@ class ElfinCalibration:
 def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float = 60.0,
                     time_shift_s: float = 0.0, repair_times: bool = True,
                     check_times: bool = True, zones=None, provenance=None,
-                    hold_phase=None, fit_exclude=None, **fit_kw) -> ElfinCalibration:
+                    hold_phase=None, fit_exclude=None, axis_prior_weight: float = 0.0,
+                    **fit_kw) -> ElfinCalibration:
     """Calibrate ELFIN FGS counts zone by zone against IGRF at the spacecraft.
 
     Parameters
@@ -501,6 +557,11 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
     fit_exclude : array_like (len(fgs),) of bool, optional
         Rows left out of every fit but kept in the product (``fit_exclude`` of
         :func:`fit_zone`); the field's ``fit`` column (0/1) carries it to the later steps.
+    axis_prior_weight : float
+        If positive, the zones whose spin-axis field changes little over the pass are
+        fitted again with their spin-axis row drawn towards the day's
+        (:func:`axis_row_prior`; ``axis_prior`` of :func:`fit_zone`); recorded as
+        ``parameters["axis_prior"]``. 0: every zone on its own (default).
     **fit_kw
         Passed to :func:`fit_zone`.
 
@@ -521,7 +582,7 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
     axis = state[["spin_axis_gei_x", "spin_axis_gei_y", "spin_axis_gei_z"]].to_numpy()
     ranges = split_zones(t_all, min_gap_s)
     chosen = range(len(ranges)) if zones is None else zones
-    results, frames = [], []
+    inputs = []
     for k in chosen:
         a, b = ranges[k]
         t = t_all[a:b]
@@ -541,22 +602,39 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
         ref_gei = CubicSpline(ts[sel], b_gei_ref)(tq)
         ax = np.column_stack([np.interp(tq, ts[sel], axis[sel, j]) for j in range(3)])
         basis = despun_basis(ax)
-        ref = np.einsum("nij,nj->ni", basis, ref_gei)
+        inputs.append({"k": k, "a": a, "b": b, "t": t, "anomalies": anomalies, "bad": bad,
+                       "ref_gei": ref_gei, "ax": ax, "basis": basis,
+                       "ref": np.einsum("nij,nj->ni", basis, ref_gei)})
+
+    def fit_one(z, **kw):
+        a, b = z["a"], z["b"]
         iso = (str(fgs.index[a].tz_convert(None)), str(fgs.index[b - 1].tz_convert(None)))
         held = None if hold_phase is None else np.asarray(hold_phase, float)[a:b]
         skip = None if fit_exclude is None else np.asarray(fit_exclude, bool)[a:b]
-        fit = fit_zone(t, fgs[["b1", "b2", "b3"]].to_numpy()[a:b], ref, times_iso=iso,
-                       timestamp_anomalies=anomalies, exclude=bad, phase=held,
-                       fit_exclude=skip, **fit_kw)
+        return fit_zone(z["t"], fgs[["b1", "b2", "b3"]].to_numpy()[a:b], z["ref"],
+                        times_iso=iso, timestamp_anomalies=z["anomalies"], exclude=z["bad"],
+                        phase=held, fit_exclude=skip, **fit_kw, **kw)
+
+    fits = [fit_one(z) for z in inputs]
+    prior = None
+    if axis_prior_weight > 0:
+        prior = axis_row_prior(fits, [z["ref"][:, 2] for z in inputs])
+        fits = [fit_one(z, axis_prior=prior["row_nT_per_count"],
+                        axis_prior_weight=axis_prior_weight)
+                if i not in prior["from_zones"] else f
+                for i, (z, f) in enumerate(zip(inputs, fits))]
+    results, frames = [], []
+    for z, fit in zip(inputs, fits):
+        k, a, b, t, ax = z["k"], z["a"], z["b"], z["t"], z["ax"]
         results.append(fit.summary)
-        cal_gei = np.einsum("nji,nj->ni", basis, fit.b_despun)
+        cal_gei = np.einsum("nji,nj->ni", z["basis"], fit.b_despun)
         idx = t_ref + pd.to_timedelta(np.round(t * 1e9).astype("int64"), unit="ns")
         data = {"zone": np.full(t.size, k), "used": fit.used.astype(int),
                 "fit": fit.fit.astype(int)}
         for name, arr in (("{}_gei", cal_gei), ("{}_despun", fit.b_despun)):
             for j, c in enumerate("xyz"):
                 data["b" + name.format(c)] = arr[:, j]
-        for name, arr in (("igrf_{}_gei", ref_gei), ("igrf_{}_despun", ref)):
+        for name, arr in (("igrf_{}_gei", z["ref_gei"]), ("igrf_{}_despun", z["ref"])):
             for j, c in enumerate("xyz"):
                 data[name.format(c)] = arr[:, j]
         data["phase"] = fit.phase
@@ -567,5 +645,8 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
         frames.append(pd.DataFrame(data, index=pd.DatetimeIndex(idx, name="time")))
     params = {"min_gap_s": min_gap_s, "time_shift_s": time_shift_s,
               "repair_times": repair_times, "check_times": check_times, **{k: v for k, v in fit_kw.items()}}
+    if prior is not None:
+        params["axis_prior"] = {**prior, "weight": axis_prior_weight,
+                                "zones": [inputs[i]["k"] for i in prior["from_zones"]]}
     return ElfinCalibration(zones=tuple(results), field=pd.concat(frames),
                             parameters=params, provenance=provenance or {})

@@ -128,9 +128,19 @@ class ElfinSettings:
         False fits every step on every sample and takes a localized field across B
         (zones 1, 4, 7, 10: an east-west 40 s pulse 108 % kept with detection, 65 %
         without; an along-track one 97 % against 26 %) for the same zone-median
-        residual (7.19 / 5.14 / 16.40 against 7.19 / 5.16 / 16.40 nT scalar / fast /
+        residual (7.19 / 5.14 / 15.75 against 7.19 / 5.16 / 15.75 nT scalar / fast /
         vector). About 2.5 times the calibration time (a stiff calibration from the
         same linear fit, one without flags for the bridge check, one or two with them).
+    axis_prior_weight : float
+        If positive, the linear fit draws the spin-axis row of the zones whose
+        spin-axis field changes little over the pass (std below 500 nT) towards the
+        median row of the others (``axis_prior_weight`` of
+        :func:`~magcal.missions.elfin.linear.calibrate_elfin`); 0: each zone on its
+        own. On 2022-01-12 (prior from zones 0, 1, 2, 11) zone 3's row goes from 2.5e-3
+        to 8.2e-3 nT per count (the others 6.7-10.2e-3), an east-west pulse there comes
+        back with the phase held at 0.75 of its energy instead of -0.09 and as
+        delivered at 102 % instead of 54 %, and the whole day's vector residual goes
+        from 17.0 to 16.6 nT.
     """
 
     harmonic: bool = True
@@ -150,6 +160,7 @@ class ElfinSettings:
     joint: bool = False
     scan: bool = False
     detect_disturbed: bool = True
+    axis_prior_weight: float = 1.0
 
     @classmethod
     def from_mapping(cls, given: dict, where: str = "settings") -> ElfinSettings:
@@ -167,7 +178,7 @@ class ElfinSettings:
         >>> ElfinSettings.from_mapping({"tilt": 1})
         Traceback (most recent call last):
         ...
-        magcal.errors.InputError: settings: unknown key 'tilt' (known: harmonic, gain_drift, gain_drift_2x, vector_step, tilt_bound_deg, vector_knot_s, fast_drift, phase_refit, linear_phase_knot_s, linear_phase_degree, linear_axis_degree, gain_drift_robust_c, fast_knot_s, refit_knot_s, joint, scan, detect_disturbed)
+        magcal.errors.InputError: settings: unknown key 'tilt' (known: harmonic, gain_drift, gain_drift_2x, vector_step, tilt_bound_deg, vector_knot_s, fast_drift, phase_refit, linear_phase_knot_s, linear_phase_degree, linear_axis_degree, gain_drift_robust_c, fast_knot_s, refit_knot_s, joint, scan, detect_disturbed, axis_prior_weight)
         """
         known = {f.name: f for f in fields(cls)}
         out = {}
@@ -193,7 +204,7 @@ class ElfinSettings:
             raise InputError(f"{where}: tilt_bound_deg must not be negative")
         for key in ("vector_knot_s", "linear_phase_knot_s", "linear_axis_degree",
                     "linear_phase_degree",
-                    "gain_drift_robust_c"):
+                    "gain_drift_robust_c", "axis_prior_weight"):
             if getattr(settings, key) < 0:
                 raise InputError(f"{where}: {key} must not be negative")
         for key in ("fast_knot_s", "refit_knot_s"):
@@ -496,7 +507,8 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
         linear = calibrate_elfin(fgs, state, provenance=provenance, hold_phase=hold_phase,
                                  fit_exclude=fit_exclude, phase_knot_s=knot,
                                  axis_degree=s.linear_axis_degree,
-                                 phase_degree=s.linear_phase_degree)
+                                 phase_degree=s.linear_phase_degree,
+                                 axis_prior_weight=s.axis_prior_weight)
     if fit_exclude_scalar is not None:
         # e.g. flagged across B only: still fitted by the steps that fit |B| alone
         lf = linear.field
