@@ -101,7 +101,7 @@ def _run(argv=None) -> int:
                     help="skip the final spin-phase refit (240 s knots)")
     ap.add_argument("--no-detect", action="store_true",
                     help="fit every step on every sample instead of leaving the disturbed "
-                         "intervals located from the counts out (about 3.5 times faster; "
+                         "intervals located from the counts out (about 2.5 times faster; "
                          "localized natural fields across B are then absorbed)")
     ap.add_argument("--joint", action="store_true",
                     help="also run the joint fit across zones (shared sensor, per-zone "

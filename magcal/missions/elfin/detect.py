@@ -360,6 +360,12 @@ def detect_in_field(field: pd.DataFrame, settings: DetectSettings | None = None
     return flags, pd.DataFrame(rows)
 
 
+def zone_shares(mask, used, zone, zones) -> list[float]:
+    """Share of each zone's used samples that ``mask`` holds, for the zone numbers
+    ``zones`` (``used``, ``zone`` and ``mask`` row by row)."""
+    return [float(mask[used & (zone == k)].mean()) for k in zones]
+
+
 @dataclass(frozen=True)
 class Disturbed:
     """Rows of an ELFIN day flagged by :func:`locate_disturbed`.
@@ -444,10 +450,8 @@ def locate_disturbed(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         flags = flags | new
         used = f["used"].to_numpy() == 1
         zone = f["zone"].to_numpy()
-        table["flagged_share"] = [float(flags[used & (zone == k)].any(axis=1).mean())
-                                  for k in table["zone"]]
-        table["scalar_flagged_share"] = [float(flags[used & (zone == k), 1].mean())
-                                         for k in table["zone"]]
+        table["flagged_share"] = zone_shares(flags.any(axis=1), used, zone, table["zone"])
+        table["scalar_flagged_share"] = zone_shares(flags[:, 1], used, zone, table["zone"])
         tables.append(table.assign(**{"pass": len(tables) + 1}))
         if settled:
             break

@@ -19,7 +19,7 @@ from dataclasses import replace
 import numpy as np
 import pandas as pd
 
-from magcal.missions.elfin.detect import DetectSettings, locate_disturbed
+from magcal.missions.elfin.detect import DetectSettings, locate_disturbed, zone_shares
 from magcal.missions.elfin.timing import true_runs
 
 
@@ -137,8 +137,7 @@ def calibrate_detected(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, prov
     table = found.table.copy()
     used = day.calibration.field["used"].to_numpy() == 1
     zone = day.calibration.field["zone"].to_numpy()
-    left = vector | scalar
-    table["kept_share"] = [float(left[used & (zone == k)].mean()) for k in table["zone"]]
+    table["kept_share"] = zone_shares(vector | scalar, used, zone, table["zone"])
     steps = {**day.steps, "disturbed_detection": table, "disturbed_runs": runs}
     return replace(day, settings=settings, steps=steps)
 
