@@ -21,8 +21,8 @@ plain OU model of :mod:`magcal.alignment.noise`.
 from __future__ import annotations
 
 import dataclasses
-from typing import ClassVar
 import functools
+from typing import ClassVar
 
 import numpy as np
 from scipy.optimize import minimize
