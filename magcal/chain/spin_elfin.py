@@ -110,7 +110,8 @@ def _calibrate(data, settings, inputs, disturbed=()):
                "settings": asdict(settings)}
     return day, StageProduct(stage="spin", summary=summary, lines=tuple(lines),
                              documents={"ELFIN_CAL.json": day.to_json()},
-                             provenance=prov, warnings=tuple(empty + day.worse_steps()))
+                             provenance=prov,
+                             warnings=tuple(empty + day.data_warnings() + day.worse_steps()))
 
 
 def _calibrated(day, probe: str):

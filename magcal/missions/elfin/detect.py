@@ -406,7 +406,7 @@ def detect_disturbed(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
 
 def locate_disturbed(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
                      detect: DetectSettings | None = None, fit_exclude=None,
-                     hold_phase=None, linear=None) -> Disturbed:
+                     hold_phase=None, linear=None, zone_numbers=None) -> Disturbed:
     """Rows of an ELFIN day inside disturbed intervals found from the counts alone.
 
     Parameters
@@ -424,6 +424,8 @@ def locate_disturbed(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
     linear : ElfinCalibration, optional
         The linear calibration of these rows with ``fit_exclude`` (first pass only;
         see :func:`~magcal.missions.elfin.pipeline.calibrate_elfin_day`).
+    zone_numbers : sequence of int, optional
+        The zone numbers of these rows (passed to the calibration).
 
     Returns
     -------
@@ -443,7 +445,8 @@ def locate_disturbed(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         either = flags.any(axis=1)
         day = calibrate_elfin_day(fgs, state, stiff, hold_phase=hold_phase,
                                   fit_exclude=either if either.any() else None,
-                                  diagnostics=False, linear=linear if not tables else None)
+                                  diagnostics=False, linear=linear if not tables else None,
+                                  zone_numbers=zone_numbers)
         f = day.calibration.field
         new, table = detect_in_field(f, d)
         settled = not (new & ~flags).any()

@@ -92,14 +92,16 @@ def bridge_check(flagged_field: pd.DataFrame, plain_field: pd.DataFrame, flags
 
 def calibrate_detected(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, provenance=None,
                        hold_phase=None, fit_exclude=None, diagnostics: bool = True,
-                       detect: DetectSettings | None = None):
+                       detect: DetectSettings | None = None, linear=None, zone_numbers=None):
     """The day calibrated without the disturbed intervals found from the counts.
 
     :func:`locate_disturbed`, then the day calibrated with the flagged rows left out
     of the fits (the ``|B|`` flags out of every fit, the vector flags out of the slow
     vector fits only) and, for comparison, with them in; a flagged run where that
     changed the product more in spin tones than in its slow field is put back
-    (:func:`bridge_check`) and the day calibrated again.
+    (:func:`bridge_check`) and the day calibrated again. ``linear`` (the plain linear
+    calibration of these rows, to reuse) and ``zone_numbers`` are passed to
+    :func:`~magcal.missions.elfin.pipeline.calibrate_elfin_day`.
 
     Returns
     -------
@@ -119,11 +121,13 @@ def calibrate_detected(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, prov
                                    hold_phase=hold_phase,
                                    fit_exclude=(vector | scalar) if (vector | scalar).any()
                                    else None,
-                                   fit_exclude_scalar=scalar, diagnostics=diag, linear=linear)
+                                   fit_exclude_scalar=scalar, diagnostics=diag, linear=linear,
+                                   zone_numbers=zone_numbers)
 
-    plain = run(known, known)
+    plain = run(known, known, linear=linear)
     found = locate_disturbed(fgs, state, settings, detect=detect, fit_exclude=known,
-                             hold_phase=hold_phase, linear=plain.linear)
+                             hold_phase=hold_phase, linear=plain.linear,
+                             zone_numbers=zone_numbers)
     vector, scalar = found.vector, found.scalar
     day = run(vector, scalar, diagnostics)
     left_out = (vector | scalar) & ~known

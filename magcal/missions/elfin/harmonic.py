@@ -32,6 +32,12 @@ from magcal.missions.elfin.scalar import fast_part, fit_spin_harmonics, rms
 from magcal.spin.despin import despin, spin
 
 
+def _over_perp(mag, beta):
+    """``|B| / |B_perp|`` per sample; NaN where the counts were fill (no warning)."""
+    perp = np.abs(beta)
+    return np.divide(mag, perp, out=np.full(perp.shape, np.nan), where=perp > 0)
+
+
 def harmonic_vector_correction(t_s, b_body, ref_magnitude_nT, *, fixed=(4,), drifting=(1, 2),
                                drift_degree: int = 3, poly_degree: int = 5,
                                fixed_power: float = 3.0, n_iter: int = 2, fit_mask=None) -> tuple[np.ndarray, dict]:
@@ -84,7 +90,7 @@ def harmonic_vector_correction(t_s, b_body, ref_magnitude_nT, *, fixed=(4,), dri
         delta = np.zeros(t.size, complex)
         for k, c in model.coefficients.items():
             ck = np.interp(t, t[use], c.real) + 1j * np.interp(t, t[use], c.imag)
-            delta -= np.conj(ck) * np.exp(-1j * (k - 1) * psi) * mag / np.abs(beta)
+            delta -= np.conj(ck) * np.exp(-1j * (k - 1) * psi) * _over_perp(mag, beta)
         b[:, 0] += delta.real
         b[:, 1] += delta.imag
     r1 = np.linalg.norm(b, axis=1) - ref
@@ -222,7 +228,7 @@ def drifting_harmonic_correction(t_s, b_body, ref_magnitude_nT, *, harmonics=(1,
         for k, (wc, ws) in zip(harmonics, w):
             c = basis @ wc - 1j * (basis @ ws)                 # term Re(c e^{i k psi})
             removed[int(k)] = rms(np.real(c * np.exp(1j * k * psi))[use])
-            delta -= np.conj(c) * np.exp(-1j * (k - 1) * psi) * mag / np.abs(beta)
+            delta -= np.conj(c) * np.exp(-1j * (k - 1) * psi) * _over_perp(mag, beta)
         first = first or removed
         b[:, 0] += delta.real
         b[:, 1] += delta.imag

@@ -24,13 +24,14 @@ alternate. The first phase comes from the counts alone
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
 
 from magcal.errors import InputError
 from magcal.io.jsonio import product_dict
+from magcal.missions.elfin.clipping import clipped_samples
 from magcal.missions.elfin.phase import (
     TWO_PI,
     despun_basis,
@@ -100,6 +101,9 @@ class ZoneCalibration:
     n_timing_repaired, n_timing_flagged : int
         Samples moved next to an unpaired time-stamp jump, and samples left out
         (``used = 0``) because the counts do not fit the spin where they are stamped.
+    n_clipped : int
+        Samples left out (``used = 0``) because an axis reads its clipped extreme
+        (:func:`~magcal.missions.elfin.clipping.clipped_samples`: saturation).
     det_sign_by_sense : list of int
         Sign of ``det C`` of the solution with the phase sense +1 and -1 (the two are
         mirror images; their signs differ).
@@ -131,6 +135,7 @@ class ZoneCalibration:
     det_sign_by_sense: list = field(default_factory=list)
     n_timing_repaired: int = 0
     n_timing_flagged: int = 0
+    n_clipped: int = 0
 
     def as_dict(self) -> dict:
         """Plain dictionary (JSON-ready after :func:`magcal.io.jsonio.to_jsonable`)."""
@@ -302,8 +307,11 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
     out_used = used.copy()
     if fit_exclude is not None:
         used &= ~np.asarray(fit_exclude, bool)
-    if used.sum() < 200:
-        raise InputError(f"zone {times_iso[0]}: only {int(used.sum())} usable samples")
+    if used.sum() < MIN_USABLE:
+        n_bad = 0 if exclude is None else int(np.sum(exclude))
+        raise InputError(f"zone {times_iso[0]}: only {int(used.sum())} usable samples of "
+                         f"{t.size} ({n_bad} flagged: timing or clipped counts; "
+                         f"{int(np.sum(~np.all(np.isfinite(c), axis=1)))} fill)")
     c_mean = c[used].mean(axis=0)
     x = (c - c_mean) / _SCALE
     span = t[used][-1] - t[used][0]
@@ -456,6 +464,44 @@ def igrf_gei(times, pos_gei_km) -> np.ndarray:
     return convert_vectors(field_geo(times, pos_geo, model="IGRF"), times, "GEO", "GEI")
 
 
+#: Fewest usable samples (after fill, timing and clipping flags) a zone is fitted with.
+MIN_USABLE = 200
+
+
+@dataclass(frozen=True)
+class SkippedZone:
+    """A science zone :func:`calibrate_elfin` could not calibrate, and why.
+
+    Attributes
+    ----------
+    zone : int
+        Zone number (0-based, as in ``field["zone"]``).
+    start, end : str
+        First and last sample (UTC, ISO).
+    n_samples : int
+        Its FGS rows (kept in the delivered series with ``used = 0``).
+    reason : str
+        The error the zone's fit raised.
+    rows : tuple of int
+        Its rows ``[first, last + 1)`` among the rows calibrated.
+    times : DatetimeIndex
+        The rows' times (not in :meth:`as_dict`).
+    """
+
+    zone: int
+    start: str
+    end: str
+    n_samples: int
+    reason: str
+    rows: tuple = (0, 0)
+    times: pd.DatetimeIndex = field(repr=False, default=None)
+
+    def as_dict(self) -> dict:
+        """Plain dictionary without the times."""
+        return {k: getattr(self, k) for k in ("zone", "start", "end", "n_samples", "reason",
+                                              "rows")}
+
+
 @dataclass(frozen=True)
 class ElfinCalibration:
     """Result of :func:`calibrate_elfin`: per-zone table and the calibrated series.
@@ -466,12 +512,35 @@ class ElfinCalibration:
     attitude file's spin axis ``spin_axis_gei_x ..`` (despun Z, defines the despun frame)
     and the raw counts ``b1, b2, b3`` (for fits that start again from the counts, e.g.
     :func:`magcal.missions.elfin.joint.calibrate_joint`).
+
+    ``skipped`` holds the zones that could not be calibrated (:class:`SkippedZone`: too
+    few usable samples, no attitude); their rows are not in ``field``, and
+    :meth:`skipped_rows` gives them back with ``used = 0`` for the delivered series.
     """
 
     zones: tuple
     field: pd.DataFrame
     parameters: dict
     provenance: dict = field(default_factory=dict)
+    skipped: tuple = ()
+
+    def kept_rows(self, n_rows: int) -> np.ndarray:
+        """Rows (of the ``n_rows`` calibrated) that are in ``field``: not in a skipped zone."""
+        keep = np.ones(n_rows, bool)
+        for z in self.skipped:
+            keep[z.rows[0]:z.rows[1]] = False
+        return keep
+
+    def skipped_rows(self, columns) -> pd.DataFrame:
+        """Rows of the skipped zones: ``zone`` set, ``used`` 0, every other column NaN."""
+        if not self.skipped:
+            return pd.DataFrame(columns=list(columns), dtype=float)
+        idx = pd.DatetimeIndex(np.concatenate([z.times.asi8 for z in self.skipped]),
+                               tz=self.skipped[0].times.tz, name="time")
+        out = pd.DataFrame(np.nan, index=idx, columns=list(columns))
+        out["zone"] = np.concatenate([np.full(len(z.times), z.zone) for z in self.skipped])
+        out["used"] = 0.0
+        return out
 
     def table(self) -> pd.DataFrame:
         """One row per zone: residuals, gains, offsets, spin period, phase jumps."""
@@ -494,6 +563,7 @@ class ElfinCalibration:
                                          for a in z.timestamp_anomalies),
                 "n_timing_repaired": z.n_timing_repaired,
                 "n_timing_flagged": z.n_timing_flagged,
+                "n_clipped": z.n_clipped,
             })
         return pd.DataFrame(rows)
 
@@ -507,8 +577,10 @@ class ElfinCalibration:
                      "in the despun frame (Z = attitude spin axis)",
             "parameters": self.parameters,
             "zones": [z.as_dict() for z in self.zones],
+            "skipped_zones": [z.as_dict() for z in self.skipped],
             "summary": {
                 "n_zones": len(self.zones),
+                "n_zones_skipped": len(self.skipped),
                 "rms_vector_nT_median": float(tab["rms_vector_nT"].median()),
                 "rms_scalar_nT_median": float(tab["rms_scalar_nT"].median()),
                 "rms_vector_constant_nT_median": float(tab["rms_vector_constant_nT"].median()),
@@ -518,6 +590,7 @@ class ElfinCalibration:
                                   float(tab["spin_period_s"].max())],
                 "n_timing_repaired": int(tab["n_timing_repaired"].sum()),
                 "n_timing_flagged": int(tab["n_timing_flagged"].sum()),
+                "n_clipped": int(tab["n_clipped"].sum()),
             },
             "provenance": self.provenance,
         })
@@ -525,7 +598,8 @@ class ElfinCalibration:
 
 def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float = 60.0,
                     time_shift_s: float = 0.0, repair_times: bool = True,
-                    check_times: bool = True, zones=None, provenance=None,
+                    check_times: bool = True, check_clipping: bool = True,
+                    zones=None, zone_numbers=None, provenance=None,
                     hold_phase=None, fit_exclude=None, axis_prior_weight: float = 0.0,
                     **fit_kw) -> ElfinCalibration:
     """Calibrate ELFIN FGS counts zone by zone against IGRF at the spacecraft.
@@ -548,8 +622,15 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
         (:func:`~magcal.missions.elfin.timing.check_timing`): repair blocks next to
         unpaired jumps, mark what still does not fit ``used = 0`` (counted in
         ``n_timing_flagged``).
+    check_clipping : bool
+        Mark the samples where an axis reads its clipped extreme ``used = 0``
+        (:func:`~magcal.missions.elfin.clipping.clipped_samples`, counted in
+        ``n_clipped``); they are also kept out of the timing check's spin model.
     zones : sequence of int, optional
-        Only these zone numbers (0-based).
+        Only these zones (0-based positions among the zones of ``fgs``).
+    zone_numbers : sequence of int, optional
+        The number each zone of ``fgs`` carries in ``field["zone"]`` (default its
+        position): rows of a day with zones taken out keep their numbers.
     hold_phase : array_like (len(fgs),), optional
         Spin phase (rad) per FGS row, held instead of fitted (``phase`` of
         :func:`fit_zone`); e.g. the ``phase`` column of an earlier calibration of the
@@ -568,6 +649,16 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
     Returns
     -------
     ElfinCalibration
+        A zone that cannot be calibrated (fewer than 200 usable samples after fill,
+        timing and clipping flags; no attitude; no right-handed solution) is left out
+        of ``field`` and listed in ``skipped`` with the reason: one bad pass does not
+        stop the day.
+
+    Raises
+    ------
+    InputError
+        No ``b1, b2, b3`` columns, a ``hold_phase`` of the wrong length, or no zone that
+        can be calibrated.
     """
     from scipy.interpolate import CubicSpline
 
@@ -582,31 +673,53 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
     axis = state[["spin_axis_gei_x", "spin_axis_gei_y", "spin_axis_gei_z"]].to_numpy()
     ranges = split_zones(t_all, min_gap_s)
     chosen = range(len(ranges)) if zones is None else zones
-    inputs = []
+    if zone_numbers is not None and len(zone_numbers) != len(ranges):
+        raise InputError(f"zone_numbers has {len(zone_numbers)} numbers for {len(ranges)} "
+                         "zones")
+    label = list(range(len(ranges))) if zone_numbers is None else list(zone_numbers)
+    inputs, skipped = [], []
+
+    def skip_zone(k, a, b, reason):
+        return SkippedZone(zone=int(k), start=str(fgs.index[a].tz_convert(None)),
+                           end=str(fgs.index[b - 1].tz_convert(None)), n_samples=b - a,
+                           reason=reason, rows=(int(a), int(b)), times=fgs.index[a:b])
     for k in chosen:
         a, b = ranges[k]
         t = t_all[a:b]
+        counts = fgs[["b1", "b2", "b3"]].to_numpy()[a:b]
         anomalies, bad = [], None
+        clipped = clipped_samples(counts) if check_clipping else np.zeros(b - a, bool)
+        n_good = int(np.sum(np.all(np.isfinite(counts), axis=1) & ~clipped))
+        if n_good < MIN_USABLE:
+            skipped.append(skip_zone(label[k], a, b, f"zone {label[k]}: {n_good} samples "
+                                     f"of {b - a} finite and not clipped (fewer than "
+                                     f"{MIN_USABLE})"))
+            continue
         if repair_times:
             t, anomalies = repair_timestamps(t)
         if check_times:
-            check = check_timing(t, fgs[["b1", "b2", "b3"]].to_numpy()[a:b], anomalies,
-                                 mask=t >= t[0] + fit_kw.get("skip_s", 2.0))
-            t, bad = check.t_s, check.bad
+            check = check_timing(t, counts, anomalies,
+                                 mask=(t >= t[0] + fit_kw.get("skip_s", 2.0)) & ~clipped)
+            t, bad = check.t_s, check.bad & ~clipped
             anomalies = anomalies + check.events
+        if clipped.any():
+            bad = clipped if bad is None else bad | clipped
         sel = (ts >= t[0] - 5) & (ts <= t[-1] + 5) & np.all(np.isfinite(axis), axis=1)
         if sel.sum() < 10:
-            raise InputError(f"no orbit/attitude records for zone {k} ({fgs.index[a]})")
+            skipped.append(skip_zone(label[k], a, b, "no orbit/attitude records for zone "
+                                                       f"{label[k]} ({fgs.index[a]})"))
+            continue
         b_gei_ref = igrf_gei(state.index[sel], pos[sel])
         tq = t + time_shift_s
         ref_gei = CubicSpline(ts[sel], b_gei_ref)(tq)
         ax = np.column_stack([np.interp(tq, ts[sel], axis[sel, j]) for j in range(3)])
         basis = despun_basis(ax)
         inputs.append({"k": k, "a": a, "b": b, "t": t, "anomalies": anomalies, "bad": bad,
+                       "n_clipped": int(clipped.sum()),
                        "ref_gei": ref_gei, "ax": ax, "basis": basis,
                        "ref": np.einsum("nij,nj->ni", basis, ref_gei)})
 
-    def fit_one(z, **kw):
+    def _fit_one(z, **kw):
         a, b = z["a"], z["b"]
         iso = (str(fgs.index[a].tz_convert(None)), str(fgs.index[b - 1].tz_convert(None)))
         held = None if hold_phase is None else np.asarray(hold_phase, float)[a:b]
@@ -615,7 +728,26 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
                         times_iso=iso, timestamp_anomalies=z["anomalies"], exclude=z["bad"],
                         phase=held, fit_exclude=skip, **fit_kw, **kw)
 
-    fits = [fit_one(z) for z in inputs]
+    def fit_one(z, **kw):
+        fit = _fit_one(z, **kw)
+        if not z["n_clipped"]:
+            return fit
+        s = fit.summary
+        return replace(fit, summary=replace(
+            s, n_clipped=z["n_clipped"], n_timing_flagged=s.n_timing_flagged - z["n_clipped"]))
+
+    fits, fitted = [], []
+    for z in inputs:
+        try:
+            fits.append(fit_one(z))
+            fitted.append(z)
+        except InputError as err:          # this zone only: the day goes on without it
+            skipped.append(skip_zone(label[z["k"]], z["a"], z["b"], str(err)))
+    inputs = fitted
+    if not inputs:
+        raise InputError("no science zone could be calibrated: " + "; ".join(
+            z.reason for z in skipped))
+    skipped.sort(key=lambda z: z.zone)
     prior = None
     if axis_prior_weight > 0:
         prior = axis_row_prior(fits, [z["ref"][:, 2] for z in inputs])
@@ -629,7 +761,7 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
         results.append(fit.summary)
         cal_gei = np.einsum("nji,nj->ni", z["basis"], fit.b_despun)
         idx = t_ref + pd.to_timedelta(np.round(t * 1e9).astype("int64"), unit="ns")
-        data = {"zone": np.full(t.size, k), "used": fit.used.astype(int),
+        data = {"zone": np.full(t.size, label[k]), "used": fit.used.astype(int),
                 "fit": fit.fit.astype(int)}
         for name, arr in (("{}_gei", cal_gei), ("{}_despun", fit.b_despun)):
             for j, c in enumerate("xyz"):
@@ -647,6 +779,7 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
               "repair_times": repair_times, "check_times": check_times, **{k: v for k, v in fit_kw.items()}}
     if prior is not None:
         params["axis_prior"] = {**prior, "weight": axis_prior_weight,
-                                "zones": [inputs[i]["k"] for i in prior["from_zones"]]}
+                                "zones": [label[inputs[i]["k"]] for i in prior["from_zones"]]}
     return ElfinCalibration(zones=tuple(results), field=pd.concat(frames),
-                            parameters=params, provenance=provenance or {})
+                            parameters=params, provenance=provenance or {},
+                            skipped=tuple(skipped))

@@ -317,8 +317,30 @@ class ElfinDay:
                 for before, after in self._pairs() if after in worse]
 
     def calibrated_table(self) -> pd.DataFrame:
-        """The delivered series: ``time`` index, :data:`CALIBRATED_COLUMNS` (nT, rad)."""
-        return self.calibration.field[list(CALIBRATED_COLUMNS)].astype(float)
+        """The delivered series: ``time`` index, :data:`CALIBRATED_COLUMNS` (nT, rad).
+
+        The rows of zones that could not be calibrated are there too, ``used = 0``
+        and NaN (:attr:`ElfinCalibration.skipped`): nothing read is dropped.
+        """
+        cols = list(CALIBRATED_COLUMNS)
+        table = self.calibration.field[cols].astype(float)
+        if not self.calibration.skipped:
+            return table
+        return pd.concat([table, self.calibration.skipped_rows(cols)]).sort_index()
+
+    def data_warnings(self) -> list[str]:
+        """One line per zone not calibrated (with the reason) and per zone with clipped
+        counts (saturation; left out, so the fit rests on the other spin phases)."""
+        lines = [f"zone {z.zone} ({z.start} - {z.end}, {z.n_samples} samples) not "
+                 f"calibrated: {z.reason}; its rows are delivered with used = 0"
+                 for z in self.calibration.skipped]
+        zone = self.linear.field["zone"].to_numpy()
+        for k, z in zip(dict.fromkeys(zone.tolist()), self.linear.zones):
+            if z.n_clipped:
+                lines.append(f"zone {k} ({z.start}): {z.n_clipped} of {z.n_samples} samples "
+                             f"({z.n_clipped / z.n_samples:.0%}) read a clipped extreme "
+                             "(saturation) and are not used")
+        return lines
 
     def to_json(self) -> dict:
         """The calibration document (the keys of ``elfin_calibration.json``)."""
@@ -452,7 +474,8 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
                         settings: ElfinSettings | None = None, *,
                         provenance: dict | None = None, hold_phase=None,
                         fit_exclude=None, fit_exclude_scalar=None,
-                        diagnostics: bool = True, linear=None) -> ElfinDay:
+                        diagnostics: bool = True, linear=None,
+                        zone_numbers=None) -> ElfinDay:
     """Calibrate one day of ELFIN FGS counts against IGRF through the configured steps.
 
     Parameters
@@ -482,10 +505,16 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
         ``fit_exclude`` and linear settings, to continue from instead of fitting it
         again (the linear fit is about two thirds of the time; the detection of
         disturbed intervals calibrates the same rows with two settings).
+    zone_numbers : sequence of int, optional
+        The zone numbers of the rows given (:func:`~magcal.missions.elfin.linear.
+        calibrate_elfin`); set by the call itself when zones are taken out.
 
     Returns
     -------
     ElfinDay
+        A zone the linear fit cannot calibrate (too few usable samples, no attitude) is
+        taken out before the later steps and listed in ``calibration.skipped``; its
+        rows are delivered with ``used = 0`` (:meth:`ElfinDay.calibrated_table`).
 
     Raises
     ------
@@ -497,18 +526,36 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
     from magcal.missions.elfin.diagnostics.ripple import ripple_crosscheck
 
     s = settings or ElfinSettings()
+
+    def fit_linear(exclude):
+        return calibrate_elfin(fgs, state, provenance=provenance, hold_phase=hold_phase,
+                               fit_exclude=exclude, phase_knot_s=s.linear_phase_knot_s or None,
+                               axis_degree=s.linear_axis_degree,
+                               phase_degree=s.linear_phase_degree,
+                               axis_prior_weight=s.axis_prior_weight,
+                               zone_numbers=zone_numbers)
+
+    if zone_numbers is None:
+        # the first call: the plain linear fit decides which zones can be calibrated
+        linear = linear or fit_linear(fit_exclude)
+        if linear.skipped:
+            return _without_skipped(fgs, state, s, linear, provenance=provenance,
+                                    hold_phase=hold_phase, fit_exclude=fit_exclude,
+                                    fit_exclude_scalar=fit_exclude_scalar,
+                                    diagnostics=diagnostics)
+        zone_numbers = list(dict.fromkeys(linear.field["zone"].tolist()))
     if s.detect_disturbed:
         from magcal.missions.elfin.disturbed import calibrate_detected
 
         return calibrate_detected(fgs, state, s, provenance=provenance, hold_phase=hold_phase,
-                                  fit_exclude=fit_exclude, diagnostics=diagnostics)
-    knot = s.linear_phase_knot_s or None
+                                  fit_exclude=fit_exclude, diagnostics=diagnostics,
+                                  linear=linear, zone_numbers=zone_numbers)
     if linear is None:
-        linear = calibrate_elfin(fgs, state, provenance=provenance, hold_phase=hold_phase,
-                                 fit_exclude=fit_exclude, phase_knot_s=knot,
-                                 axis_degree=s.linear_axis_degree,
-                                 phase_degree=s.linear_phase_degree,
-                                 axis_prior_weight=s.axis_prior_weight)
+        linear = fit_linear(fit_exclude)
+        if linear.skipped:
+            raise InputError("with the samples left out of the fit, a zone that the plain "
+                             "fit calibrates has too few: " + "; ".join(
+                                 z.reason for z in linear.skipped))
     if fit_exclude_scalar is not None:
         # e.g. flagged across B only: still fitted by the steps that fit |B| alone
         lf = linear.field
@@ -558,12 +605,32 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
     scan = {}
     if s.scan:
         for shift in SHIFTS_S:
-            t = calibrate_elfin(fgs, state, time_shift_s=shift).table()
+            t = calibrate_elfin(fgs, state, time_shift_s=shift,
+                                zone_numbers=zone_numbers).table()
             scan[f"{shift:+.1f}"] = {"rms_vector_nT": t["rms_vector_nT"].tolist(),
                                      "rms_scalar_nT": t["rms_scalar_nT"].tolist()}
     return ElfinDay(calibration=cal, linear=linear, settings=s, ripple=ripple, steps=steps,
                     scores=scores, joint=joint, scan=scan, stability=stability,
                     products=products)
+
+
+def _without_skipped(fgs, state, settings, linear, *, hold_phase, fit_exclude,
+                     fit_exclude_scalar, **kw) -> ElfinDay:
+    """The day calibrated on the zones ``linear`` could calibrate, their numbers kept,
+    with ``linear.skipped`` carried by every product."""
+    keep = linear.kept_rows(len(fgs))
+
+    def rows(a):
+        return None if a is None else np.asarray(a)[keep]
+
+    day = calibrate_elfin_day(fgs[keep], state, settings, hold_phase=rows(hold_phase),
+                              fit_exclude=rows(fit_exclude),
+                              fit_exclude_scalar=rows(fit_exclude_scalar), linear=linear,
+                              zone_numbers=list(dict.fromkeys(linear.field["zone"].tolist())),
+                              **kw)
+    products = {k: replace(v, skipped=linear.skipped) for k, v in day.products.items()}
+    return replace(day, calibration=replace(day.calibration, skipped=linear.skipped),
+                   linear=replace(day.linear, skipped=linear.skipped), products=products)
 
 
 def _joint(linear, incumbent, scores: dict) -> tuple:

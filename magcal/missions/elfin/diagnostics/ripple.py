@@ -124,9 +124,12 @@ def ripple_crosscheck(cal, fgs: pd.DataFrame, *, scale: float = 0.01) -> pd.Data
     ranges = split_zones(t_all, cal.parameters.get("min_gap_s", 60.0))
     counts = fgs[["b1", "b2", "b3"]].to_numpy()
     rows = []
+    starts = np.array([fgs.index.asi8[a] for a, _ in ranges])
     for z, k in zip(cal.zones, sorted(cal.field["zone"].unique())):
-        a, b = ranges[int(k)]
         f = cal.field[cal.field["zone"] == k]
+        # the zone's rows of fgs: the range its middle falls in (zone numbers need not
+        # be positions in fgs: a subset of zones, or zones taken out)
+        a, b = ranges[int(np.searchsorted(starts, f.index.asi8[len(f) // 2], "right")) - 1]
         used = f["used"].to_numpy() == 1
         t = (f.index.asi8 - f.index.asi8[0]) / 1e9
         res = ripple_zone(t[used], counts[a:b][used], f["phase"].to_numpy()[used],
