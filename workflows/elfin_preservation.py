@@ -82,6 +82,13 @@ def _print(label, tab, clean) -> None:
     print(f"\n== {label}: delivered product, per zone")
     last = tab[tab["product"] == tab["product"].iloc[-1]]
     print(last.pivot(index="signal", columns="zone", values="energy_kept").round(3).to_string())
+    if "bridge_rms_nT" in last.columns:
+        b = last.dropna(subset=["error_rms_nT", "bridge_rms_nT"])
+        ratio = b["error_rms_nT"] / b["bridge_rms_nT"]
+        print(f"\n== {label}: stated bridge error (bridge_rms_nT) against the kept signal's "
+              f"error over its left-out samples: {len(b)} of {len(last)} zone-signal cases "
+              f"with both; error within the stated one in {(ratio <= 1).mean():.0%}, within "
+              f"twice it in {(ratio <= 2).mean():.0%} (ratio median {ratio.median():.2f})")
     med = pd.DataFrame(clean.medians()).T
     print(f"\n== {label}: residual of the clean run (zone medians, nT)")
     print(med[["scalar_rms_nT", "scalar_fast_nT", "scalar_slow_nT", "vector_rms_nT"]]

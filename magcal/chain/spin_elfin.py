@@ -105,6 +105,11 @@ def _calibrate(data, settings, inputs, disturbed=()):
     if disturbed:
         lines.append(f"{int(skip.sum())} samples in {len(disturbed)} disturbed interval(s) "
                      "left out of every fit and calibrated")
+    if "bridge" in day.steps and len(day.steps["bridge"]):
+        rms = day.steps["bridge"]["bridge_rms_nT"]
+        lines.append(f"calibration error over the left-out intervals (quiet trial gaps, "
+                     f"bridge_rms_nT): {rms.min():.1f}-{rms.max():.1f} nT RMS in "
+                     f"{len(rms)} zones")
     lines.append(f"delivered: {day.delivered}")
     summary = {"n_zones": n, "delivered": day.delivered, "zone_medians_nT": medians,
                "settings": asdict(settings)}

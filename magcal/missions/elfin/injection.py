@@ -231,7 +231,11 @@ def preservation(clean_day, injected_day, signals: dict, kind: str) -> pd.DataFr
     Columns: ``energy_kept``, ``gain``, ``distortion`` (:func:`kept`, against the whole
     signal), the same against the signal and the recovered field with their zone means
     removed (``energy_kept_ac``, ``distortion_ac``: what a per-zone calibration against
-    a model can keep at all), and ``zone_mean_share`` (:func:`zone_mean_share`).
+    a model can keep at all), and ``zone_mean_share`` (:func:`zone_mean_share`). Where the
+    injected run measured its bridge error (``ElfinSettings.bridge_trials``), also
+    ``error_rms_nT`` (RMS of ``|recovered - signal|`` over the samples above 5 % of the
+    signal's peak that the run left out of its fits) and ``bridge_rms_nT`` (the run's
+    stated error there, :mod:`magcal.missions.elfin.bridge`).
     """
     cols = ["bx_gei", "by_gei", "bz_gei"]
     rows = []
@@ -245,11 +249,19 @@ def preservation(clean_day, injected_day, signals: dict, kind: str) -> pd.DataFr
             kk = kept(rec, dg, used)
             dg_u = np.asarray(dg, float)[used]
             ac = kept(rec[used] - rec[used].mean(axis=0), dg_u - dg_u.mean(axis=0))
-            rows.append({"signal": kind, "product": name, "zone": int(k),
-                         "energy_kept": kk.energy, "gain": kk.gain,
-                         "distortion": kk.distortion, "energy_kept_ac": ac.energy,
-                         "distortion_ac": ac.distortion,
-                         "zone_mean_share": zone_mean_share(dg_u)})
+            row = {"signal": kind, "product": name, "zone": int(k),
+                   "energy_kept": kk.energy, "gain": kk.gain,
+                   "distortion": kk.distortion, "energy_kept_ac": ac.energy,
+                   "distortion_ac": ac.distortion, "zone_mean_share": zone_mean_share(dg_u)}
+            if "bridge_rms_nT" in fi.columns:
+                size = np.linalg.norm(dg, axis=1)
+                left = used & (fi["fit"].to_numpy()[sel] == 0) & (size > 0.05 * size.max())
+                err = np.linalg.norm(rec - dg, axis=1)[left]
+                stated = fi["bridge_rms_nT"].to_numpy()[sel][left]
+                row["error_rms_nT"] = float(np.sqrt(np.mean(err ** 2))) if left.any() else np.nan
+                row["bridge_rms_nT"] = float(np.nanmedian(stated)) \
+                    if left.any() and np.isfinite(stated).any() else np.nan
+            rows.append(row)
     return pd.DataFrame(rows)
 
 
