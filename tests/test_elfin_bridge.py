@@ -120,3 +120,40 @@ def test_stated_bridge_error_covers_the_kept_pulses():
         assert table.loc[left, "bridge_rms_nT"].notna().all()
         assert table.loc[table["fit"] == 1, "bridge_rms_nT"].isna().all()
     assert len(ratios) == 8 and max(ratios) <= 2.0, ratios     # measured 0.27-1.00
+
+
+def test_left_out_run_at_a_zone_end_is_marked():
+    f = _field()
+    left = np.zeros(len(f), bool)
+    left[2850:3000] = True                                 # the last 15 s of zone 0
+    table = bridge_trials(lambda extra: f, f, left, n_trials=1)
+    assert table["at_zone_end"].tolist() == [True]
+    left[2850:3000] = False
+    left[1200:1500] = True
+    assert bridge_trials(lambda extra: f, f, left, n_trials=1)["at_zone_end"].tolist() == [False]
+
+
+@pytest.mark.realdata
+def test_given_intervals_get_a_bridge_error_and_an_end_warning():
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.phase import split_zones
+    from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
+
+    fgs = read_elfin_fgs(real_data_path("elfin", "ela_l1_fgs_20220112_v01.cdf"))
+    state = read_elfin_state(real_data_path("elfin", "ela_l1_state_defn_20220112_v01.cdf"))
+    a, b = split_zones((fgs.index.asi8 - fgs.index.asi8[0]) / 1e9)[4]
+    zone = fgs.iloc[a:b]
+    given = np.zeros(len(zone), bool)
+    given[1500:1900] = True                                # 40 s mid-zone
+    day = calibrate_elfin_day(zone, state, ElfinSettings(detect_disturbed=False),
+                              fit_exclude=given, diagnostics=False)
+    row = day.steps["bridge"].iloc[0]
+    assert row["n_trials"] == 3 and not row["at_zone_end"] and row["bridge_rms_nT"] > 0
+    table = day.calibrated_table()
+    assert_allclose(table["bridge_rms_nT"].to_numpy()[given], row["bridge_rms_nT"])
+    assert not any("extrapolated" in line for line in day.data_warnings())
+    given[-150:] = True                                    # and the zone's last 15 s
+    day = calibrate_elfin_day(zone, state, ElfinSettings(detect_disturbed=False),
+                              fit_exclude=given, diagnostics=False)
+    assert day.steps["bridge"]["at_zone_end"].tolist() == [True]
+    assert any("extrapolated" in line for line in day.data_warnings())

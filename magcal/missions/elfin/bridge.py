@@ -131,6 +131,8 @@ def bridge_trials(calibrate, field: pd.DataFrame, left_out, n_trials: int = 3, *
         ``|delta B|``), ``outside_rms_nT`` (the same over the zone's other fitted
         samples: what leaving the gap out moved elsewhere), ``longest_s`` (the longest
         left-out run; ``length_s`` is shorter where the zone had no room for it),
+        ``at_zone_end`` (a left-out run within ``edge_s`` of a zone end: the calibration
+        is extrapolated there, not bridged, and the trials understate its error),
         ``trials`` (start and end of each gap, s from the zone's first sample, and its
         RMS).
     """
@@ -145,19 +147,21 @@ def bridge_trials(calibrate, field: pd.DataFrame, left_out, n_trials: int = 3, *
         ns = field.index.as_unit("ns").asi8[sel]
         t = (ns - ns[0]) / 1e9
         iv, length = trial_intervals(t, left_out[sel], used[sel], n_trials, edge_s=edge_s)
-        runs = [t[b - 1] - t[a] for a, b in true_runs(left_out[sel] & used[sel])]
-        plans[k] = (sel, t, iv, length, max(runs))
+        spans = true_runs(left_out[sel] & used[sel])
+        tu = t[used[sel]]
+        at_end = any(t[a] - tu[0] < edge_s or tu[-1] - t[b - 1] < edge_s for a, b in spans)
+        plans[k] = (sel, t, iv, length, max(t[b - 1] - t[a] for a, b in spans), at_end)
     base = field[_COLS].to_numpy(float)
     sums = {k: {"gap": [], "out": [], "trials": []} for k in plans}
     for j in range(max((len(p[2]) for p in plans.values()), default=0)):
         extra = np.zeros(len(field), bool)
-        for k, (sel, t, iv, _, _) in plans.items():
+        for k, (sel, t, iv, *_) in plans.items():
             if j < len(iv):
                 a, b = iv[j]
                 extra[sel] = (t >= a) & (t <= b)
         new = calibrate(extra)[_COLS].to_numpy(float)
         change = np.linalg.norm(new - base, axis=1)
-        for k, (sel, t, iv, _, _) in plans.items():
+        for k, (sel, t, iv, *_) in plans.items():
             if j >= len(iv):
                 continue
             gap = extra[sel] & used[sel]
@@ -167,15 +171,17 @@ def bridge_trials(calibrate, field: pd.DataFrame, left_out, n_trials: int = 3, *
             sums[k]["trials"].append({"start_s": iv[j][0], "end_s": iv[j][1],
                                       "rms_nT": float(np.sqrt(np.mean(change[sel][gap] ** 2)))})
     rows = []
-    for k, (sel, t, iv, length, longest) in plans.items():
+    for k, (sel, t, iv, length, longest, at_end) in plans.items():
         gap = np.concatenate(sums[k]["gap"]) if sums[k]["gap"] else np.array([])
         out = np.concatenate(sums[k]["out"]) if sums[k]["out"] else np.array([])
         rows.append({"zone": int(k), "length_s": float(length),
-                     "longest_s": float(longest), "n_trials": len(iv),
+                     "longest_s": float(longest), "at_zone_end": bool(at_end),
+                     "n_trials": len(iv),
                      "bridge_rms_nT": float(np.sqrt(np.mean(gap ** 2))) if gap.size else np.nan,
                      "outside_rms_nT": float(np.sqrt(np.mean(out ** 2))) if out.size else np.nan,
                      "trials": sums[k]["trials"]})
-    return pd.DataFrame(rows, columns=["zone", "length_s", "longest_s", "n_trials",
+    return pd.DataFrame(rows, columns=["zone", "length_s", "longest_s", "at_zone_end",
+                                       "n_trials",
                                        "bridge_rms_nT", "outside_rms_nT", "trials"])
 
 

@@ -348,11 +348,19 @@ class ElfinDay:
         return pd.concat([table, self.calibration.skipped_rows(cols)]).sort_index()
 
     def data_warnings(self) -> list[str]:
-        """One line per zone not calibrated (with the reason) and per zone with clipped
-        counts (saturation; left out, so the fit rests on the other spin phases)."""
+        """One line per zone not calibrated (with the reason), per zone whose left-out
+        samples reach a zone end (the calibration extrapolated there) and per zone with
+        clipped counts (saturation; left out, so the fit rests on the other spin
+        phases)."""
         lines = [f"zone {z.zone} ({z.start} - {z.end}, {z.n_samples} samples) not "
                  f"calibrated: {z.reason}; its rows are delivered with used = 0"
                  for z in self.calibration.skipped]
+        if "bridge" in self.steps:
+            for row in self.steps["bridge"].itertuples():
+                if row.at_zone_end:
+                    lines.append(f"zone {row.zone}: samples left out of the fits reach "
+                                 "within 20 s of the zone's end, where the calibration is "
+                                 "extrapolated; bridge_rms_nT understates the error there")
         zone = self.linear.field["zone"].to_numpy()
         for k, z in zip(dict.fromkeys(zone.tolist()), self.linear.zones):
             if z.n_clipped:
