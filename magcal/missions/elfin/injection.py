@@ -277,7 +277,9 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         The ELFIN day (:mod:`magcal.missions.elfin.files`).
     settings : ElfinSettings, optional
         The pipeline's settings (default: the delivered ones). With ``hold`` the phase
-        refit is switched off and the linear fit keeps the clean phase.
+        refit is switched off and the linear fit keeps the clean phase. The bridge
+        trials (``bridge_trials``) run on the injected runs only, where
+        :func:`preservation` compares their stated error with the signal's.
     kinds : sequence of str
         Keys of :data:`SIGNALS`; one run each, carrying that signal in every chosen zone.
     zones : sequence of int, optional
@@ -321,10 +323,11 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         for k in zones:
             keep[slice(*ranges[k])] = True
         fgs = fgs[keep]
-    clean = calibrate_elfin_day(fgs, state, s, diagnostics=False)
+    # the clean run needs no bridge trials (they leave the product as it is)
+    clean = calibrate_elfin_day(fgs, state, replace(s, bridge_trials=0), diagnostics=False)
     hold_phase = None
     if hold:
-        s = replace(s, phase_refit=False, detect_disturbed=False)
+        s = replace(s, phase_refit=False, detect_disturbed=False, bridge_trials=0)
         hold_phase = clean.linear.field["phase"].to_numpy()
         clean = calibrate_elfin_day(fgs, state, s, hold_phase=hold_phase, diagnostics=False)
     f = clean.linear.field
@@ -341,7 +344,8 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
                 size = np.linalg.norm(dg, axis=1)
                 skip[np.flatnonzero(zone == k)] = size > mask_signal * size.max()
             if mask_clean:
-                base = calibrate_elfin_day(fgs, state, s, hold_phase=hold_phase,
+                base = calibrate_elfin_day(fgs, state, replace(s, bridge_trials=0),
+                                           hold_phase=hold_phase,
                                            fit_exclude=skip, diagnostics=False)
         day = calibrate_elfin_day(injected, state, s, hold_phase=hold_phase,
                                   fit_exclude=skip, diagnostics=False)

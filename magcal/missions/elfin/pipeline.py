@@ -129,8 +129,8 @@ class ElfinSettings:
         False fits every step on every sample and takes a localized field across B
         (zones 1, 4, 7, 10: an east-west 40 s pulse 108 % kept with detection, 65 %
         without; an along-track one 97 % against 26 %) for the same zone-median
-        residual (7.19 / 5.14 / 15.75 against 7.19 / 5.16 / 15.75 nT scalar / fast /
-        vector). About 2.5 times the calibration time (a stiff calibration from the
+        residual (7.20 / 5.14 / 15.09 against 7.20 / 5.16 / 14.83 nT scalar / fast /
+        vector; the difference is the natural fields kept). About 2.5 times the calibration time (a stiff calibration from the
         same linear fit, one without flags for the bridge check, one or two with them).
     axis_prior_weight : float
         If positive, the linear fit draws the spin-axis row of the zones whose
@@ -542,8 +542,9 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
         again (the linear fit is about two thirds of the time; the detection of
         disturbed intervals calibrates the same rows with two settings).
     zone_numbers : sequence of int, optional
-        The zone numbers of the rows given (:func:`~magcal.missions.elfin.linear.
-        calibrate_elfin`); set by the call itself when zones are taken out.
+        The zone numbers of the rows given (``zone_numbers`` of
+        :func:`~magcal.missions.elfin.linear.calibrate_elfin`); set by the call itself
+        when zones are taken out.
 
     Returns
     -------
