@@ -29,6 +29,7 @@ from scipy.ndimage import median_filter
 
 from magcal.ac.filters import running_mean
 from magcal.ac.metrics import fill_nan
+from magcal.stats import MAD_TO_SIGMA
 
 #: robust standard deviations above which a sample is a spike candidate
 THRESHOLD = 8.0
@@ -62,7 +63,7 @@ def spike_candidates(b: np.ndarray, *, threshold: float = THRESHOLD,
         return np.zeros(b.shape[0], dtype=bool)
     filled = fill_nan(b)
     resid = filled - median_filter(filled, size=(median_n, 1), mode="nearest")
-    mad = np.median(np.abs(resid[ok]), axis=0) * 1.4826
+    mad = np.median(np.abs(resid[ok]), axis=0) * MAD_TO_SIGMA
     # a noiseless component (mad 0) cannot say what is outlying in it
     scale = np.where(mad > 0, mad, np.inf)
     cand = ok & np.any(np.abs(resid) > threshold * scale, axis=1)

@@ -27,6 +27,7 @@ from magcal.alignment.result import AlignmentResult
 from magcal.alignment.sandwich import spectral_sandwich
 from magcal.alignment.wahba import wahba_rotation
 from magcal.errors import InputError
+from magcal.stats import MAD_TO_SIGMA
 
 Z95 = 1.959963984540054
 
@@ -418,7 +419,7 @@ def outlier_rows(resid, k: float, rows=None) -> np.ndarray:
     x = np.asarray(resid, dtype=float)
     ref = x if rows is None else x[rows]
     med = np.median(ref, axis=0)
-    mad = 1.4826 * np.median(np.abs(ref - med), axis=0)
+    mad = MAD_TO_SIGMA * np.median(np.abs(ref - med), axis=0)
     scale = np.maximum(mad, 1e-12 * (1.0 + np.abs(med)))
     return np.any(np.abs(x - med) > k * scale, axis=1)
 

@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from magcal.stats import MAD_TO_SIGMA
+
 #: 90th percentile of abs(Gaussian) in sigmas.
 Q90_SIGMA = 1.6449
 
@@ -448,6 +450,7 @@ def _departure(v: np.ndarray, a: int, e: int, lo: int, hi: int, window: int):
     wide = v[max(a - 10 * window, 0):min(e + 10 * window, v.shape[0])]
     d = np.diff(wide, axis=0)
     with np.errstate(all="ignore"):
-        sigma = 1.4826 * np.nanmedian(np.abs(d - np.nanmedian(d, axis=0)), axis=0) / np.sqrt(2)
+        mad = np.nanmedian(np.abs(d - np.nanmedian(d, axis=0)), axis=0)
+        sigma = MAD_TO_SIGMA * mad / np.sqrt(2)
         z = dev / np.where(sigma > 0, sigma, np.inf)
     return float(np.nanmax(dev)), float(np.nanmax(z)) if np.isfinite(z).any() else 0.0
