@@ -60,7 +60,7 @@ import numpy as np
 import pandas as pd
 
 from magcal.missions.elfin.timing import true_runs
-from magcal.stats import MAD_TO_SIGMA
+from magcal.stats import normal_mad
 
 #: Component names of :func:`zone_residuals` (despun frame; ``z`` the spin axis).
 COMPONENTS = ("x", "y", "z", "scalar")
@@ -208,14 +208,14 @@ def robust_baseline(t_s, values, use, *, degree: int = 3, c: float = 4.685,
     w = np.ones(vu.size)
     sigma = 0.0
     for _ in range(max(1, n_iter)):
-        sigma = MAD_TO_SIGMA * float(np.median(np.abs(r - np.median(r))))
+        sigma = float(normal_mad(r))
         u = r / max(c * sigma, 1e-12)
         w_new = np.where(np.abs(u) < 1.0, (1.0 - u ** 2) ** 2, 0.0)
         if np.allclose(w_new, w):
             break
         w = w_new
         coef, r = solve(w)
-    sigma = MAD_TO_SIGMA * float(np.median(np.abs(r - np.median(r))))
+    sigma = float(normal_mad(r))
     return a @ coef, sigma
 
 

@@ -44,7 +44,7 @@ import numpy as np
 import pandas as pd
 
 from magcal.missions.elfin.scalar import fast_part, fit_spin_harmonics, rms
-from magcal.stats import MAD_TO_SIGMA
+from magcal.stats import normal_mad
 
 
 def unit_time(t, use) -> np.ndarray:
@@ -79,7 +79,7 @@ def tukey_weights(t_s, resid, use, c: float, smooth_s: float = 3.0) -> np.ndarra
     dt = float(np.median(np.diff(t[use]))) if use.sum() > 1 else 1.0
     width = max(1, int(round(smooth_s / max(dt, 1e-9))))
     r = uniform_filter1d(np.asarray(resid, dtype=float), width, mode="nearest")
-    sigma = MAD_TO_SIGMA * float(np.median(np.abs(r[use] - np.median(r[use]))))
+    sigma = float(normal_mad(r[use]))
     u = r / max(c * sigma, 1e-12)
     return np.where(np.abs(u) < 1.0, (1.0 - u ** 2) ** 2, 0.0)
 

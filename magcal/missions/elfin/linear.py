@@ -524,6 +524,12 @@ class ElfinCalibration:
     provenance: dict = field(default_factory=dict)
     skipped: tuple = ()
 
+    @property
+    def zone_numbers(self) -> list[int]:
+        """The zone numbers of ``field`` in row order (``zone_numbers`` of
+        :func:`calibrate_elfin`; not positions once zones are skipped)."""
+        return list(dict.fromkeys(self.field["zone"].tolist()))
+
     def kept_rows(self, n_rows: int) -> np.ndarray:
         """Rows (of the ``n_rows`` calibrated) that are in ``field``: not in a skipped zone."""
         keep = np.ones(n_rows, bool)
@@ -683,10 +689,11 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
         return SkippedZone(zone=int(k), start=str(fgs.index[a].tz_convert(None)),
                            end=str(fgs.index[b - 1].tz_convert(None)), n_samples=b - a,
                            reason=reason, rows=(int(a), int(b)), times=fgs.index[a:b])
+    all_counts = fgs[["b1", "b2", "b3"]].to_numpy()
     for k in chosen:
         a, b = ranges[k]
         t = t_all[a:b]
-        counts = fgs[["b1", "b2", "b3"]].to_numpy()[a:b]
+        counts = all_counts[a:b]
         anomalies, bad = [], None
         clipped = clipped_samples(counts) if check_clipping else np.zeros(b - a, bool)
         n_good = int(np.sum(np.all(np.isfinite(counts), axis=1) & ~clipped))
@@ -702,6 +709,7 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
                                  mask=(t >= t[0] + fit_kw.get("skip_s", 2.0)) & ~clipped)
             t, bad = check.t_s, check.bad & ~clipped
             anomalies = anomalies + check.events
+        n_timing = 0 if bad is None else int(bad.sum())
         if clipped.any():
             bad = clipped if bad is None else bad | clipped
         sel = (ts >= t[0] - 5) & (ts <= t[-1] + 5) & np.all(np.isfinite(axis), axis=1)
@@ -715,26 +723,21 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
         ax = np.column_stack([np.interp(tq, ts[sel], axis[sel, j]) for j in range(3)])
         basis = despun_basis(ax)
         inputs.append({"k": k, "a": a, "b": b, "t": t, "anomalies": anomalies, "bad": bad,
-                       "n_clipped": int(clipped.sum()),
+                       "n_timing": n_timing, "n_clipped": int(clipped.sum()),
                        "ref_gei": ref_gei, "ax": ax, "basis": basis,
                        "ref": np.einsum("nij,nj->ni", basis, ref_gei)})
 
-    def _fit_one(z, **kw):
+    def fit_one(z, **kw):
         a, b = z["a"], z["b"]
         iso = (str(fgs.index[a].tz_convert(None)), str(fgs.index[b - 1].tz_convert(None)))
         held = None if hold_phase is None else np.asarray(hold_phase, float)[a:b]
         skip = None if fit_exclude is None else np.asarray(fit_exclude, bool)[a:b]
-        return fit_zone(z["t"], fgs[["b1", "b2", "b3"]].to_numpy()[a:b], z["ref"],
-                        times_iso=iso, timestamp_anomalies=z["anomalies"], exclude=z["bad"],
-                        phase=held, fit_exclude=skip, **fit_kw, **kw)
-
-    def fit_one(z, **kw):
-        fit = _fit_one(z, **kw)
-        if not z["n_clipped"]:
-            return fit
-        s = fit.summary
-        return replace(fit, summary=replace(
-            s, n_clipped=z["n_clipped"], n_timing_flagged=s.n_timing_flagged - z["n_clipped"]))
+        fit = fit_zone(z["t"], all_counts[a:b], z["ref"], times_iso=iso,
+                       timestamp_anomalies=z["anomalies"], exclude=z["bad"], phase=held,
+                       fit_exclude=skip, **fit_kw, **kw)
+        # fit_zone counts every excluded sample as timing-flagged; split the two causes
+        return replace(fit, summary=replace(fit.summary, n_timing_flagged=z["n_timing"],
+                                            n_clipped=z["n_clipped"]))
 
     fits, fitted = [], []
     for z in inputs:

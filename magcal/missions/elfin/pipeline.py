@@ -361,8 +361,7 @@ class ElfinDay:
                     lines.append(f"zone {row.zone}: samples left out of the fits reach "
                                  "within 20 s of the zone's end, where the calibration is "
                                  "extrapolated; bridge_rms_nT understates the error there")
-        zone = self.linear.field["zone"].to_numpy()
-        for k, z in zip(dict.fromkeys(zone.tolist()), self.linear.zones):
+        for k, z in zip(self.linear.zone_numbers, self.linear.zones):
             if z.n_clipped:
                 lines.append(f"zone {k} ({z.start}): {z.n_clipped} of {z.n_samples} samples "
                              f"({z.n_clipped / z.n_samples:.0%}) read a clipped extreme "
@@ -588,7 +587,7 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
                                     hold_phase=hold_phase, fit_exclude=fit_exclude,
                                     fit_exclude_scalar=fit_exclude_scalar,
                                     diagnostics=diagnostics)
-        zone_numbers = list(dict.fromkeys(linear.field["zone"].tolist()))
+        zone_numbers = linear.zone_numbers
     if s.detect_disturbed:
         from magcal.missions.elfin.disturbed import calibrate_detected
 
@@ -671,7 +670,7 @@ def _without_skipped(fgs, state, settings, linear, *, hold_phase, fit_exclude,
     day = calibrate_elfin_day(fgs[keep], state, settings, hold_phase=rows(hold_phase),
                               fit_exclude=rows(fit_exclude),
                               fit_exclude_scalar=rows(fit_exclude_scalar), linear=linear,
-                              zone_numbers=list(dict.fromkeys(linear.field["zone"].tolist())),
+                              zone_numbers=linear.zone_numbers,
                               **kw)
     products = {k: replace(v, skipped=linear.skipped) for k, v in day.products.items()}
     return replace(day, calibration=replace(day.calibration, skipped=linear.skipped),
@@ -695,13 +694,13 @@ def _with_bridge(fgs, state, settings, day: ElfinDay, *, hold_phase) -> ElfinDay
     held = None if hold_phase is None else np.asarray(hold_phase)[keep]
     plain = replace(settings, detect_disturbed=False, bridge_trials=0, joint=False,
                     scan=False)
-    numbers = list(dict.fromkeys(f["zone"].tolist()))
 
     def calibrate(extra):
         return calibrate_elfin_day(fgs[keep], state, plain, hold_phase=held,
                                    fit_exclude=left | extra,
                                    fit_exclude_scalar=left_scalar | extra,
-                                   diagnostics=False, zone_numbers=numbers).calibration.field
+                                   diagnostics=False,
+                                   zone_numbers=day.calibration.zone_numbers).calibration.field
 
     table = bridge_trials(calibrate, f, left, settings.bridge_trials)
     cal = replace(day.calibration, field=f.assign(bridge_rms_nT=bridge_column(f, left, table)))
