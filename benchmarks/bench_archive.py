@@ -313,7 +313,6 @@ def goes_figures(days: int, work: Path) -> None:
     corr_s = stages.get("corrected", 0.0)
     fixed = seconds - part_s - corr_s
     per_day = (part_s + corr_s) / days
-    year = 365 * per_day + fixed
     print(f"  chain on 2 workers: {seconds:.0f} s ({cpu:.0f} CPU s, peak {peak:.0f} MB, "
           f"{before} before): partitions {part_s:.0f} s, corrected {corr_s:.0f} s, the rest "
           f"(fit on the first days, offsets, alignment, discovery, start-up) {fixed:.0f} s")

@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 from numpy.testing import assert_allclose
 
-from magcal.ac.chain import Order, Plan, Stage, run_chain
+from magcal.ac.chain import Plan, Stage, run_chain
 
 pytestmark = pytest.mark.realdata
 

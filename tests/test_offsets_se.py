@@ -3,7 +3,6 @@
 import numpy as np
 
 from magcal.alignment.noise import simulate_ou
-from magcal.offsets.apply import offset_uncertainty
 from magcal.offsets.windows import DAY_NS, batch_standard_error, window_statistics
 
 

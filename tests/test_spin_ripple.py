@@ -10,7 +10,6 @@ from numpy.testing import assert_allclose
 
 from magcal.errors import InputError
 from magcal.simulate.spinning import SpinningConfig, rotation_z, simulate_spinning
-from magcal.spin.despin import despin
 from magcal.spin.ripple import (DETERMINABLE, PARAM_NAMES, SpinRippleCalibrator,
                                 fit_spin_ripple, spin_tone)
 

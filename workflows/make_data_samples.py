@@ -12,7 +12,6 @@ library versions). Large tables are gzip-compressed CSV (pandas and ``magcal`` r
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np

@@ -25,7 +25,7 @@ import numpy as np
 
 from magcal.ac.core import DIRECTION_METHODS, correction_matrix, fit_first_order
 from magcal.ac.filters import bandpass, highpass, highpass_samples
-from magcal.ac.scan import ScanResult, ScanSummary, scan_first_order, summarize_scan
+from magcal.ac.scan import scan_first_order, summarize_scan
 from magcal.errors import InputError
 
 Weights = dict  # sensor -> (3, 3) ndarray

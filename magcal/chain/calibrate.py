@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from magcal.chain.config import ChainConfig
-from magcal.chain.prepare import HPEN, CleanedData, MinuteData, naive_times
+from magcal.chain.prepare import HPEN, MinuteData
 from magcal.chain.product import StageProduct, without_wall_clock
 from magcal.errors import InputError
 from magcal.provenance import make_provenance

@@ -30,7 +30,7 @@ import numpy as np
 from magcal.discover.effects import (
     DAY_S, EFFECT_NAMES, Activity, Diurnal, Drift, Effect, EffectInputs, Offset, Periodic,
     Rotation, Scale, SpinTone, Step, Temperature, available, make_activity)
-from magcal.discover.gap import profile_gap, rms
+from magcal.discover.gap import profile_gap
 from magcal.discover.scan import change_points, n_period_trials, n_step_trials, scan_periods
 from magcal.discover.selection import (
     BlockedGram, Comparison, CVScore, compare, delta_bic_eff, wald_test,

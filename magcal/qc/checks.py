@@ -323,7 +323,6 @@ def time_mask(times_ns, cadence_s: float, *, tolerance: float = 0.25,
     >>> np.flatnonzero(time_mask(t, 30.0)).tolist() == list(range(100, 110))
     True
     """
-    import pandas as pd
 
     t = np.asarray(times_ns, dtype=np.int64)
     if t.size < 3 or not np.isfinite(cadence_s) or cadence_s <= 0:

@@ -146,7 +146,6 @@ def linear_scalar_fit(counts, magnitude_nT, *, start=None, max_nfev: int = 1000)
     a0, o0 = _ellipsoid_start(c, f) if start is None else start
     a0 = np.asarray(a0, dtype=float) * np.sign(np.diag(a0))[:, None]
     p0 = np.r_[a0[_TRIU], o0]
-    gain = float(np.abs(np.diag(a0)).max())
 
     def unpack(p):
         a = np.zeros((3, 3))
@@ -163,7 +162,6 @@ def linear_scalar_fit(counts, magnitude_nT, *, start=None, max_nfev: int = 1000)
         u = y / n[:, None]
         return np.column_stack([u[:, _TRIU[0]] * x[:, _TRIU[1]], -u @ a])
 
-    spread = float(np.abs(c - c.mean(axis=0)).max())
     sol = least_squares(resid, p0, jac=jac,
                         x_scale="jac",
                         method="trf", max_nfev=max_nfev)
