@@ -143,17 +143,12 @@ def test_axis_row_prior_keeps_an_east_west_pulse_where_the_axis_field_is_flat():
     from conftest import real_data_path
 
     from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
-    from magcal.missions.elfin.injection import inject_counts, signal_gei
+    from magcal.missions.elfin.injection import inject_counts, select_zones, signal_gei
 
     base = real_data_path("elfin")
     fgs = read_elfin_fgs(base / "ela_l1_fgs_20220112_v01.cdf")
     state = read_elfin_state(base / "ela_l1_state_defn_20220112_v01.cdf")
-    t = (fgs.index.asi8 - fgs.index.asi8[0]) / 1e9
-    ranges = split_zones(t)
-    rows = np.zeros(len(fgs), bool)
-    for k in (0, 3):
-        rows[slice(*ranges[k])] = True
-    day = fgs[rows]
+    day = select_zones(fgs, (0, 3))
     gains = {}
     for weight in (0.0, 1.0):
         clean = calibrate_elfin(day, state, phase_knot_s=None, axis_prior_weight=weight)

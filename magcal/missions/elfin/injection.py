@@ -265,6 +265,21 @@ def preservation(clean_day, injected_day, signals: dict, kind: str) -> pd.DataFr
     return pd.DataFrame(rows)
 
 
+def select_zones(fgs: pd.DataFrame, zones) -> pd.DataFrame:
+    """The FGS rows of the zones numbered ``zones`` (0-based, in the day's order;
+    zones are split at gaps over 60 s as the pipeline does)."""
+    from magcal.missions.elfin.phase import split_zones
+
+    ranges = split_zones((fgs.index.asi8 - fgs.index.asi8[0]) / 1e9, 60.0)
+    bad = [k for k in zones if not 0 <= k < len(ranges)]
+    if bad:
+        raise InputError(f"zones {bad} not in the day (it has {len(ranges)})")
+    keep = np.zeros(len(fgs), bool)
+    for k in zones:
+        keep[slice(*ranges[k])] = True
+    return fgs[keep]
+
+
 def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
                    kinds=tuple(SIGNALS), zones=None, hold: bool = False,
                    mask_signal: float = 0.0, mask_clean: bool = True,
@@ -312,17 +327,11 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
     """
     from dataclasses import replace
 
-    from magcal.missions.elfin.phase import split_zones
     from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
 
     s = settings or ElfinSettings()
     if zones is not None:
-        t_all = (fgs.index.asi8 - fgs.index.asi8[0]) / 1e9
-        ranges = split_zones(t_all, 60.0)
-        keep = np.zeros(len(fgs), bool)
-        for k in zones:
-            keep[slice(*ranges[k])] = True
-        fgs = fgs[keep]
+        fgs = select_zones(fgs, zones)
     # the clean run needs no bridge trials (they leave the product as it is)
     clean = calibrate_elfin_day(fgs, state, replace(s, bridge_trials=0), diagnostics=False)
     hold_phase = None
