@@ -94,6 +94,8 @@ def test_transfer_closed_forms():
     half = clean.assign(**{c: clean[c] + 0.5 * noise[:, j] for j, c in enumerate(COLS)})
     t = noise_transfer(clean, half, noise)
     assert_allclose([t["transfer"], t["added_rms_nT"]], [0.5, 0.5 * t["noise_rms_nT"]])
+    # no noise: nothing to compare with
+    assert np.isnan(noise_transfer(clean, clean, np.zeros((n, 3)))["transfer"])
     # unused rows do not count
     worse = passed.copy()
     worse.loc[:9, COLS] += 1e6

@@ -18,10 +18,11 @@ into counts through the clean calibration, one draw per seed. Printed per noise 
 Usage::
 
     python workflows/elfin_noise.py [--zones 1,4,7,10] [--seeds 10] [--first-seed 0]
-                                    [--levels moderate,heavy] [--out FOLDER]
+                                    [--levels moderate,heavy,none] [--out FOLDER]
 
 Levels (nT per body axis, correlation time 30 s): ``moderate`` white 2 + correlated 5,
-``heavy`` white 10 + correlated 20. About 60 s per seed and level on an idle core for
+``heavy`` white 10 + correlated 20; ``none`` adds nothing (the real day's own noise,
+the pulses at drawn places: the bridge error's coverage without added noise). About 60 s per seed and level on an idle core for
 the default 4 zones. Reads ``../shared/real-data/elfin/``; with ``--out`` the tables
 are written as CSV.
 """
@@ -39,7 +40,7 @@ FGS_FILE = "ela_l1_fgs_20220112_v01.cdf"
 STATE_FILE = "ela_l1_state_defn_20220112_v01.cdf"
 ZONES = (1, 4, 7, 10)
 #: name -> (white nT, correlated nT, correlation time s), per body axis.
-LEVELS = {"moderate": (2.0, 5.0, 30.0), "heavy": (10.0, 20.0, 30.0)}
+LEVELS = {"moderate": (2.0, 5.0, 30.0), "heavy": (10.0, 20.0, 30.0), "none": (0.0, 0.0, 30.0)}
 
 
 def summarize(passes, kept) -> list[str]:
@@ -85,7 +86,7 @@ def main(argv=None) -> int:
     parser.add_argument("--zones", default=",".join(map(str, ZONES)))
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--first-seed", type=int, default=0)
-    parser.add_argument("--levels", default=",".join(LEVELS))
+    parser.add_argument("--levels", default="moderate,heavy")
     parser.add_argument("--out", type=Path)
     args = parser.parse_args(argv)
     if not (DATA / FGS_FILE).exists():

@@ -111,7 +111,7 @@ def noise_transfer(clean_field: pd.DataFrame, noisy_field: pd.DataFrame,
 
     Over the samples both products use: ``transfer`` is the RMS of ``|noisy - clean|``
     over the RMS of ``|noise|`` (1: passed unchanged; below 1: part of it taken out;
-    above 1: the calibration added to it), ``added_rms_nT`` the RMS of what changed
+    above 1: the calibration added to it; NaN without noise), ``added_rms_nT`` the RMS of what changed
     that is not the noise (``|noisy - clean - noise|``), ``noise_rms_nT`` the noise's.
     """
     cols = ["bx_gei", "by_gei", "bz_gei"]
@@ -119,7 +119,8 @@ def noise_transfer(clean_field: pd.DataFrame, noisy_field: pd.DataFrame,
     change = (noisy_field[cols].to_numpy(float) - clean_field[cols].to_numpy(float))[used]
     noise = np.asarray(noise_in_gei, float)[used]
     msq = lambda x: float(np.mean(np.sum(x * x, axis=1)))  # noqa: E731
-    return {"transfer": float(np.sqrt(msq(change) / msq(noise))),
+    return {"transfer": float(np.sqrt(msq(change) / msq(noise))) if msq(noise) > 0
+            else np.nan,
             "added_rms_nT": float(np.sqrt(msq(change - noise))),
             "noise_rms_nT": float(np.sqrt(msq(noise)))}
 
