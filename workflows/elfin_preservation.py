@@ -40,6 +40,7 @@ Usage::
                                            [--no-held] [--settings KEY=VALUE ...]
                                            [--mask-signal FRACTION]
                                            [--mask-injected-only FRACTION]
+                                           [--plot DIR]
 
 About 10 s per signal and run for the whole day (12 zones) on an idle core; the
 default zones (4) take about a third of that. Reads ``../shared/real-data/elfin/``.
@@ -152,6 +153,9 @@ def main(argv=None) -> int:
     ap.add_argument("--mask-injected-only", type=float, default=0.0, metavar="FRACTION",
                     help="also a run with those samples left out of the injected run's "
                          "fits only (a detector that flags exactly the signal)")
+    ap.add_argument("--plot", type=Path, default=None, metavar="DIR",
+                    help="write recovered_<signal>.png of the delivered run to DIR: the "
+                         "injected signal and what came back, zone by zone")
     args = ap.parse_args(argv)
     if not (args.data / FGS_FILE).is_file():
         print(f"real data not found: {args.data / FGS_FILE}", file=sys.stderr)
@@ -180,7 +184,8 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         tab, clean = run_injections(fgs, state, settings, kinds=kinds, zones=zones,
                                     hold=hold, mask_signal=mask, mask_clean=mask_clean,
-                                    progress=lambda line: print("  " + line))
+                                    progress=lambda line: print("  " + line),
+                                    plot_dir=args.plot if label == "delivered" else None)
         _print(f"{label} ({time.perf_counter() - t0:.0f} s)", tab, clean)
     return 0
 

@@ -283,7 +283,7 @@ def select_zones(fgs: pd.DataFrame, zones) -> pd.DataFrame:
 def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
                    kinds=tuple(SIGNALS), zones=None, hold: bool = False,
                    mask_signal: float = 0.0, mask_clean: bool = True,
-                   progress=None) -> tuple[pd.DataFrame, object]:
+                   progress=None, plot_dir=None) -> tuple[pd.DataFrame, object]:
     """Inject each signal kind into each chosen zone and measure what every product keeps.
 
     Parameters
@@ -317,6 +317,10 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         out, the floor of any detect-and-exclude scheme.
     progress : callable, optional
         Called with one line per run.
+    plot_dir : str or Path, optional
+        If given, one PNG per signal (``recovered_<kind>.png``) of what the delivered
+        product kept, zone by zone
+        (:func:`~magcal.missions.elfin.injection_plot.plot_recovered`).
 
     Returns
     -------
@@ -359,6 +363,14 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         day = calibrate_elfin_day(injected, state, s, hold_phase=hold_phase,
                                   fit_exclude=skip, diagnostics=False)
         tab = preservation(base, day, signals, kind)
+        if plot_dir is not None:
+            from pathlib import Path
+
+            from magcal.missions.elfin.injection_plot import plot_recovered
+
+            Path(plot_dir).mkdir(parents=True, exist_ok=True)
+            plot_recovered(Path(plot_dir) / f"recovered_{kind}.png", base, day, signals, kind,
+                           state, tab[tab["product"] == tab["product"].iloc[-1]], zones)
         if zones is not None:
             tab["zone"] = [list(zones)[k] for k in tab["zone"]]
         tables.append(tab)

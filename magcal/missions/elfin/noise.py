@@ -113,6 +113,15 @@ def noise_transfer(clean_field: pd.DataFrame, noisy_field: pd.DataFrame,
     over the RMS of ``|noise|`` (1: passed unchanged; below 1: part of it taken out;
     above 1: the calibration added to it; NaN without noise), ``added_rms_nT`` the RMS of what changed
     that is not the noise (``|noisy - clean - noise|``), ``noise_rms_nT`` the noise's.
+
+    Examples
+    --------
+    >>> cols = ["bx_gei", "by_gei", "bz_gei"]
+    >>> clean = pd.DataFrame(np.zeros((4, 3)), columns=cols).assign(used=1)
+    >>> noise = np.array([[3.0, 4.0, 0.0]] * 4)
+    >>> half = clean.assign(bx_gei=1.5, by_gei=2.0)
+    >>> {k: round(v, 3) for k, v in noise_transfer(clean, half, noise).items()}
+    {'transfer': 0.5, 'added_rms_nT': 2.5, 'noise_rms_nT': 5.0}
     """
     cols = ["bx_gei", "by_gei", "bz_gei"]
     used = (clean_field["used"].to_numpy() == 1) & (noisy_field["used"].to_numpy() == 1)
@@ -126,7 +135,13 @@ def noise_transfer(clean_field: pd.DataFrame, noisy_field: pd.DataFrame,
 
 
 def left_out_share(field: pd.DataFrame) -> float:
-    """Share of the used samples that the calibration left out of its fits."""
+    """Share of the used samples that the calibration left out of its fits.
+
+    Examples
+    --------
+    >>> left_out_share(pd.DataFrame({"used": [1, 1, 1, 0], "fit": [1, 0, 1, 0]}))
+    0.3333333333333333
+    """
     used = field["used"].to_numpy() == 1
     return float(np.mean(field["fit"].to_numpy()[used] == 0)) if used.any() else np.nan
 

@@ -1,0 +1,96 @@
+"""A picture of what the ELFIN calibration keeps of an injected natural signal.
+
+One panel per zone: the injected signal along its own direction, what the delivered
+product returned along it (``calibrated(injected) - calibrated(clean)``), what it
+returned across it (the distortion's direction part), and the samples the
+calibration left out of its fits, shaded, with the stated bridge error
+(``bridge_rms_nT``) as a band about the recovered field. The numbers behind it are
+:func:`magcal.missions.elfin.injection.preservation`'s.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+_COLS = ["bx_gei", "by_gei", "bz_gei"]
+
+
+def plot_recovered(path: str | Path, clean_day, injected_day, signals: dict, kind: str,
+                   state: pd.DataFrame, table: pd.DataFrame | None = None,
+                   zone_names=None) -> Path:
+    """Injected against recovered, one panel per zone, as PNG (nT, s from zone start).
+
+    Parameters
+    ----------
+    path : str or Path
+        The PNG written.
+    clean_day, injected_day : ElfinDay
+        The runs :func:`~magcal.missions.elfin.injection.preservation` compares.
+    signals : dict
+        Zone -> (n, 3) signal in GEI nT, as injected.
+    kind : str
+        The signal's key in :data:`~magcal.missions.elfin.injection.SIGNALS`.
+    state : DataFrame
+        The state file (the signal's direction is recomputed from it).
+    table : DataFrame, optional
+        :func:`~magcal.missions.elfin.injection.preservation` rows of the delivered
+        product; their energy kept and distortion head each panel.
+    zone_names : sequence, optional
+        The day's zone numbers of the zones as calibrated (``zones`` of
+        :func:`~magcal.missions.elfin.injection.run_injections`), for the panel titles.
+    """
+    import matplotlib
+
+    from magcal.missions.elfin.injection import SIGNALS, directions
+    from magcal.missions.elfin.linear import CREDIT
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fc, fi = clean_day.calibration.field, injected_day.calibration.field
+    zone = fi["zone"].to_numpy()
+    ks = list(signals)
+    fig, axes = plt.subplots(len(ks), 1, figsize=(9, 0.6 + 1.9 * len(ks)), squeeze=False)
+    for ax, k in zip(axes[:, 0], ks):
+        sel = zone == k
+        zi = fi[sel]
+        used = (zi["used"].to_numpy() == 1) & (fc["used"].to_numpy()[sel] == 1)
+        t = (zi.index.asi8 - zi.index.asi8[0]) / 1e9
+        b = zi[["igrf_x_gei", "igrf_y_gei", "igrf_z_gei"]].to_numpy()
+        u = directions(zi.index, state, b)[SIGNALS[kind][1]]
+        dg = np.asarray(signals[k], float)
+        rec = zi[_COLS].to_numpy(float) - fc[_COLS].to_numpy(float)[sel]
+        along = np.sum(rec * u, axis=1)
+        across = np.linalg.norm(rec - along[:, None] * u, axis=1)
+        left = used & (zi["fit"].to_numpy() == 0) if "fit" in zi.columns else np.zeros_like(used)
+        if left.any():
+            ax.fill_between(t, 0, 1, where=left, color="0.85", step="mid",
+                            transform=ax.get_xaxis_transform(), label="left out of the fits")
+        if "bridge_rms_nT" in zi.columns and left.any():
+            e = np.where(left, zi["bridge_rms_nT"].to_numpy(), np.nan)
+            ax.fill_between(t, along - e, along + e, color="C1", alpha=0.3, lw=0,
+                            label="stated bridge error")
+        ax.plot(t[used], np.sum(dg * u, axis=1)[used], color="0.2", lw=2.0, label="injected")
+        ax.plot(t[used], along[used], color="C1", lw=0.8, label="recovered, along it")
+        ax.plot(t[used], across[used], color="C0", lw=0.6, label="recovered, across it")
+        head = f"zone {k if zone_names is None else list(zone_names)[k]}"
+        if table is not None:
+            row = table[table["zone"] == k]
+            if len(row):
+                head += (f": energy kept {row['energy_kept'].iloc[0]:.0%}, distortion "
+                         f"{row['distortion'].iloc[0]:.0%}")
+        ax.set_title(head, fontsize=8, loc="left")
+        ax.set_ylabel("nT", fontsize=8)
+        ax.tick_params(labelsize=7)
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=7, ncol=5, loc="lower center")
+    axes[-1, 0].set_xlabel("s from zone start", fontsize=8)
+    fig.suptitle(f"ELFIN-A: injected {kind} against what the delivered product kept "
+                 f"(GEI)\n{CREDIT}", fontsize=8)
+    fig.tight_layout(rect=(0, 0.35 / (0.6 + 1.9 * len(ks)), 1, 1))
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return Path(path)
