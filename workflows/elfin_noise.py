@@ -22,9 +22,9 @@ Usage::
 
 Levels (nT per body axis, correlation time 30 s): ``moderate`` white 2 + correlated 5,
 ``heavy`` white 10 + correlated 20; ``none`` adds nothing (the real day's own noise,
-the pulses at drawn places: the bridge error's coverage without added noise). About 60 s per seed and level on an idle core for
-the default 4 zones. Reads ``../shared/real-data/elfin/``; with ``--out`` the tables
-are written as CSV.
+the pulses at drawn places: the bridge error's coverage without added noise). About
+15 s per seed and level on an idle core for the default 4 zones. Reads
+``../shared/real-data/elfin/``; with ``--out`` the tables are written as CSV.
 """
 
 from __future__ import annotations

@@ -111,8 +111,9 @@ def noise_transfer(clean_field: pd.DataFrame, noisy_field: pd.DataFrame,
 
     Over the samples both products use: ``transfer`` is the RMS of ``|noisy - clean|``
     over the RMS of ``|noise|`` (1: passed unchanged; below 1: part of it taken out;
-    above 1: the calibration added to it; NaN without noise), ``added_rms_nT`` the RMS of what changed
-    that is not the noise (``|noisy - clean - noise|``), ``noise_rms_nT`` the noise's.
+    above 1: the calibration added to it; NaN without noise), ``added_rms_nT`` the RMS
+    of what changed that is not the noise (``|noisy - clean - noise|``),
+    ``noise_rms_nT`` the noise's.
 
     Examples
     --------
