@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from numpy.testing import assert_allclose
 
 from magcal.missions.elfin.drift import drift_shape_agreement, fit_gain_drift
 from magcal.missions.elfin.diagnostics.reference import screen_slow_part
@@ -312,3 +313,26 @@ def test_instrument_candidates_closed_form():
     np.testing.assert_allclose(out["sun_lowpass"],
                                45.0 * np.interp(t, k, 1 - np.exp(-(k + 1) / 300)), rtol=1e-9)
     np.testing.assert_allclose(out["warm_up"], 45.0 * (1 - np.exp(-t / 60)), rtol=1e-12)
+
+
+def test_tilt_with_a_level_step_keeps_the_natural_step():
+    """A spin-axis tilt of 0.1 deg plus a 300 nT natural step along the spin axis after
+    an interval left out of the fit. Truth: the injected tilt and step. Without a level
+    step the tilt takes part of the step (and hits its 0.2 deg bound); with it the tilt
+    comes back and the step stays in the field."""
+    from magcal.missions.elfin.linear import level_step_columns
+    from magcal.missions.elfin.vector import refine_tilt
+
+    t = np.arange(0.0, 360.0, 0.1)
+    ang = np.linspace(0.0, 0.8, t.size)
+    ref = np.column_stack([45000 * np.cos(ang), 45000 * np.sin(ang), np.full(t.size, 2000.0)])
+    th = np.radians(0.1)
+    natural = np.zeros_like(ref)
+    natural[:, 2] = np.where(t > 200.0, 300.0, 0.0)
+    b = ref + np.cross([th, 0.0, 0.0], ref) + natural
+    fit = (t < 170.0) | (t > 200.0)
+    fixed, angles, _ = refine_tilt(b, ref, fit_mask=fit, steps=level_step_columns(t, fit))
+    assert_allclose(angles, [0.1, 0.0], atol=0.005)
+    assert_allclose((fixed - ref)[t > 200.0, 2], 300.0, atol=4.0)
+    _, plain, _ = refine_tilt(b, ref, fit_mask=fit)
+    assert np.max(np.abs(plain - [0.1, 0.0])) > 0.05

@@ -104,6 +104,9 @@ class ZoneCalibration:
     n_clipped : int
         Samples left out (``used = 0``) because an axis reads its clipped extreme
         (:func:`~magcal.missions.elfin.clipping.clipped_samples`: saturation).
+    n_level_steps : int
+        Intervals left out of the fit across which the spin-axis field's level was let
+        change (``level_steps``; :func:`level_steps_wanted`).
     det_sign_by_sense : list of int
         Sign of ``det C`` of the solution with the phase sense +1 and -1 (the two are
         mirror images; their signs differ).
@@ -136,6 +139,7 @@ class ZoneCalibration:
     n_timing_repaired: int = 0
     n_timing_flagged: int = 0
     n_clipped: int = 0
+    n_level_steps: int = 0
 
     def as_dict(self) -> dict:
         """Plain dictionary (JSON-ready after :func:`magcal.io.jsonio.to_jsonable`)."""
@@ -158,9 +162,105 @@ def _powers(T, degree: int, first: int = 0) -> np.ndarray:
         else np.empty((T.size, 0))
 
 
+def level_step_columns(t_s, fit, *, min_s: float = 5.0) -> np.ndarray:
+    """Columns (n, m): 1 after each interval left out of the fit, 0 before.
+
+    One column per run of samples that ``fit`` leaves out between its first and last
+    fitted sample and that lasts ``min_s`` or more: fitted alongside a zone's slow
+    terms and not removed from the field, it lets the natural field's level differ
+    across the interval (a current sheet crossed there), where the slow terms would
+    otherwise take the new level as a tilt or an offset drift.
+
+    Examples
+    --------
+    >>> t = np.arange(0.0, 100.0, 1.0)
+    >>> fit = (t < 40) | (t > 60) | (t == 50)
+    >>> cols = level_step_columns(t, fit)
+    >>> cols.shape, float(cols[:, 0].sum()), float(cols[:, 1].sum())
+    ((100, 2), 50.0, 39.0)
+    """
+    from magcal.missions.elfin.timing import true_runs
+
+    t = np.asarray(t_s, dtype=float)
+    fit = np.asarray(fit, bool)
+    inner = ~fit & (t > t[fit][0]) & (t < t[fit][-1])
+    cols = [(t > t[b - 1]).astype(float) for a, b in true_runs(inner)
+            if t[b - 1] - t[a] >= min_s]
+    return np.column_stack(cols) if cols else np.empty((t.size, 0))
+
+
+#: Smallest jump of the spin-axis residual across a left-out interval (nT) that gets
+#: a level step (``level_steps``): the detector's own smallest disturbance.
+LEVEL_STEP_MIN_NT = 30.0
+#: ... and its smallest share of the largest excursion within the interval: a field
+#: that comes back (a pulse) jumps by a small share of its peak, a sheet by all of it.
+LEVEL_STEP_MIN_SHARE = 0.5
+
+
+def level_step_jumps(t_s, axis_residual, fit, *, window_s: float = 30.0,
+                     min_s: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
+    """The spin-axis residual's jump across each interval of :func:`level_step_columns`.
+
+    Returns
+    -------
+    jumps : ndarray (m,)
+        Median of ``axis_residual`` over the fitted samples in the ``window_s`` after
+        the interval minus that in the ``window_s`` before it (nT; NaN where a side has
+        no fitted sample): a natural field that returns to its level (a pulse) jumps
+        by about nothing, a current sheet crossed in the interval by its new level.
+    peaks : ndarray (m,)
+        The largest ``|axis_residual - level before|`` within the interval, spin-
+        averaged over ``window_s / 10`` (nT).
+
+    Examples
+    --------
+    >>> t = np.arange(0.0, 300.0, 0.1)
+    >>> sheet = 300.0 / (1.0 + np.exp(-(t - 150.0) / 4.0))
+    >>> pulse = 200.0 * np.exp(-0.5 * ((t - 150.0) / 17.0) ** 2)
+    >>> fit = (t < 120) | (t > 180)
+    >>> [round(float(level_step_jumps(t, r, fit)[0][0])) for r in (sheet, pulse)]
+    [300, 0]
+    >>> [bool(level_steps_wanted(t, r, fit)[0]) for r in (sheet, pulse)]
+    [True, False]
+    """
+    from magcal.missions.elfin.timing import true_runs
+
+    t = np.asarray(t_s, dtype=float)
+    r = np.asarray(axis_residual, dtype=float)
+    fit = np.asarray(fit, bool)
+    inner = ~fit & (t > t[fit][0]) & (t < t[fit][-1])
+    jumps, peaks = [], []
+    for a, b in true_runs(inner):
+        if t[b - 1] - t[a] < min_s:
+            continue
+        before = fit & (t < t[a]) & (t >= t[a] - window_s)
+        after = fit & (t > t[b - 1]) & (t <= t[b - 1] + window_s)
+        if not (before.any() and after.any()):
+            jumps.append(np.nan)
+            peaks.append(np.nan)
+            continue
+        level = np.median(r[before])
+        jumps.append(float(np.median(r[after]) - level))
+        inside = r[a:b] - level
+        width = max(1, int(round(window_s / 10.0 / max(np.median(np.diff(t)), 1e-9))))
+        smooth = np.convolve(inside, np.ones(width) / width, mode="same") \
+            if inside.size > width else inside
+        peaks.append(float(np.max(np.abs(smooth))))
+    return np.array(jumps), np.array(peaks)
+
+
+def level_steps_wanted(t_s, axis_residual, fit) -> np.ndarray:
+    """Which intervals of :func:`level_step_columns` get a level step: a jump of at
+    least :data:`LEVEL_STEP_MIN_NT` and :data:`LEVEL_STEP_MIN_SHARE` of the peak
+    within the interval (:func:`level_step_jumps`)."""
+    jumps, peaks = level_step_jumps(t_s, axis_residual, fit)
+    size = np.abs(np.nan_to_num(jumps))
+    return (size >= LEVEL_STEP_MIN_NT) & (size >= LEVEL_STEP_MIN_SHARE * np.nan_to_num(peaks))
+
+
 def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, n_iter,
              fit_attitude=False, hold=False, phase_degree=2, axis_prior=None,
-             axis_prior_weight=0.0):
+             axis_prior_weight=0.0, steps=None):
     """Alternate calibration (linear) and phase steps; return weights, body field, phase.
 
     Spin-plane rows: ``[counts, 1, T, .., T^offset_degree]``. Spin-axis row:
@@ -173,7 +273,9 @@ def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, 
     base's quadratic plus a quadratic). ``hold``: the phase stays ``base`` (no phase step).
     ``axis_prior``: a spin-axis row (nT per count) that the row's count coefficients are
     drawn towards, with ``axis_prior_weight`` times their squared difference in nT per
-    10^6 counts added to the sum of squares (nT^2).
+    10^6 counts added to the sum of squares (nT^2). ``steps`` (n, m): level steps of the
+    spin-axis field fitted in its row and left in the field
+    (:func:`level_step_columns`).
     """
     from scipy.interpolate import make_lsq_spline
 
@@ -182,6 +284,8 @@ def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, 
     knot_vector = None if knots is None else spline_knots(t[used], knots, origin=t[0],
                                                           trim_end=False)
     tu = t[used] - t[used][0]
+    steps = np.empty((t.size, 0)) if steps is None else np.asarray(steps, float)
+    n_cal = 4 + 2 * axis_degree            # the row's columns that calibrate the counts
 
     def calibrate(phase):
         tgt = spin(target, phase)
@@ -190,7 +294,8 @@ def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, 
         bx, by = xy @ wx, xy @ wy
         tilt = _powers(T, axis_degree, first=1)
         att = -target[:, :2] if fit_attitude else np.zeros((T.size, 2))
-        z = np.column_stack([x, np.ones_like(T), bx[:, None] * tilt, by[:, None] * tilt, att])
+        z = np.column_stack([x, np.ones_like(T), bx[:, None] * tilt, by[:, None] * tilt,
+                             steps, att])
         a_z, y_z = z[used], tgt[used, 2]
         if axis_prior is not None and axis_prior_weight > 0:
             ridge = np.zeros((3, z.shape[1]))
@@ -200,8 +305,9 @@ def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, 
         wz = np.linalg.lstsq(a_z, y_z, rcond=None)[0]
         if not fit_attitude:
             wz[-2:] = 0.0
-        # the last two columns are the attitude correction: not part of the data
-        return (wx, wy, wz), np.column_stack([bx, by, z[:, :-2] @ wz[:-2]]), tgt
+        # the level steps and the attitude correction (the last two) are not part of the
+        # calibration: the field keeps them
+        return (wx, wy, wz), np.column_stack([bx, by, z[:, :n_cal] @ wz[:n_cal]]), tgt
 
     for _ in range(0 if hold else max(1, n_iter)):
         _, b_body, tgt = calibrate(base + corr)
@@ -237,8 +343,8 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
              axis_degree: int = 2, phase_knot_s: float | None = 30.0, n_iter: int = 8,
              fit_attitude: bool = False, times_iso=("", ""), timestamp_anomalies=(),
              exclude=None, phase=None, fit_exclude=None, phase_degree: int = 2,
-             handedness: int = 1, axis_prior=None, axis_prior_weight: float = 0.0
-             ) -> _ZoneFit:
+             handedness: int = 1, axis_prior=None, axis_prior_weight: float = 0.0,
+             level_steps: bool = False) -> _ZoneFit:
     """Calibrate one zone of raw counts against a reference field in the despun frame.
 
     Parameters
@@ -291,6 +397,10 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
         over the pass; where that is small the tilt terms and the offset can rebuild
         it, and a natural field along the spin axis is taken as a gain change
         (:func:`calibrate_elfin`, ``axis_prior_weight``).
+    level_steps : bool
+        Let the spin-axis field's level change across each interval ``fit_exclude``
+        leaves out (:func:`level_step_columns`, fitted in the spin-axis row and left in
+        the field); ``ElfinSettings.level_steps``.
 
     Returns
     -------
@@ -323,30 +433,43 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
     raw = np.interp(t, t[out_used], raw_phase)
     knots = None if phase_knot_s is None else float(phase_knot_s)
 
-    best, tried, dets = None, [], []
     held = phase is not None
-    for sense in ((1.0,) if held else (1.0, -1.0)):
-        if held:
-            base = np.asarray(phase, dtype=float)
-            coef = np.polyfit(t[used] - t[0], base[used], 2)
-        else:
-            coef = np.polyfit(t[used] - t[0], sense * raw[used], 2)
-            base = np.polyval(coef, t - t[0])
-        out = _iterate(t, x, T, ref, base, used, offset_degree=offset_degree,
-                       axis_degree=axis_degree, knots=knots, n_iter=n_iter,
-                       fit_attitude=fit_attitude, hold=held, phase_degree=phase_degree,
-                       axis_prior=axis_prior, axis_prior_weight=axis_prior_weight)
-        fitted = out[4]
-        rms = float(np.sqrt(np.mean((fitted - ref)[used] ** 2)))
-        tried.append(rms)
-        wx, wy, wz = out[0]
-        dets.append(int(np.sign(np.linalg.det(np.array([wx[:3], wy[:3], wz[:3]])))))
-        allowed = held or handedness == 0 or dets[-1] == handedness
-        if allowed and (best is None or rms < best[0]):
-            best = (rms, sense, coef, base, out, fitted)
-    if best is None:
-        raise InputError(f"zone {times_iso[0]}: no spin sense gives a coupling of "
-                         f"determinant sign {handedness:+d} (signs {dets})")
+
+    def fit_senses(steps):
+        best, tried, dets = None, [], []
+        for sense in ((1.0,) if held else (1.0, -1.0)):
+            if held:
+                base = np.asarray(phase, dtype=float)
+                coef = np.polyfit(t[used] - t[0], base[used], 2)
+            else:
+                coef = np.polyfit(t[used] - t[0], sense * raw[used], 2)
+                base = np.polyval(coef, t - t[0])
+            out = _iterate(t, x, T, ref, base, used, offset_degree=offset_degree,
+                           axis_degree=axis_degree, knots=knots, n_iter=n_iter,
+                           fit_attitude=fit_attitude, hold=held, phase_degree=phase_degree,
+                           axis_prior=axis_prior, axis_prior_weight=axis_prior_weight,
+                           steps=steps)
+            fitted = out[4]
+            rms = float(np.sqrt(np.mean((fitted - ref)[used] ** 2)))
+            tried.append(rms)
+            wx, wy, wz = out[0]
+            dets.append(int(np.sign(np.linalg.det(np.array([wx[:3], wy[:3], wz[:3]])))))
+            allowed = held or handedness == 0 or dets[-1] == handedness
+            if allowed and (best is None or rms < best[0]):
+                best = (rms, sense, coef, base, out, fitted)
+        if best is None:
+            raise InputError(f"zone {times_iso[0]}: no spin sense gives a coupling of "
+                             f"determinant sign {handedness:+d} (signs {dets})")
+        return best, tried, dets
+
+    best, tried, dets = fit_senses(None)
+    n_steps = 0
+    if level_steps:
+        # a step only where the spin-axis residual's level changes across the interval
+        keep = level_steps_wanted(t, (best[5] - ref)[:, 2], used)
+        if keep.any():
+            n_steps = int(keep.sum())
+            best, tried, dets = fit_senses(level_step_columns(t, used)[:, keep])
     _, sense, coef, base, (w, b_body, phase, corr, _), fitted = best
     const = _iterate(t, x, T, ref, base, used, offset_degree=0, axis_degree=0, knots=None,
                      n_iter=n_iter, fit_attitude=False)
@@ -405,7 +528,8 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
         timestamp_anomalies=list(timestamp_anomalies),
         n_timing_repaired=sum(a["n_samples"] for a in timestamp_anomalies
                               if a["kind"] == "unpaired_repaired"),
-        n_timing_flagged=int(np.sum(exclude)) if exclude is not None else 0)
+        n_timing_flagged=int(np.sum(exclude)) if exclude is not None else 0,
+        n_level_steps=n_steps)
     return _ZoneFit(b_despun=fitted, phase=phase, used=out_used, summary=summary,
                     fit=used)
 
@@ -570,6 +694,7 @@ class ElfinCalibration:
                 "n_timing_repaired": z.n_timing_repaired,
                 "n_timing_flagged": z.n_timing_flagged,
                 "n_clipped": z.n_clipped,
+                "n_level_steps": z.n_level_steps,
             })
         return pd.DataFrame(rows)
 

@@ -43,7 +43,7 @@ SCORED = ("scalar_rms_nT", "scalar_fast_nT", "scalar_slow_nT", "vector_rms_nT")
 SIGNAL_TRADE = ("linear_phase_knot_s", "linear_phase_degree", "linear_axis_degree",
                 "gain_drift", "gain_drift_2x", "gain_drift_robust_c", "vector_step",
                 "vector_knot_s", "fast_drift", "fast_knot_s", "phase_refit", "refit_knot_s",
-                "detect_disturbed")
+                "detect_disturbed", "level_steps")
 #: Relative (and absolute, nT) growth of a zone median below which it is rounding.
 ROUNDING = 1e-9
 
@@ -154,6 +154,21 @@ class ElfinSettings:
         stated one in 81 % of cases and within twice it in all (largest ratio 1.98). Default 3 (each trial
         costs about one calibration without detection: whole day 8.6 -> 14 s); 0: not
         measured.
+    level_steps : bool
+        Let the spin-axis (about east-west) field's level differ before and after an
+        interval left out of the fits where the spin-axis residual jumps across it by
+        at least 30 nT and half its largest excursion inside
+        (:func:`~magcal.missions.elfin.linear.level_steps_wanted`): a step fitted with
+        the linear fit's spin-axis row and with the vector step's tilt, and left in the
+        field (:func:`~magcal.missions.elfin.linear.level_step_columns`). Without it
+        those slow terms take a current sheet's new level as a tilt. Signal trade
+        (zones 1, 4, 7, 10, with detection): an east-west current sheet kept 3 % ->
+        110 % (distortion 23 -> 11 %), the pulses and the wave as without it, the
+        clean zones unchanged (no step). Whole day: one step (zone 2, a natural
+        excursion that does not come back), vector zone median 16.07 -> 17.72 nT
+        (zone 2 14.5 -> 18.3 nT with its new level kept), and the bridge trials get
+        steps too where the linear step's drifting residual jumps across a quiet gap:
+        bridge errors up to 86 nT (42 without). Default False.
     """
 
     harmonic: bool = True
@@ -175,6 +190,7 @@ class ElfinSettings:
     detect_disturbed: bool = True
     axis_prior_weight: float = 1.0
     bridge_trials: int = 3
+    level_steps: bool = False
 
     @classmethod
     def from_mapping(cls, given: dict, where: str = "settings") -> ElfinSettings:
@@ -192,7 +208,7 @@ class ElfinSettings:
         >>> ElfinSettings.from_mapping({"tilt": 1})
         Traceback (most recent call last):
         ...
-        magcal.errors.InputError: settings: unknown key 'tilt' (known: harmonic, gain_drift, gain_drift_2x, vector_step, tilt_bound_deg, vector_knot_s, fast_drift, phase_refit, linear_phase_knot_s, linear_phase_degree, linear_axis_degree, gain_drift_robust_c, fast_knot_s, refit_knot_s, joint, scan, detect_disturbed, axis_prior_weight, bridge_trials)
+        magcal.errors.InputError: settings: unknown key 'tilt' (known: harmonic, gain_drift, gain_drift_2x, vector_step, tilt_bound_deg, vector_knot_s, fast_drift, phase_refit, linear_phase_knot_s, linear_phase_degree, linear_axis_degree, gain_drift_robust_c, fast_knot_s, refit_knot_s, joint, scan, detect_disturbed, axis_prior_weight, bridge_trials, level_steps)
         """
         known = {f.name: f for f in fields(cls)}
         out = {}
@@ -577,7 +593,7 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
                                axis_degree=s.linear_axis_degree,
                                phase_degree=s.linear_phase_degree,
                                axis_prior_weight=s.axis_prior_weight,
-                               zone_numbers=zone_numbers)
+                               zone_numbers=zone_numbers, level_steps=s.level_steps)
 
     if zone_numbers is None:
         # the first call: the plain linear fit decides which zones can be calibrated
@@ -626,8 +642,8 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
                 from magcal.missions.elfin.vector import correct_vector
 
                 knot = s.vector_knot_s or None
-                cal, steps["vector_correction"] = correct_vector(cal, bound_deg=s.tilt_bound_deg,
-                                                                 knot_s=knot)
+                cal, steps["vector_correction"] = correct_vector(
+                    cal, bound_deg=s.tilt_bound_deg, knot_s=knot, level_steps=s.level_steps)
                 products["+ vector step"] = cal
                 if s.fast_drift:
                     from magcal.missions.elfin.harmonic import correct_fast_drift

@@ -157,7 +157,8 @@ def vector_harmonic_correction(t_s, b_body, ref_body, *, plane=(-1, 3), axial=(1
     return b, info
 
 
-def refine_tilt(b_despun, ref_despun, *, bound_deg: float = 0.2, fit_mask=None):
+def refine_tilt(b_despun, ref_despun, *, bound_deg: float = 0.2, fit_mask=None,
+                steps=None):
     """Small rotation about the despun X and Y axes (a spin-axis tilt) within a bound.
 
     The calibrated vectors are rotated by ``-w`` (``w = (wx, wy, 0)``, radians) with
@@ -172,6 +173,11 @@ def refine_tilt(b_despun, ref_despun, *, bound_deg: float = 0.2, fit_mask=None):
     at_bound : bool
         True if an angle sits on the bound (the data want more than the attitude file's
         uncertainty allows).
+
+    ``steps`` (n, m): level steps of the spin-axis field
+    (:func:`~magcal.missions.elfin.linear.level_step_columns`), fitted with the angles
+    without a bound and left in the field, so that a natural field's new level after
+    an interval left out of the fit is not taken as a tilt.
 
     Examples
     --------
@@ -190,16 +196,23 @@ def refine_tilt(b_despun, ref_despun, *, bound_deg: float = 0.2, fit_mask=None):
     use = np.ones(len(b), bool) if fit_mask is None else np.asarray(fit_mask, bool)
     cx = np.cross([1.0, 0.0, 0.0], b)
     cy = np.cross([0.0, 1.0, 0.0], b)
-    design = np.column_stack([cx[use].ravel(), cy[use].ravel()])
+    cols = [cx[use].ravel(), cy[use].ravel()]
+    for h in np.asarray(steps, float).T if steps is not None else ():
+        on_axis = np.zeros((len(b), 3))
+        on_axis[:, 2] = h
+        cols.append(on_axis[use].ravel())
     lim = np.radians(bound_deg)
-    sol = lsq_linear(design, (b - ref)[use].ravel(), bounds=(-lim, lim))
-    w = sol.x
-    at_bound = bool(np.any(sol.active_mask != 0))        # the solver's own verdict
+    free = np.full(len(cols) - 2, np.inf)
+    sol = lsq_linear(np.column_stack(cols), (b - ref)[use].ravel(),
+                     bounds=(np.r_[-lim, -lim, -free], np.r_[lim, lim, free]))
+    w = sol.x[:2]
+    at_bound = bool(np.any(sol.active_mask[:2] != 0))    # the solver's own verdict
     return b - (w[0] * cx + w[1] * cy), np.degrees(w), at_bound
 
 
 def correct_vector_zone(t_s, b_despun, phase, ref_despun, *, bound_deg: float = 0.2,
-                        fit_mask=None, tone_mask=None, **kw) -> tuple[np.ndarray, dict]:
+                        fit_mask=None, tone_mask=None, level_steps: bool = False,
+                        **kw) -> tuple[np.ndarray, dict]:
     """One zone: :func:`vector_harmonic_correction` in the spinning frame, then the tilt.
 
     Parameters
@@ -221,6 +234,9 @@ def correct_vector_zone(t_s, b_despun, phase, ref_despun, *, bound_deg: float = 
         in this one, which then holds the tones across a long interval instead of
         bridging them (2022-01-12: bridged intervals of 100-150 s made up to 116 nT of
         spin tones).
+    level_steps : bool
+        Fit the tilt with a level step of the spin-axis field after each interval the
+        fit mask leaves out (:func:`refine_tilt`, ``steps``).
     **kw
         Passed to :func:`vector_harmonic_correction`.
 
@@ -229,8 +245,9 @@ def correct_vector_zone(t_s, b_despun, phase, ref_despun, *, bound_deg: float = 
     corrected : ndarray (n, 3)
         Despun frame.
     info : dict
-        That of :func:`vector_harmonic_correction` plus ``tilt_deg``, ``tilt_at_bound``
-        and ``vector_rms_after_nT`` after the tilt.
+        That of :func:`vector_harmonic_correction` plus ``tilt_deg``, ``tilt_at_bound``,
+        ``n_level_steps`` (fitted with the tilt) and ``vector_rms_after_nT`` after the
+        tilt.
     """
     from magcal.spin.despin import despin, spin
 
@@ -241,15 +258,23 @@ def correct_vector_zone(t_s, b_despun, phase, ref_despun, *, bound_deg: float = 
     body, info = vector_harmonic_correction(t, spin(b_despun, phase), spin(ref, phase),
                                             fit_mask=tones, **kw)
     new_d = despin(body, phase)
-    angles, at_bound = np.zeros(2), False
+    angles, at_bound, steps = np.zeros(2), False, None
     if bound_deg:
-        new_d, angles, at_bound = refine_tilt(new_d, ref, bound_deg=bound_deg, fit_mask=use)
+        from magcal.missions.elfin.linear import level_step_columns, level_steps_wanted
+
+        steps = None
+        if level_steps:
+            steps = level_step_columns(t, use)[:, level_steps_wanted(t, (new_d - ref)[:, 2],
+                                                                     use)]
+        new_d, angles, at_bound = refine_tilt(new_d, ref, bound_deg=bound_deg, fit_mask=use,
+                                              steps=steps)
     info.update({"tilt_deg": angles.tolist(), "tilt_at_bound": at_bound,
+                 "n_level_steps": 0 if steps is None else int(steps.shape[1]),
                  "vector_rms_after_nT": rms((new_d - ref)[use])})
     return new_d, info
 
 
-def correct_vector(cal, *, bound_deg: float = 0.2, **kw):
+def correct_vector(cal, *, bound_deg: float = 0.2, level_steps: bool = False, **kw):
     """Apply :func:`correct_vector_zone` zone by zone to an ElfinCalibration.
 
     Parameters
@@ -258,6 +283,8 @@ def correct_vector(cal, *, bound_deg: float = 0.2, **kw):
         Usually after the gain drift (:func:`magcal.missions.elfin.drift.correct_gain_drift`).
     bound_deg : float
         Bound of the spin-axis tilt (0: no tilt fitted).
+    level_steps : bool
+        Passed to :func:`correct_vector_zone`.
     **kw
         Passed to :func:`vector_harmonic_correction`.
 
@@ -273,12 +300,13 @@ def correct_vector(cal, *, bound_deg: float = 0.2, **kw):
         new_d, info = correct_vector_zone(
             t, z[["bx_despun", "by_despun", "bz_despun"]].to_numpy(float),
             z["phase"].to_numpy(float), ref, bound_deg=bound_deg, fit_mask=used,
-            tone_mask=z["used"].to_numpy() == 1, **kw)
+            tone_mask=z["used"].to_numpy() == 1, level_steps=level_steps, **kw)
         scal = (np.linalg.norm(new_d, axis=1) - np.linalg.norm(ref, axis=1))[used]
         return new_d, {**info, "scalar_rms_after_nT": rms(scal),
                        "scalar_fast_after_nT": rms(fast_part(t[used], scal))}
 
-    return map_zones(cal, step, "vector_correction", {"bound_deg": bound_deg, **kw})
+    return map_zones(cal, step, "vector_correction",
+                     {"bound_deg": bound_deg, "level_steps": level_steps, **kw})
 
 
 def refine_phase(t_s, b_despun, ref_despun, *, knot_s: float = 60.0,
