@@ -126,17 +126,34 @@ def inject_counts(fgs: pd.DataFrame, clean, signals: dict) -> pd.DataFrame:
     f = clean.field
     if len(f) != len(fgs):
         raise InputError(f"clean calibration has {len(f)} rows for {len(fgs)} FGS rows")
-    zone_ids = list(dict.fromkeys(f["zone"].to_numpy()))
-    out = fgs.copy()
-    counts = out[["b1", "b2", "b3"]].to_numpy(dtype=float, copy=True)
+    body = np.zeros((len(fgs), 3))
     for k, dg in signals.items():
         rows = np.flatnonzero(f["zone"].to_numpy() == k)
         z = f.iloc[rows]
         basis = despun_basis(z[[f"spin_axis_gei_{c}" for c in "xyz"]].to_numpy())
-        d_body = spin(np.einsum("nij,nj->ni", basis, np.asarray(dg, float)),
-                      z["phase"].to_numpy())
-        coupling = clean.zones[zone_ids.index(k)].coupling
-        counts[rows] += np.linalg.solve(coupling, d_body.T).T
+        body[rows] = spin(np.einsum("nij,nj->ni", basis, np.asarray(dg, float)),
+                          z["phase"].to_numpy())
+    return add_body_field(fgs, clean, body)
+
+
+def add_body_field(fgs: pd.DataFrame, clean, body_nT) -> pd.DataFrame:
+    """FGS counts plus a field in the spinning body frame (nT, (len(fgs), 3)), turned
+    into counts zone by zone through the inverse of ``clean``'s coupling.
+
+    The common last step of :func:`inject_counts` (natural signals) and
+    :func:`magcal.missions.elfin.noise.noisy_counts` (instrument noise).
+    """
+    body = np.asarray(body_nT, dtype=float)
+    f = clean.field
+    if len(f) != len(fgs) or body.shape != (len(fgs), 3):
+        raise InputError(f"a field of shape {body.shape} and a clean calibration of "
+                         f"{len(f)} rows do not match {len(fgs)} FGS rows")
+    out = fgs.copy()
+    counts = out[["b1", "b2", "b3"]].to_numpy(dtype=float, copy=True)
+    zone = f["zone"].to_numpy()
+    for i, k in enumerate(dict.fromkeys(zone.tolist())):
+        rows = np.flatnonzero(zone == k)
+        counts[rows] += np.linalg.solve(clean.zones[i].coupling, body[rows].T).T
     out[["b1", "b2", "b3"]] = counts
     return out
 

@@ -162,11 +162,21 @@ def _powers(T, degree: int, first: int = 0) -> np.ndarray:
         else np.empty((T.size, 0))
 
 
+def left_out_runs(t_s, fit, *, min_s: float = 5.0) -> list[tuple[int, int]]:
+    """Row slices ``(a, b)`` of the runs of samples that ``fit`` leaves out between its
+    first and last fitted sample and that last ``min_s`` or more."""
+    from magcal.missions.elfin.timing import true_runs
+
+    t = np.asarray(t_s, dtype=float)
+    fit = np.asarray(fit, bool)
+    inner = ~fit & (t > t[fit][0]) & (t < t[fit][-1])
+    return [(a, b) for a, b in true_runs(inner) if t[b - 1] - t[a] >= min_s]
+
+
 def level_step_columns(t_s, fit, *, min_s: float = 5.0) -> np.ndarray:
     """Columns (n, m): 1 after each interval left out of the fit, 0 before.
 
-    One column per run of samples that ``fit`` leaves out between its first and last
-    fitted sample and that lasts ``min_s`` or more: fitted alongside a zone's slow
+    One column per run of :func:`left_out_runs`: fitted alongside a zone's slow
     terms and not removed from the field, it lets the natural field's level differ
     across the interval (a current sheet crossed there), where the slow terms would
     otherwise take the new level as a tilt or an offset drift.
@@ -179,13 +189,8 @@ def level_step_columns(t_s, fit, *, min_s: float = 5.0) -> np.ndarray:
     >>> cols.shape, float(cols[:, 0].sum()), float(cols[:, 1].sum())
     ((100, 2), 50.0, 39.0)
     """
-    from magcal.missions.elfin.timing import true_runs
-
     t = np.asarray(t_s, dtype=float)
-    fit = np.asarray(fit, bool)
-    inner = ~fit & (t > t[fit][0]) & (t < t[fit][-1])
-    cols = [(t > t[b - 1]).astype(float) for a, b in true_runs(inner)
-            if t[b - 1] - t[a] >= min_s]
+    cols = [(t > t[b - 1]).astype(float) for _, b in left_out_runs(t, fit, min_s=min_s)]
     return np.column_stack(cols) if cols else np.empty((t.size, 0))
 
 
@@ -199,7 +204,7 @@ LEVEL_STEP_MIN_SHARE = 0.5
 
 def level_step_jumps(t_s, axis_residual, fit, *, window_s: float = 30.0,
                      min_s: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
-    """The spin-axis residual's jump across each interval of :func:`level_step_columns`.
+    """The spin-axis residual's jump across each interval of :func:`left_out_runs`.
 
     Returns
     -------
@@ -223,16 +228,11 @@ def level_step_jumps(t_s, axis_residual, fit, *, window_s: float = 30.0,
     >>> [bool(level_steps_wanted(t, r, fit)[0]) for r in (sheet, pulse)]
     [True, False]
     """
-    from magcal.missions.elfin.timing import true_runs
-
     t = np.asarray(t_s, dtype=float)
     r = np.asarray(axis_residual, dtype=float)
     fit = np.asarray(fit, bool)
-    inner = ~fit & (t > t[fit][0]) & (t < t[fit][-1])
     jumps, peaks = [], []
-    for a, b in true_runs(inner):
-        if t[b - 1] - t[a] < min_s:
-            continue
+    for a, b in left_out_runs(t, fit, min_s=min_s):
         before = fit & (t < t[a]) & (t >= t[a] - window_s)
         after = fit & (t > t[b - 1]) & (t <= t[b - 1] + window_s)
         if not (before.any() and after.any()):
@@ -256,6 +256,12 @@ def level_steps_wanted(t_s, axis_residual, fit) -> np.ndarray:
     jumps, peaks = level_step_jumps(t_s, axis_residual, fit)
     size = np.abs(np.nan_to_num(jumps))
     return (size >= LEVEL_STEP_MIN_NT) & (size >= LEVEL_STEP_MIN_SHARE * np.nan_to_num(peaks))
+
+
+def wanted_level_step_columns(t_s, axis_residual, fit) -> np.ndarray:
+    """:func:`level_step_columns` of the intervals :func:`level_steps_wanted` keeps,
+    (n, m) with m possibly 0; the linear fit and the vector step's tilt both ask this."""
+    return level_step_columns(t_s, fit)[:, level_steps_wanted(t_s, axis_residual, fit)]
 
 
 def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, n_iter,
@@ -466,10 +472,10 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
     n_steps = 0
     if level_steps:
         # a step only where the spin-axis residual's level changes across the interval
-        keep = level_steps_wanted(t, (best[5] - ref)[:, 2], used)
-        if keep.any():
-            n_steps = int(keep.sum())
-            best, tried, dets = fit_senses(level_step_columns(t, used)[:, keep])
+        steps = wanted_level_step_columns(t, (best[5] - ref)[:, 2], used)
+        if steps.shape[1]:
+            n_steps = steps.shape[1]
+            best, tried, dets = fit_senses(steps)
     _, sense, coef, base, (w, b_body, phase, corr, _), fitted = best
     const = _iterate(t, x, T, ref, base, used, offset_degree=0, axis_degree=0, knots=None,
                      n_iter=n_iter, fit_attitude=False)

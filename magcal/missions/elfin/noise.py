@@ -57,13 +57,6 @@ def instrument_noise(t_s, rng: np.random.Generator, *, white_nT: float, red_nT: 
     return white + red
 
 
-def _zone_rows(clean):
-    f = clean.field
-    zone = f["zone"].to_numpy()
-    for i, k in enumerate(dict.fromkeys(zone.tolist())):
-        yield np.flatnonzero(zone == k), clean.zones[i].coupling
-
-
 def noisy_counts(fgs: pd.DataFrame, clean, noise_body) -> pd.DataFrame:
     """FGS counts plus body-frame noise (nT) through the inverse of the clean coupling.
 
@@ -76,16 +69,9 @@ def noisy_counts(fgs: pd.DataFrame, clean, noise_body) -> pd.DataFrame:
     noise_body : array_like (len(fgs), 3)
         :func:`instrument_noise`; rows outside the calibrated zones are left alone.
     """
-    noise = np.asarray(noise_body, dtype=float)
-    if len(clean.field) != len(fgs) or noise.shape != (len(fgs), 3):
-        raise InputError(f"noise {noise.shape} and a clean calibration of "
-                         f"{len(clean.field)} rows do not match {len(fgs)} FGS rows")
-    out = fgs.copy()
-    counts = out[["b1", "b2", "b3"]].to_numpy(dtype=float, copy=True)
-    for rows, coupling in _zone_rows(clean):
-        counts[rows] += np.linalg.solve(coupling, noise[rows].T).T
-    out[["b1", "b2", "b3"]] = counts
-    return out
+    from magcal.missions.elfin.injection import add_body_field
+
+    return add_body_field(fgs, clean, noise_body)
 
 
 def noise_gei(clean, noise_body) -> np.ndarray:
@@ -97,7 +83,9 @@ def noise_gei(clean, noise_body) -> np.ndarray:
     f = clean.field
     noise = np.asarray(noise_body, dtype=float)
     out = np.full(noise.shape, np.nan)
-    for rows, _ in _zone_rows(clean):
+    zone = f["zone"].to_numpy()
+    for k in dict.fromkeys(zone.tolist()):
+        rows = np.flatnonzero(zone == k)
         z = f.iloc[rows]
         basis = despun_basis(z[[f"spin_axis_gei_{c}" for c in "xyz"]].to_numpy())
         despun = despin(noise[rows], z["phase"].to_numpy())

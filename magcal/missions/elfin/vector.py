@@ -260,12 +260,10 @@ def correct_vector_zone(t_s, b_despun, phase, ref_despun, *, bound_deg: float = 
     new_d = despin(body, phase)
     angles, at_bound, steps = np.zeros(2), False, None
     if bound_deg:
-        from magcal.missions.elfin.linear import level_step_columns, level_steps_wanted
+        from magcal.missions.elfin.linear import wanted_level_step_columns
 
-        steps = None
         if level_steps:
-            steps = level_step_columns(t, use)[:, level_steps_wanted(t, (new_d - ref)[:, 2],
-                                                                     use)]
+            steps = wanted_level_step_columns(t, (new_d - ref)[:, 2], use)
         new_d, angles, at_bound = refine_tilt(new_d, ref, bound_deg=bound_deg, fit_mask=use,
                                               steps=steps)
     info.update({"tilt_deg": angles.tolist(), "tilt_at_bound": at_bound,
