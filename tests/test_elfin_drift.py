@@ -320,7 +320,7 @@ def test_tilt_with_a_level_step_keeps_the_natural_step():
     an interval left out of the fit. Truth: the injected tilt and step. Without a level
     step the tilt takes part of the step (and hits its 0.2 deg bound); with it the tilt
     comes back and the step stays in the field."""
-    from magcal.missions.elfin.linear import level_step_columns
+    from magcal.missions.elfin.levels import step_columns
     from magcal.missions.elfin.vector import refine_tilt
 
     t = np.arange(0.0, 360.0, 0.1)
@@ -331,7 +331,7 @@ def test_tilt_with_a_level_step_keeps_the_natural_step():
     natural[:, 2] = np.where(t > 200.0, 300.0, 0.0)
     b = ref + np.cross([th, 0.0, 0.0], ref) + natural
     fit = (t < 170.0) | (t > 200.0)
-    fixed, angles, _ = refine_tilt(b, ref, fit_mask=fit, steps=level_step_columns(t, fit))
+    fixed, angles, _ = refine_tilt(b, ref, fit_mask=fit, steps=step_columns(~fit))
     assert_allclose(angles, [0.1, 0.0], atol=0.005)
     assert_allclose((fixed - ref)[t > 200.0, 2], 300.0, atol=4.0)
     _, plain, _ = refine_tilt(b, ref, fit_mask=fit)

@@ -154,8 +154,9 @@ def main(argv=None) -> int:
                     help="also a run with those samples left out of the injected run's "
                          "fits only (a detector that flags exactly the signal)")
     ap.add_argument("--plot", type=Path, default=None, metavar="DIR",
-                    help="write recovered_<signal>.png of the delivered run to DIR: the "
-                         "injected signal and what came back, zone by zone")
+                    help="write recovered_<signal>.png of the delivered run to DIR (of the "
+                         "--settings run to DIR/settings): the injected signal and "
+                         "what came back, zone by zone")
     args = ap.parse_args(argv)
     if not (args.data / FGS_FILE).is_file():
         print(f"real data not found: {args.data / FGS_FILE}", file=sys.stderr)
@@ -185,9 +186,19 @@ def main(argv=None) -> int:
         tab, clean = run_injections(fgs, state, settings, kinds=kinds, zones=zones,
                                     hold=hold, mask_signal=mask, mask_clean=mask_clean,
                                     progress=lambda line: print("  " + line),
-                                    plot_dir=args.plot if label == "delivered" else None)
+                                    plot_dir=_plot_dir(args.plot, label))
         _print(f"{label} ({time.perf_counter() - t0:.0f} s)", tab, clean)
     return 0
+
+
+def _plot_dir(plot, label):
+    """Where a run's pictures go: the delivered run's in ``plot``, the ``--settings``
+    run's in ``plot/settings``, none for the other runs."""
+    if plot is None:
+        return None
+    if label == "delivered":
+        return plot
+    return plot / "settings" if label.startswith("settings ") else None
 
 
 if __name__ == "__main__":

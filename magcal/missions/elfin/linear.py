@@ -41,6 +41,7 @@ from magcal.missions.elfin.phase import (
     split_zones,
     wrap,
 )
+from magcal.missions.elfin.levels import step_columns
 from magcal.missions.elfin.timing import check_timing
 from magcal.spin.despin import despin, spin
 
@@ -106,7 +107,8 @@ class ZoneCalibration:
         (:func:`~magcal.missions.elfin.clipping.clipped_samples`: saturation).
     n_level_steps : int
         Intervals left out of the fit across which the spin-axis field's level was let
-        change (``level_steps``; :func:`level_steps_wanted`).
+        change (``level_step_rows`` of :func:`fit_zone`;
+        :func:`~magcal.missions.elfin.levels.level_step_rows`).
     det_sign_by_sense : list of int
         Sign of ``det C`` of the solution with the phase sense +1 and -1 (the two are
         mirror images; their signs differ).
@@ -162,108 +164,6 @@ def _powers(T, degree: int, first: int = 0) -> np.ndarray:
         else np.empty((T.size, 0))
 
 
-def left_out_runs(t_s, fit, *, min_s: float = 5.0) -> list[tuple[int, int]]:
-    """Row slices ``(a, b)`` of the runs of samples that ``fit`` leaves out between its
-    first and last fitted sample and that last ``min_s`` or more."""
-    from magcal.missions.elfin.timing import true_runs
-
-    t = np.asarray(t_s, dtype=float)
-    fit = np.asarray(fit, bool)
-    inner = ~fit & (t > t[fit][0]) & (t < t[fit][-1])
-    return [(a, b) for a, b in true_runs(inner) if t[b - 1] - t[a] >= min_s]
-
-
-def level_step_columns(t_s, fit, *, min_s: float = 5.0) -> np.ndarray:
-    """Columns (n, m): 1 after each interval left out of the fit, 0 before.
-
-    One column per run of :func:`left_out_runs`: fitted alongside a zone's slow
-    terms and not removed from the field, it lets the natural field's level differ
-    across the interval (a current sheet crossed there), where the slow terms would
-    otherwise take the new level as a tilt or an offset drift.
-
-    Examples
-    --------
-    >>> t = np.arange(0.0, 100.0, 1.0)
-    >>> fit = (t < 40) | (t > 60) | (t == 50)
-    >>> cols = level_step_columns(t, fit)
-    >>> cols.shape, float(cols[:, 0].sum()), float(cols[:, 1].sum())
-    ((100, 2), 50.0, 39.0)
-    """
-    t = np.asarray(t_s, dtype=float)
-    cols = [(t > t[b - 1]).astype(float) for _, b in left_out_runs(t, fit, min_s=min_s)]
-    return np.column_stack(cols) if cols else np.empty((t.size, 0))
-
-
-#: Smallest jump of the spin-axis residual across a left-out interval (nT) that gets
-#: a level step (``level_steps``): the detector's own smallest disturbance.
-LEVEL_STEP_MIN_NT = 30.0
-#: ... and its smallest share of the largest excursion within the interval: a field
-#: that comes back (a pulse) jumps by a small share of its peak, a sheet by all of it.
-LEVEL_STEP_MIN_SHARE = 0.5
-
-
-def level_step_jumps(t_s, axis_residual, fit, *, window_s: float = 30.0,
-                     min_s: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
-    """The spin-axis residual's jump across each interval of :func:`left_out_runs`.
-
-    Returns
-    -------
-    jumps : ndarray (m,)
-        Median of ``axis_residual`` over the fitted samples in the ``window_s`` after
-        the interval minus that in the ``window_s`` before it (nT; NaN where a side has
-        no fitted sample): a natural field that returns to its level (a pulse) jumps
-        by about nothing, a current sheet crossed in the interval by its new level.
-    peaks : ndarray (m,)
-        The largest ``|axis_residual - level before|`` within the interval, spin-
-        averaged over ``window_s / 10`` (nT).
-
-    Examples
-    --------
-    >>> t = np.arange(0.0, 300.0, 0.1)
-    >>> sheet = 300.0 / (1.0 + np.exp(-(t - 150.0) / 4.0))
-    >>> pulse = 200.0 * np.exp(-0.5 * ((t - 150.0) / 17.0) ** 2)
-    >>> fit = (t < 120) | (t > 180)
-    >>> [round(float(level_step_jumps(t, r, fit)[0][0])) for r in (sheet, pulse)]
-    [300, 0]
-    >>> [bool(level_steps_wanted(t, r, fit)[0]) for r in (sheet, pulse)]
-    [True, False]
-    """
-    t = np.asarray(t_s, dtype=float)
-    r = np.asarray(axis_residual, dtype=float)
-    fit = np.asarray(fit, bool)
-    jumps, peaks = [], []
-    for a, b in left_out_runs(t, fit, min_s=min_s):
-        before = fit & (t < t[a]) & (t >= t[a] - window_s)
-        after = fit & (t > t[b - 1]) & (t <= t[b - 1] + window_s)
-        if not (before.any() and after.any()):
-            jumps.append(np.nan)
-            peaks.append(np.nan)
-            continue
-        level = np.median(r[before])
-        jumps.append(float(np.median(r[after]) - level))
-        inside = r[a:b] - level
-        width = max(1, int(round(window_s / 10.0 / max(np.median(np.diff(t)), 1e-9))))
-        smooth = np.convolve(inside, np.ones(width) / width, mode="same") \
-            if inside.size > width else inside
-        peaks.append(float(np.max(np.abs(smooth))))
-    return np.array(jumps), np.array(peaks)
-
-
-def level_steps_wanted(t_s, axis_residual, fit) -> np.ndarray:
-    """Which intervals of :func:`level_step_columns` get a level step: a jump of at
-    least :data:`LEVEL_STEP_MIN_NT` and :data:`LEVEL_STEP_MIN_SHARE` of the peak
-    within the interval (:func:`level_step_jumps`)."""
-    jumps, peaks = level_step_jumps(t_s, axis_residual, fit)
-    size = np.abs(np.nan_to_num(jumps))
-    return (size >= LEVEL_STEP_MIN_NT) & (size >= LEVEL_STEP_MIN_SHARE * np.nan_to_num(peaks))
-
-
-def wanted_level_step_columns(t_s, axis_residual, fit) -> np.ndarray:
-    """:func:`level_step_columns` of the intervals :func:`level_steps_wanted` keeps,
-    (n, m) with m possibly 0; the linear fit and the vector step's tilt both ask this."""
-    return level_step_columns(t_s, fit)[:, level_steps_wanted(t_s, axis_residual, fit)]
-
-
 def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, n_iter,
              fit_attitude=False, hold=False, phase_degree=2, axis_prior=None,
              axis_prior_weight=0.0, steps=None):
@@ -281,7 +181,7 @@ def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, 
     drawn towards, with ``axis_prior_weight`` times their squared difference in nT per
     10^6 counts added to the sum of squares (nT^2). ``steps`` (n, m): level steps of the
     spin-axis field fitted in its row and left in the field
-    (:func:`level_step_columns`).
+    (:func:`~magcal.missions.elfin.levels.step_columns`).
     """
     from scipy.interpolate import make_lsq_spline
 
@@ -350,7 +250,7 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
              fit_attitude: bool = False, times_iso=("", ""), timestamp_anomalies=(),
              exclude=None, phase=None, fit_exclude=None, phase_degree: int = 2,
              handedness: int = 1, axis_prior=None, axis_prior_weight: float = 0.0,
-             level_steps: bool = False) -> _ZoneFit:
+             level_step_rows=None) -> _ZoneFit:
     """Calibrate one zone of raw counts against a reference field in the despun frame.
 
     Parameters
@@ -403,11 +303,11 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
         over the pass; where that is small the tilt terms and the offset can rebuild
         it, and a natural field along the spin axis is taken as a gain change
         (:func:`calibrate_elfin`, ``axis_prior_weight``).
-    level_steps : bool
-        Let the spin-axis field's level change across each interval ``fit_exclude``
-        leaves out (:func:`level_step_columns`, fitted in the spin-axis row and left in
-        the field); ``ElfinSettings.level_steps``.
-
+    level_step_rows : array_like of bool, optional
+        Rows of intervals (left out of the fit) across which the spin-axis field's
+        level may change: a step after each run, fitted in the spin-axis row and left
+        in the field (:func:`~magcal.missions.elfin.levels.step_columns`;
+        ``ElfinSettings.level_steps``).
     Returns
     -------
     _ZoneFit
@@ -468,14 +368,9 @@ def fit_zone(t_s, counts, b_despun_nT, *, skip_s: float = 2.0, offset_degree: in
                              f"determinant sign {handedness:+d} (signs {dets})")
         return best, tried, dets
 
-    best, tried, dets = fit_senses(None)
-    n_steps = 0
-    if level_steps:
-        # a step only where the spin-axis residual's level changes across the interval
-        steps = wanted_level_step_columns(t, (best[5] - ref)[:, 2], used)
-        if steps.shape[1]:
-            n_steps = steps.shape[1]
-            best, tried, dets = fit_senses(steps)
+    steps = None if level_step_rows is None else step_columns(level_step_rows)
+    n_steps = 0 if steps is None else steps.shape[1]
+    best, tried, dets = fit_senses(steps if n_steps else None)
     _, sense, coef, base, (w, b_body, phase, corr, _), fitted = best
     const = _iterate(t, x, T, ref, base, used, offset_degree=0, axis_degree=0, knots=None,
                      n_iter=n_iter, fit_attitude=False)
@@ -738,7 +633,7 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
                     check_times: bool = True, check_clipping: bool = True,
                     zones=None, zone_numbers=None, provenance=None,
                     hold_phase=None, fit_exclude=None, axis_prior_weight: float = 0.0,
-                    **fit_kw) -> ElfinCalibration:
+                    level_step_rows=None, **fit_kw) -> ElfinCalibration:
     """Calibrate ELFIN FGS counts zone by zone against IGRF at the spacecraft.
 
     Parameters
@@ -775,6 +670,10 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
     fit_exclude : array_like (len(fgs),) of bool, optional
         Rows left out of every fit but kept in the product (``fit_exclude`` of
         :func:`fit_zone`); the field's ``fit`` column (0/1) carries it to the later steps.
+    level_step_rows : array_like (len(fgs),) of bool, optional
+        Rows of left-out intervals across which the spin-axis level may change
+        (``level_step_rows`` of :func:`fit_zone`); the field's ``level_step`` column
+        (0/1) carries them to the vector step's tilt.
     axis_prior_weight : float
         If positive, the zones whose spin-axis field changes little over the pass are
         fitted again with their spin-axis row drawn towards the day's
@@ -803,6 +702,10 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
         raise InputError("FGS frame needs columns b1, b2, b3")
     if hold_phase is not None and len(hold_phase) != len(fgs):
         raise InputError(f"hold_phase has {len(hold_phase)} values for {len(fgs)} FGS rows")
+    steps = np.zeros(len(fgs), bool) if level_step_rows is None \
+        else np.asarray(level_step_rows, bool)
+    if steps.shape != (len(fgs),):
+        raise InputError(f"level_step_rows has {steps.size} values for {len(fgs)} FGS rows")
     t_all = (fgs.index.asi8 - fgs.index.asi8[0]) / 1e9
     t_ref = fgs.index[0]
     ts = (state.index.asi8 - fgs.index.asi8[0]) / 1e9
@@ -865,7 +768,7 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
         skip = None if fit_exclude is None else np.asarray(fit_exclude, bool)[a:b]
         fit = fit_zone(z["t"], all_counts[a:b], z["ref"], times_iso=iso,
                        timestamp_anomalies=z["anomalies"], exclude=z["bad"], phase=held,
-                       fit_exclude=skip, **fit_kw, **kw)
+                       fit_exclude=skip, level_step_rows=steps[a:b], **fit_kw, **kw)
         # fit_zone counts every excluded sample as timing-flagged; split the two causes
         return replace(fit, summary=replace(fit.summary, n_timing_flagged=z["n_timing"],
                                             n_clipped=z["n_clipped"]))
@@ -896,7 +799,7 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
         cal_gei = np.einsum("nji,nj->ni", z["basis"], fit.b_despun)
         idx = t_ref + pd.to_timedelta(np.round(t * 1e9).astype("int64"), unit="ns")
         data = {"zone": np.full(t.size, label[k]), "used": fit.used.astype(int),
-                "fit": fit.fit.astype(int)}
+                "fit": fit.fit.astype(int), "level_step": steps[a:b].astype(int)}
         for name, arr in (("{}_gei", cal_gei), ("{}_despun", fit.b_despun)):
             for j, c in enumerate("xyz"):
                 data["b" + name.format(c)] = arr[:, j]

@@ -35,7 +35,7 @@ SHIFTS_S = (-0.4, -0.2, -0.1, 0.0, 0.1, 0.2, 0.4)
 #: Columns of the calibrated table (the first five after ``time`` are the issue's contract).
 CALIBRATED_COLUMNS = ("zone", "used", "bx_gei", "by_gei", "bz_gei", "bx_despun", "by_despun",
                       "bz_despun", "igrf_x_gei", "igrf_y_gei", "igrf_z_gei", "phase", "fit",
-                      "bridge_rms_nT")
+                      "bridge_rms_nT", "level_step")
 #: Zone medians compared from one step to the next (:meth:`ElfinDay.worse_steps`).
 SCORED = ("scalar_rms_nT", "scalar_fast_nT", "scalar_slow_nT", "vector_rms_nT")
 #: Settings that buy a smaller residual against the model with natural signal lost
@@ -358,6 +358,8 @@ class ElfinDay:
             f = f.assign(bridge_rms_nT=np.nan)
         if "fit" not in f.columns:
             f = f.assign(fit=f["used"])
+        if "level_step" not in f.columns:
+            f = f.assign(level_step=0)
         table = f[cols].astype(float)
         if not self.calibration.skipped:
             return table
@@ -526,7 +528,7 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
                         provenance: dict | None = None, hold_phase=None,
                         fit_exclude=None, fit_exclude_scalar=None,
                         diagnostics: bool = True, linear=None,
-                        zone_numbers=None) -> ElfinDay:
+                        zone_numbers=None, level_step_rows=None) -> ElfinDay:
     """Calibrate one day of ELFIN FGS counts against IGRF through the configured steps.
 
     Parameters
@@ -560,6 +562,12 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
         The zone numbers of the rows given (``zone_numbers`` of
         :func:`~magcal.missions.elfin.linear.calibrate_elfin`); set by the call itself
         when zones are taken out.
+    level_step_rows : array_like (len(fgs),) of bool, optional
+        Rows of left-out intervals across which the spin-axis level may change, fitted
+        as steps by the linear fit and the vector step's tilt and left in the field
+        (``level_step`` column). Default: none, or with ``settings.level_steps`` those
+        :func:`~magcal.missions.elfin.levels.level_step_rows` finds on the day
+        calibrated without steps (then calibrated again with them).
 
     Returns
     -------
@@ -593,7 +601,7 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
                                axis_degree=s.linear_axis_degree,
                                phase_degree=s.linear_phase_degree,
                                axis_prior_weight=s.axis_prior_weight,
-                               zone_numbers=zone_numbers, level_steps=s.level_steps)
+                               zone_numbers=zone_numbers, level_step_rows=level_step_rows)
 
     if zone_numbers is None:
         # the first call: the plain linear fit decides which zones can be calibrated
@@ -602,6 +610,7 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
             return _without_skipped(fgs, state, s, linear, provenance=provenance,
                                     hold_phase=hold_phase, fit_exclude=fit_exclude,
                                     fit_exclude_scalar=fit_exclude_scalar,
+                                    level_step_rows=level_step_rows,
                                     diagnostics=diagnostics)
         zone_numbers = linear.zone_numbers
     if s.detect_disturbed:
@@ -610,6 +619,12 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
         return calibrate_detected(fgs, state, s, provenance=provenance, hold_phase=hold_phase,
                                   fit_exclude=fit_exclude, diagnostics=diagnostics,
                                   linear=linear, zone_numbers=zone_numbers)
+    if s.level_steps and level_step_rows is None:
+        return _with_level_steps(fgs, state, s, provenance=provenance, hold_phase=hold_phase,
+                                 fit_exclude=fit_exclude,
+                                 fit_exclude_scalar=fit_exclude_scalar,
+                                 diagnostics=diagnostics, linear=linear,
+                                 zone_numbers=zone_numbers)
     if linear is None:
         linear = fit_linear(fit_exclude)
         if linear.skipped:
@@ -643,7 +658,7 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
 
                 knot = s.vector_knot_s or None
                 cal, steps["vector_correction"] = correct_vector(
-                    cal, bound_deg=s.tilt_bound_deg, knot_s=knot, level_steps=s.level_steps)
+                    cal, bound_deg=s.tilt_bound_deg, knot_s=knot)
                 products["+ vector step"] = cal
                 if s.fast_drift:
                     from magcal.missions.elfin.harmonic import correct_fast_drift
@@ -675,7 +690,7 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
 
 
 def _without_skipped(fgs, state, settings, linear, *, hold_phase, fit_exclude,
-                     fit_exclude_scalar, **kw) -> ElfinDay:
+                     fit_exclude_scalar, level_step_rows=None, **kw) -> ElfinDay:
     """The day calibrated on the zones ``linear`` could calibrate, their numbers kept,
     with ``linear.skipped`` carried by every product."""
     keep = linear.kept_rows(len(fgs))
@@ -687,6 +702,7 @@ def _without_skipped(fgs, state, settings, linear, *, hold_phase, fit_exclude,
                               fit_exclude=rows(fit_exclude),
                               fit_exclude_scalar=rows(fit_exclude_scalar), linear=linear,
                               zone_numbers=linear.zone_numbers,
+                              level_step_rows=rows(level_step_rows),
                               **kw)
     products = {k: replace(v, skipped=linear.skipped) for k, v in day.products.items()}
     return replace(day, calibration=replace(day.calibration, skipped=linear.skipped),
@@ -710,12 +726,19 @@ def _with_bridge(fgs, state, settings, day: ElfinDay, *, hold_phase) -> ElfinDay
     held = None if hold_phase is None else np.asarray(hold_phase)[keep]
     plain = replace(settings, detect_disturbed=False, bridge_trials=0, joint=False,
                     scan=False)
+    # the trials keep the day's level steps; in a zone with one, a trial gap gets a
+    # step too, so that the stated error holds the uncertainty of a kept level
+    levels = f["level_step"].to_numpy() == 1 if "level_step" in f.columns \
+        else np.zeros(len(f), bool)
+    zone = f["zone"].to_numpy()
+    stepped = np.isin(zone, np.unique(zone[levels]))
 
     def calibrate(extra):
         return calibrate_elfin_day(fgs[keep], state, plain, hold_phase=held,
                                    fit_exclude=left | extra,
                                    fit_exclude_scalar=left_scalar | extra,
                                    diagnostics=False,
+                                   level_step_rows=levels | (extra & stepped),
                                    zone_numbers=day.calibration.zone_numbers).calibration.field
 
     table = bridge_trials(calibrate, f, left, settings.bridge_trials)
@@ -723,6 +746,21 @@ def _with_bridge(fgs, state, settings, day: ElfinDay, *, hold_phase) -> ElfinDay
     products = {k: (cal if v is day.calibration else v) for k, v in day.products.items()}
     return replace(day, calibration=cal, settings=settings, products=products,
                    steps={**day.steps, "bridge": table})
+
+
+def _with_level_steps(fgs, state, settings, *, linear, **kw) -> ElfinDay:
+    """The day calibrated without level steps, and again with those
+    :func:`~magcal.missions.elfin.levels.level_step_rows` finds on it (if any):
+    the steps are decided once, on the delivered product's spin-axis residual."""
+    from magcal.missions.elfin.levels import level_step_rows
+
+    first = calibrate_elfin_day(fgs, state, settings, linear=linear,
+                                level_step_rows=np.zeros(len(fgs), bool), **kw)
+    f = first.calibration.field
+    rows = level_step_rows(f)        # zones that cannot be calibrated are out already
+    if not rows.any():
+        return first
+    return calibrate_elfin_day(fgs, state, settings, level_step_rows=rows, **kw)
 
 
 def _joint(linear, incumbent, scores: dict) -> tuple:

@@ -175,7 +175,7 @@ def refine_tilt(b_despun, ref_despun, *, bound_deg: float = 0.2, fit_mask=None,
         uncertainty allows).
 
     ``steps`` (n, m): level steps of the spin-axis field
-    (:func:`~magcal.missions.elfin.linear.level_step_columns`), fitted with the angles
+    (:func:`~magcal.missions.elfin.levels.step_columns`), fitted with the angles
     without a bound and left in the field, so that a natural field's new level after
     an interval left out of the fit is not taken as a tilt.
 
@@ -211,7 +211,7 @@ def refine_tilt(b_despun, ref_despun, *, bound_deg: float = 0.2, fit_mask=None,
 
 
 def correct_vector_zone(t_s, b_despun, phase, ref_despun, *, bound_deg: float = 0.2,
-                        fit_mask=None, tone_mask=None, level_steps: bool = False,
+                        fit_mask=None, tone_mask=None, level_step_rows=None,
                         **kw) -> tuple[np.ndarray, dict]:
     """One zone: :func:`vector_harmonic_correction` in the spinning frame, then the tilt.
 
@@ -234,9 +234,10 @@ def correct_vector_zone(t_s, b_despun, phase, ref_despun, *, bound_deg: float = 
         in this one, which then holds the tones across a long interval instead of
         bridging them (2022-01-12: bridged intervals of 100-150 s made up to 116 nT of
         spin tones).
-    level_steps : bool
-        Fit the tilt with a level step of the spin-axis field after each interval the
-        fit mask leaves out (:func:`refine_tilt`, ``steps``).
+    level_step_rows : array_like of bool, optional
+        Rows of left-out intervals across which the spin-axis level may change: the
+        tilt is fitted with a level step after each run (:func:`refine_tilt`,
+        ``steps``; :func:`~magcal.missions.elfin.levels.level_step_rows`).
     **kw
         Passed to :func:`vector_harmonic_correction`.
 
@@ -260,10 +261,10 @@ def correct_vector_zone(t_s, b_despun, phase, ref_despun, *, bound_deg: float = 
     new_d = despin(body, phase)
     angles, at_bound, steps = np.zeros(2), False, None
     if bound_deg:
-        from magcal.missions.elfin.linear import wanted_level_step_columns
+        from magcal.missions.elfin.levels import step_columns
 
-        if level_steps:
-            steps = wanted_level_step_columns(t, (new_d - ref)[:, 2], use)
+        if level_step_rows is not None and np.any(level_step_rows):
+            steps = step_columns(level_step_rows)
         new_d, angles, at_bound = refine_tilt(new_d, ref, bound_deg=bound_deg, fit_mask=use,
                                               steps=steps)
     info.update({"tilt_deg": angles.tolist(), "tilt_at_bound": at_bound,
@@ -272,17 +273,18 @@ def correct_vector_zone(t_s, b_despun, phase, ref_despun, *, bound_deg: float = 
     return new_d, info
 
 
-def correct_vector(cal, *, bound_deg: float = 0.2, level_steps: bool = False, **kw):
+def correct_vector(cal, *, bound_deg: float = 0.2, **kw):
     """Apply :func:`correct_vector_zone` zone by zone to an ElfinCalibration.
 
     Parameters
     ----------
     cal : magcal.missions.elfin.ElfinCalibration
         Usually after the gain drift (:func:`magcal.missions.elfin.drift.correct_gain_drift`).
+        Its field's ``level_step`` column (set by the linear fit's ``level_step_rows``)
+        gives the tilt its level steps (``level_step_rows`` of
+        :func:`correct_vector_zone`).
     bound_deg : float
         Bound of the spin-axis tilt (0: no tilt fitted).
-    level_steps : bool
-        Passed to :func:`correct_vector_zone`.
     **kw
         Passed to :func:`vector_harmonic_correction`.
 
@@ -298,13 +300,15 @@ def correct_vector(cal, *, bound_deg: float = 0.2, level_steps: bool = False, **
         new_d, info = correct_vector_zone(
             t, z[["bx_despun", "by_despun", "bz_despun"]].to_numpy(float),
             z["phase"].to_numpy(float), ref, bound_deg=bound_deg, fit_mask=used,
-            tone_mask=z["used"].to_numpy() == 1, level_steps=level_steps, **kw)
+            tone_mask=z["used"].to_numpy() == 1,
+            level_step_rows=z["level_step"].to_numpy() == 1 if "level_step" in z else None,
+            **kw)
         scal = (np.linalg.norm(new_d, axis=1) - np.linalg.norm(ref, axis=1))[used]
         return new_d, {**info, "scalar_rms_after_nT": rms(scal),
                        "scalar_fast_after_nT": rms(fast_part(t[used], scal))}
 
     return map_zones(cal, step, "vector_correction",
-                     {"bound_deg": bound_deg, "level_steps": level_steps, **kw})
+                     {"bound_deg": bound_deg, **kw})
 
 
 def refine_phase(t_s, b_despun, ref_despun, *, knot_s: float = 60.0,

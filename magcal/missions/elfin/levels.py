@@ -1,0 +1,208 @@
+"""Level steps of the spin-axis field across intervals left out of the ELFIN fits.
+
+A current sheet crossed inside a disturbed interval leaves the natural field at a new
+level after it, mostly east-west and so within a few degrees of ELFIN's spin axis.
+The calibration's spin-axis offset is set only against the model, so without help
+its slow terms take the new level as an offset drift or a tilt and the product loses
+the sheet (2022-01-12: 3 % of a 300 nT sheet kept). An instrument offset does not jump
+within a pass; a natural field may. So where the delivered product's spin-axis
+residual jumps across a left-out interval by most of its excursion inside it
+(:func:`level_steps_wanted`), that interval is marked (:func:`level_step_rows`) and the
+day is calibrated again with a free step of the spin-axis level after it
+(:func:`step_columns`), fitted with the slow terms and left in the field
+(``ElfinSettings.level_steps``).
+
+The decision is taken once, on the product without steps (residual about 15 nT), not
+inside each fit: the linear fit's own residual (about 100 nT before the gain drift and
+the phase refit) jumps by tens of nT across quiet gaps and gave steps to the bridge
+trials' gaps (bridge errors up to 86 nT on the real day).
+
+Data: ELFIN SOC (PI V. Angelopoulos, UCLA), "Open Data for Scientific Use".
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from magcal.missions.elfin.timing import true_runs
+
+#: Smallest jump of the spin-axis residual across a left-out interval (nT) that gets
+#: a level step: the detector's own smallest disturbance.
+LEVEL_STEP_MIN_NT = 30.0
+#: ... and its smallest share of the largest excursion within the interval: a field
+#: that comes back (a pulse) jumps by a small share of its peak, a sheet by all of it.
+LEVEL_STEP_MIN_SHARE = 0.5
+
+
+def left_out_runs(t_s, fit, *, min_s: float = 5.0) -> list[tuple[int, int]]:
+    """Row slices ``(a, b)`` of the runs of samples that ``fit`` leaves out between its
+    first and last fitted sample and that last ``min_s`` or more.
+
+    Examples
+    --------
+    >>> t = np.arange(0.0, 100.0, 1.0)
+    >>> left_out_runs(t, (t < 40) | (t > 60))
+    [(40, 61)]
+    """
+    t = np.asarray(t_s, dtype=float)
+    fit = np.asarray(fit, bool)
+    inner = ~fit & (t > t[fit][0]) & (t < t[fit][-1])
+    return [(a, b) for a, b in true_runs(inner) if t[b - 1] - t[a] >= min_s]
+
+
+def step_columns(marked) -> np.ndarray:
+    """Columns (n, m): 1 after each run of ``marked`` rows, 0 before and inside.
+
+    Fitted alongside a zone's slow terms and not removed from the field, a column lets
+    the natural field's level differ across the run (a current sheet crossed there),
+    where the slow terms would otherwise take the new level as a tilt or an offset
+    drift. The rows inside the run are left out of the fits anyway.
+
+    Examples
+    --------
+    >>> cols = step_columns([0, 1, 1, 0, 0, 1, 0])
+    >>> cols.T.tolist()
+    [[0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0], [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]]
+    """
+    marked = np.asarray(marked, bool)
+    idx = np.arange(marked.size)
+    cols = [(idx >= b).astype(float) for _, b in true_runs(marked)]
+    return np.column_stack(cols) if cols else np.empty((marked.size, 0))
+
+
+#: ... and the factor by which it must divide the sum of squares of the trend fit
+#: (2022-01-12, product without steps: injected 300 nT sheets 6.2-10.2; a real
+#: disturbance that the detector flags only in part, with 40-130 nT of natural field
+#: on the fitted side, 1.4 and 1.9 (zones 8 and 2); every other gap 1.00-1.50).
+LEVEL_STEP_MIN_GAIN = 3.0
+#: ... and the smallest share of it in the level change next to the interval (30 s
+#: either side; 2022-01-12 with 300 nT sheets injected at 0.35, 0.5 and 0.65 of every
+#: zone: 0.42-1.4; a disturbance flagged in part, with the trend bent to fit a short
+#: side: 0.14-0.36).
+LEVEL_STEP_MIN_LOCAL = 0.4
+#: Degree of the polynomial in time fitted with the steps: the slow terms that took
+#: part of a sheet in the product without steps (offset drift, tilt) leave a trend of
+#: about this degree on both sides of it.
+LEVEL_TREND_DEGREE = 3
+
+
+def level_steps_wanted(t_s, axis_residual, fit, *, degree: int = LEVEL_TREND_DEGREE,
+                       smooth_s: float = 3.0, window_s: float = 30.0,
+                       min_s: float = 5.0) -> np.ndarray:
+    """Which intervals of :func:`left_out_runs` get a level step.
+
+    The spin-axis residual on the fitted samples is fitted with a polynomial in time
+    and steps after the intervals, chosen one at a time (the one that lowers the sum
+    of squares most first). A step is kept if it divides the sum of squares by at
+    least :data:`LEVEL_STEP_MIN_GAIN`, is at least :data:`LEVEL_STEP_MIN_NT`, at least
+    :data:`LEVEL_STEP_MIN_SHARE` of the largest excursion inside its interval from the
+    level before it, and the level change seen next to the interval (medians over the
+    fitted samples within ``window_s`` either side) is of its sign and at least
+    :data:`LEVEL_STEP_MIN_LOCAL` of it (all spin-averaged over ``smooth_s``): a field
+    that comes back (a pulse) has a large excursion and no step, a current sheet a step
+    as large as its excursion, and a disturbance that goes on beyond the interval
+    (detected only in part) leaves natural field on the fitted side that a step
+    explains only in part, or only with the trend bent on a short side. Fitting the trend with
+    the steps keeps a sheet's trace in the product without steps (the slow terms
+    tilted to take part of it) from posing as steps at the quiet gaps before it.
+
+    Returns
+    -------
+    ndarray of bool (m,)
+        One per run of :func:`left_out_runs`.
+
+    Examples
+    --------
+    >>> t = np.arange(0.0, 300.0, 0.1)
+    >>> sheet = 300.0 / (1.0 + np.exp(-(t - 150.0) / 4.0)) - 1.0 * t
+    >>> pulse = 200.0 * np.exp(-0.5 * ((t - 150.0) / 17.0) ** 2)
+    >>> fit = ((t < 120) | (t > 180)) & ~((t > 50) & (t < 70))
+    >>> level_steps_wanted(t, sheet, fit).tolist(), level_steps_wanted(t, pulse, fit).tolist()
+    ([False, True], [False, False])
+    """
+    t = np.asarray(t_s, dtype=float)
+    r = np.asarray(axis_residual, dtype=float)
+    fit = np.asarray(fit, bool) & np.isfinite(r)
+    runs = left_out_runs(t, fit, min_s=min_s)
+    if not runs or fit.sum() <= degree + 1 + len(runs):
+        return np.zeros(len(runs), bool)
+    width = max(1, int(round(smooth_s / max(float(np.median(np.diff(t))), 1e-9))))
+    r_s = np.convolve(np.nan_to_num(r), np.ones(width) / width, mode="same")
+    T = 2.0 * (t - t[fit][0]) / (t[fit][-1] - t[fit][0]) - 1.0
+    trend = np.column_stack([T ** d for d in range(degree + 1)])
+    steps = np.column_stack([(t > t[b - 1]).astype(float) for _, b in runs])
+
+    def solve(chosen):
+        x = np.column_stack([trend, steps[:, chosen]])
+        coef = np.linalg.lstsq(x[fit], r_s[fit], rcond=None)[0]
+        return coef, r_s - x @ coef
+
+    def passes(chosen, coef):
+        for j, size in zip(chosen, coef[degree + 1:]):
+            a, b = runs[j]
+            before = trend[a] @ coef[:degree + 1] + sum(
+                c for i, c in zip(chosen, coef[degree + 1:]) if runs[i][1] <= a)
+            peak = np.max(np.abs(r_s[a:b] - before))
+            near_a = fit & (t < t[a]) & (t >= t[a] - window_s)
+            near_b = fit & (t > t[b - 1]) & (t <= t[b - 1] + window_s)
+            if not (near_a.any() and near_b.any()):
+                return False
+            local = np.median(r_s[near_b]) - np.median(r_s[near_a])
+            if not (abs(size) >= LEVEL_STEP_MIN_NT and abs(size) >= LEVEL_STEP_MIN_SHARE * peak
+                    and local * size >= LEVEL_STEP_MIN_LOCAL * size ** 2):
+                return False
+        return True
+
+    chosen = []
+    rss = float(np.sum(solve(chosen)[1][fit] ** 2))
+    while len(chosen) < len(runs):
+        tried = []
+        for j in range(len(runs)):
+            if j in chosen:
+                continue
+            trial = sorted(chosen + [j])
+            coef, resid = solve(trial)
+            new = float(np.sum(resid[fit] ** 2))
+            if new * LEVEL_STEP_MIN_GAIN <= rss and passes(trial, coef):
+                tried.append((new, trial))
+        if not tried:
+            break
+        rss, chosen = min(tried)
+    out = np.zeros(len(runs), bool)
+    out[chosen] = True
+    return out
+
+
+def level_step_rows(field: pd.DataFrame) -> np.ndarray:
+    """Rows of the left-out intervals across which the spin-axis level may change.
+
+    Parameters
+    ----------
+    field : DataFrame
+        A calibrated day without level steps (``ElfinCalibration.field``: ``zone``,
+        ``used``, ``fit``, ``bz_despun``, ``igrf_z_despun``, UTC index).
+
+    Returns
+    -------
+    ndarray of bool (n,)
+        True on the rows of each interval of :func:`left_out_runs` (per zone) that
+        :func:`level_steps_wanted` keeps, judged on the spin-axis residual
+        ``bz_despun - igrf_z_despun``; the ``level_step`` column of a day calibrated
+        with them (``level_step_rows`` of
+        :func:`~magcal.missions.elfin.pipeline.calibrate_elfin_day`).
+    """
+    out = np.zeros(len(field), bool)
+    zone = field["zone"].to_numpy()
+    fit_all = (field["used"].to_numpy() == 1) & (field["fit"].to_numpy() == 1)
+    resid = (field["bz_despun"] - field["igrf_z_despun"]).to_numpy(float)
+    ts = field.index.asi8 / 1e9
+    for k in dict.fromkeys(zone):
+        sel = np.flatnonzero(zone == k)
+        t, fit = ts[sel] - ts[sel][0], fit_all[sel]
+        if fit.sum() < 2:
+            continue
+        wanted = level_steps_wanted(t, resid[sel], fit)
+        for (a, b), keep in zip(left_out_runs(t, fit), wanted):
+            out[sel[a:b]] = keep
+    return out
