@@ -196,7 +196,7 @@ def level_step_rows(field: pd.DataFrame) -> np.ndarray:
     zone = field["zone"].to_numpy()
     fit_all = (field["used"].to_numpy() == 1) & (field["fit"].to_numpy() == 1)
     resid = (field["bz_despun"] - field["igrf_z_despun"]).to_numpy(float)
-    ts = field.index.asi8 / 1e9
+    ts = field.index.as_unit("ns").asi8 / 1e9
     for k in dict.fromkeys(zone):
         sel = np.flatnonzero(zone == k)
         t, fit = ts[sel] - ts[sel][0], fit_all[sel]

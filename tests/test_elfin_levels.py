@@ -1,0 +1,120 @@
+"""Level steps of the spin-axis field across left-out intervals (magcal.missions.elfin.levels).
+
+Closed-form cases with known truth (a sheet is a step, a pulse or a disturbance flagged
+in part is not), a false-step rate over seeded noise, and on the real day: the zones
+where an earlier gate stepped real disturbances get no step, and their product is the
+default one.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from conftest import real_data_path
+from magcal.alignment.noise import simulate_ou
+from magcal.missions.elfin.levels import level_step_rows, level_steps_wanted, step_columns
+
+FGS = "ela_l1_fgs_20220112_v01.cdf"
+STATE = "ela_l1_state_defn_20220112_v01.cdf"
+
+T = np.arange(0.0, 370.0, 0.2)          # one ELFIN zone at 5 Hz
+
+
+def _sheet(t0=180.0, size=300.0):
+    return size / (1.0 + np.exp(-(T - t0) / 4.5))            # 10-90 % rise in 20 s
+
+
+def test_step_columns_turn_on_after_each_run():
+    marked = np.zeros(10, bool)
+    marked[2:4] = marked[7] = True
+    cols = step_columns(marked)
+    assert cols.shape == (10, 2)
+    assert cols[:, 0].tolist() == [0, 0, 0, 0, 1, 1, 1, 1, 1, 1]
+    assert cols[:, 1].tolist() == [0] * 8 + [1, 1]
+    assert step_columns(np.zeros(5, bool)).shape == (5, 0)
+
+
+def test_a_sheet_behind_a_tilt_trend_gets_its_step_and_the_quiet_gap_none():
+    """The product without steps shows a sheet as a step plus the trend its slow
+    terms took (here -0.8 nT/s); a second, quiet gap earlier must not be stepped."""
+    r = _sheet() - 0.8 * T + 3.0 * np.sin(2 * np.pi * T / 3.0)
+    fit = ~(((T > 160) & (T < 240)) | ((T > 50) & (T < 80)))
+    assert level_steps_wanted(T, r, fit).tolist() == [False, True]
+
+
+def test_a_pulse_left_out_is_not_a_step():
+    r = 200.0 * np.exp(-0.5 * ((T - 180.0) / 17.0) ** 2) - 0.3 * T
+    fit = ~((T > 140) & (T < 220))
+    assert level_steps_wanted(T, r, fit).tolist() == [False]
+
+
+def test_a_disturbance_flagged_in_part_is_not_a_step():
+    """A 120 nT bump (60 s sigma) whose rise is fitted and whose tail is left out:
+    the trend bends to its fitted side, the level next to the gap hardly changes."""
+    r = 120.0 * np.exp(-0.5 * ((T - 90.0) / 30.0) ** 2)
+    fit = ~((T > 60) & (T < 170))
+    assert level_steps_wanted(T, r, fit).tolist() == [False]
+
+
+def test_no_false_steps_over_seeded_correlated_noise():
+    """40 draws of a 10 nT OU wander (30 s) plus 5 nT white noise on a quiet zone with
+    two gaps: no step (truth: none)."""
+    rng = np.random.default_rng(20261127)
+    fit = ~(((T > 100) & (T < 170)) | ((T > 250) & (T < 290)))
+    hits = 0
+    for _ in range(40):
+        r = simulate_ou(rng, T, 10.0, 30.0) + rng.normal(0.0, 5.0, T.size)
+        hits += int(level_steps_wanted(T, r, fit).any())
+    assert hits == 0
+
+
+def test_sheets_over_seeded_noise_are_all_found():
+    """The same noise with a 300 nT sheet inside the second gap: found every time."""
+    rng = np.random.default_rng(7)
+    fit = ~(((T > 100) & (T < 140)) | ((T > 160) & (T < 240)))
+    for _ in range(20):
+        r = _sheet() + simulate_ou(rng, T, 10.0, 30.0) + rng.normal(0.0, 5.0, T.size)
+        assert level_steps_wanted(T, r, fit).tolist() == [False, True]
+
+
+def test_level_step_rows_marks_the_stepped_interval_of_each_zone():
+    idx = pd.date_range("2022-01-12", periods=2 * T.size, freq="200ms", tz="UTC")
+    zone = np.repeat([0, 1], T.size)
+    fit = np.tile(~((T > 160) & (T < 240)), 2)
+    bz = np.concatenate([_sheet(), 200.0 * np.exp(-0.5 * ((T - 200.0) / 17.0) ** 2)])
+    field = pd.DataFrame({"zone": zone, "used": 1, "fit": fit.astype(int),
+                          "bz_despun": 1000.0 + bz, "igrf_z_despun": 1000.0}, index=idx)
+    rows = level_step_rows(field)
+    assert rows[:T.size].tolist() == (~fit[:T.size] & (T > 0)).tolist()   # zone 0: the gap
+    assert not rows[T.size:].any()                                      # zone 1: a pulse
+
+
+@pytest.fixture(scope="module")
+def zones_2_8():
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.injection import select_zones
+
+    fgs = read_elfin_fgs(real_data_path("elfin", FGS))
+    state = read_elfin_state(real_data_path("elfin", STATE))
+    return select_zones(fgs, [2, 8]), state
+
+
+def test_real_disturbances_flagged_in_part_get_no_step(zones_2_8):
+    """2022-01-12 zones 2 and 8: real disturbances the detector flags in part, which
+    the earlier in-fit gate stepped (zone 2 vector 14.5 -> 18.3 nT). With the steps
+    decided on the product, no step, and the product is the default one."""
+    from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
+
+    fgs, state = zones_2_8
+    cols = ["bx_gei", "by_gei", "bz_gei"]
+    on = calibrate_elfin_day(fgs, state, ElfinSettings(level_steps=True, bridge_trials=0),
+                             diagnostics=False)
+    off = calibrate_elfin_day(fgs, state, ElfinSettings(level_steps=False, bridge_trials=0),
+                              diagnostics=False)
+    f = on.calibration.field
+    assert ((f["used"] == 1) & (f["fit"] == 0)).any()      # there are left-out runs
+    assert f["level_step"].sum() == 0
+    assert np.abs(f[cols].to_numpy() - off.calibration.field[cols].to_numpy()).max() < 1e-9
+    assert on.calibrated_table()["level_step"].eq(0).all()
