@@ -118,3 +118,33 @@ def test_real_disturbances_flagged_in_part_get_no_step(zones_2_8):
     assert f["level_step"].sum() == 0
     assert np.abs(f[cols].to_numpy() - off.calibration.field[cols].to_numpy()).max() < 1e-9
     assert on.calibrated_table()["level_step"].eq(0).all()
+
+
+def test_a_sheet_injected_on_the_real_day_is_listed_with_its_level_change():
+    """Zone 1 with a 300 nT east-west sheet injected at mid-zone: one level step, in
+    the JSON with its level change within 20 % of the injected field's spin-axis
+    component (truth: the signal, 30 s medians either side as the product's)."""
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.injection import inject_counts, select_zones, signal_gei
+    from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
+
+    fgs = select_zones(read_elfin_fgs(real_data_path("elfin", FGS)), [1])
+    state = read_elfin_state(real_data_path("elfin", STATE))
+    s = ElfinSettings(bridge_trials=0)
+    clean = calibrate_elfin_day(fgs, state, s, diagnostics=False)
+    lf = clean.linear.field
+    sig = signal_gei("sheet_ew", lf, state)
+    day = calibrate_elfin_day(inject_counts(fgs, clean.linear, {0: sig}), state, s,
+                              diagnostics=False)
+    steps = day.level_step_intervals()
+    assert len(steps) == 1 and steps[0]["zone"] == 0
+    assert day.to_json()["level_steps"]["intervals"] == steps
+    f = day.calibration.field
+    axis = f[["spin_axis_gei_x", "spin_axis_gei_y", "spin_axis_gei_z"]].to_numpy()
+    along = np.sum(sig * axis, axis=1)
+    ts = (f.index.as_unit("ns").asi8 - f.index.as_unit("ns").asi8[0]) / 1e9
+    rows = np.flatnonzero(f["level_step"].to_numpy() == 1)
+    a, b = ts[rows[0]], ts[rows[-1]]
+    truth = np.median(along[(ts > b) & (ts <= b + 30)]) - np.median(along[(ts < a) & (ts >= a - 30)])
+    assert abs(truth) > 250.0
+    assert abs(steps[0]["step_nT"] - truth) <= 0.2 * abs(truth)

@@ -110,6 +110,12 @@ def _calibrate(data, settings, inputs, disturbed=()):
         lines.append(f"calibration error over the left-out intervals (quiet trial gaps, "
                      f"bridge_rms_nT): {rms.min():.1f}-{rms.max():.1f} nT RMS in "
                      f"{len(rms)} zones")
+    if settings.level_steps:
+        steps = day.level_step_intervals()
+        lines.append("spin-axis level kept changed across left-out intervals (level_step): "
+                     + ("; ".join(f"zone {x['zone']} {x['start'][11:19]}-{x['end'][11:19]} "
+                                  f"UTC {x['step_nT']:+.0f} nT" for x in steps)
+                        if steps else "none"))
     lines.append(f"delivered: {day.delivered}")
     summary = {"n_zones": n, "delivered": day.delivered, "zone_medians_nT": medians,
                "settings": asdict(settings)}

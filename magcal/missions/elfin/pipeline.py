@@ -386,6 +386,31 @@ class ElfinDay:
                              "(saturation) and are not used")
         return lines
 
+    def level_step_intervals(self) -> list[dict]:
+        """The delivered field's level steps: per run of its ``level_step`` rows, the
+        ``zone``, ``start`` and ``end`` (UTC, ISO) and ``step_nT``, the change of the
+        spin-axis residual's median over the 30 s of fitted samples either side (the
+        kept level change, nT)."""
+        from magcal.missions.elfin.timing import true_runs
+
+        f = self.calibration.field
+        if "level_step" not in f.columns:
+            return []
+        out = []
+        resid = (f["bz_despun"] - f["igrf_z_despun"]).to_numpy(float)
+        ts = f.index.as_unit("ns").asi8 / 1e9
+        fit = (f["used"].to_numpy() == 1) & (f["fit"].to_numpy() == 1)
+        zone = f["zone"].to_numpy()
+        for a, b in true_runs(f["level_step"].to_numpy() == 1):
+            same = fit & (zone == zone[a])
+            before = same & (ts < ts[a]) & (ts >= ts[a] - 30.0)
+            after = same & (ts > ts[b - 1]) & (ts <= ts[b - 1] + 30.0)
+            step = float(np.median(resid[after]) - np.median(resid[before])) \
+                if before.any() and after.any() else float("nan")
+            out.append({"zone": int(zone[a]), "start": str(f.index[a].tz_convert(None)),
+                        "end": str(f.index[b - 1].tz_convert(None)), "step_nT": step})
+        return out
+
     def to_json(self) -> dict:
         """The calibration document (the keys of ``elfin_calibration.json``)."""
         from dataclasses import asdict
@@ -420,6 +445,14 @@ class ElfinDay:
                     "the steps that fit |B| alone (spin harmonics, gain drift, fast drift) "
                     "leave out only the samples flagged from |B|: a field across B leaves "
                     "|B| alone to first order")
+        if s.level_steps or "level_step" in f.columns:
+            payload["level_steps"] = {
+                "note": "left-out intervals across which the product keeps a new level of "
+                        "the spin-axis field (a current sheet crossed there; magcal.missions."
+                        "elfin.levels, the level_step column): a step fitted with the "
+                        "linear fit's spin-axis row and the vector step's tilt, left in the "
+                        "field",
+                "intervals": self.level_step_intervals()}
         if "disturbed_detection" in self.steps:
             payload["disturbed_detection"] = {
                 "note": "intervals located from the counts alone (magcal.missions.elfin."
