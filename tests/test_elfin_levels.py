@@ -14,7 +14,12 @@ import pytest
 
 from conftest import real_data_path
 from magcal.alignment.noise import simulate_ou
-from magcal.missions.elfin.levels import level_step_rows, level_steps_wanted, step_columns
+from magcal.missions.elfin.levels import (
+    level_change_candidates,
+    level_step_rows,
+    level_steps_wanted,
+    step_columns,
+)
 
 FGS = "ela_l1_fgs_20220112_v01.cdf"
 STATE = "ela_l1_state_defn_20220112_v01.cdf"
@@ -91,23 +96,54 @@ def test_level_step_rows_marks_the_stepped_interval_of_each_zone():
     assert not rows[T.size:].any()                                      # zone 1: a pulse
 
 
+def _field(bz, fit):
+    idx = pd.date_range("2022-01-12", periods=T.size, freq="200ms", tz="UTC")
+    return pd.DataFrame({"zone": 0, "used": 1, "fit": np.asarray(fit).astype(int),
+                         "bz_despun": 1000.0 + bz, "igrf_z_despun": 1000.0}, index=idx)
+
+
+def test_a_sheet_the_detector_missed_is_found_on_the_fitted_samples():
+    """No interval left out, a 300 nT sheet rising at 180 s (10-90 % over 171-189 s)
+    behind a trend: the candidate covers the rise and becomes a level step."""
+    r = _sheet() - 0.5 * T
+    fit = np.ones(T.size, bool)
+    cand = level_change_candidates(T, r, fit)
+    assert T[cand].min() <= 171.0 and T[cand].max() >= 189.0
+    assert T[cand].max() - T[cand].min() <= 60.0
+    rows = level_step_rows(_field(r, fit))
+    assert rows.any() and T[rows].min() <= 171.0 and T[rows].max() >= 189.0
+    assert not level_step_rows(_field(r, fit), candidates=False).any()
+
+
+def test_fitted_pulses_and_level_changes_next_to_a_gap_give_no_step():
+    """A 200 nT pulse on fitted samples has two abrupt changes and comes back: no
+    step. A sheet rising 10 s after a left-out interval is no candidate (the falling
+    edge of a disturbance whose top is left out looks the same)."""
+    pulse = 200.0 * np.exp(-0.5 * ((T - 180.0) / 17.0) ** 2)
+    assert not level_step_rows(_field(pulse, np.ones(T.size, bool))).any()
+    fit = ~((T > 100) & (T < 160))
+    assert not level_change_candidates(T, _sheet(), fit).any()
+
+
 @pytest.fixture(scope="module")
-def zones_2_8():
+def zones_2_7_8():
     from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
     from magcal.missions.elfin.injection import select_zones
 
     fgs = read_elfin_fgs(real_data_path("elfin", FGS))
     state = read_elfin_state(real_data_path("elfin", STATE))
-    return select_zones(fgs, [2, 8]), state
+    return select_zones(fgs, [2, 7, 8]), state
 
 
-def test_real_disturbances_flagged_in_part_get_no_step(zones_2_8):
-    """2022-01-12 zones 2 and 8: real disturbances the detector flags in part, which
-    the earlier in-fit gate stepped (zone 2 vector 14.5 -> 18.3 nT). With the steps
-    decided on the product, no step, and the product is the default one."""
+def test_real_disturbances_flagged_in_part_get_no_step(zones_2_7_8):
+    """2022-01-12 zones 2, 7 and 8: real disturbances the detector flags in part. The
+    earlier in-fit gate stepped zones 2 and 8 (zone 2 vector 14.5 -> 18.3 nT), level
+    changes next to a left-out run taken as candidates stepped zones 7 and 8 (vector
+    28 -> 56 nT). Decided on the product, no step, and the product is the one without
+    level steps."""
     from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
 
-    fgs, state = zones_2_8
+    fgs, state = zones_2_7_8
     cols = ["bx_gei", "by_gei", "bz_gei"]
     on = calibrate_elfin_day(fgs, state, ElfinSettings(level_steps=True, bridge_trials=0),
                              diagnostics=False)

@@ -174,7 +174,74 @@ def level_steps_wanted(t_s, axis_residual, fit, *, degree: int = LEVEL_TREND_DEG
     return out
 
 
-def level_step_rows(field: pd.DataFrame) -> np.ndarray:
+def level_change_candidates(t_s, axis_residual, fit, *, window_s: float = 15.0,
+                            grid_s: float = 1.0, edge_s: float = 20.0,
+                            pad_s: float = 10.0) -> np.ndarray:
+    """Fitted samples where the spin-axis residual changes level within ``window_s``.
+
+    A current sheet's rise that the detector of disturbed intervals missed (its plateau
+    is not a localized excursion, and the sheet bends the stiff calibration it looks
+    at) is still an abrupt change of the product's spin-axis residual. On a grid of
+    ``grid_s``, the median over the fitted samples in the ``window_s`` after minus that
+    in the ``window_s`` before; around each local extreme of at least
+    :data:`LEVEL_STEP_MIN_NT`, the span where the change stays above half the extreme,
+    widened by ``pad_s``, is a candidate if no sample within ``2 window_s`` of it is
+    left out of the fits (2022-01-12 zones 7 and 8: the falling edge of a disturbance
+    whose top is left out is a level change only against the trend) and none within
+    ``edge_s`` of the fitted span's ends. :func:`level_steps_wanted` then judges them with the left-out intervals: a
+    field that comes back (a pulse, a disturbance) fails its tests.
+
+    Returns
+    -------
+    ndarray of bool (n,)
+        True on the candidate samples.
+
+    Examples
+    --------
+    >>> t = np.arange(0.0, 370.0, 0.2)
+    >>> r = 300.0 / (1.0 + np.exp(-(t - 180.0) / 4.5))
+    >>> c = level_change_candidates(t, r, np.ones(t.size, bool))
+    >>> round(float(t[c][0])), round(float(t[c][-1]))
+    (160, 200)
+    """
+    t = np.asarray(t_s, dtype=float)
+    r = np.asarray(axis_residual, dtype=float)
+    fit = np.asarray(fit, bool) & np.isfinite(r)
+    out = np.zeros(t.size, bool)
+    if fit.sum() < 10:
+        return out
+    tf, rf = t[fit], r[fit]
+    lo, hi = tf[0] + edge_s, tf[-1] - edge_s
+    grid = np.arange(lo, hi + grid_s / 2, grid_s)
+    if grid.size < 3:
+        return out
+    change = np.full(grid.size, np.nan)
+    for i, g in enumerate(grid):
+        before = rf[(tf >= g - window_s) & (tf < g)]
+        after = rf[(tf > g) & (tf <= g + window_s)]
+        if before.size and after.size:
+            change[i] = np.median(after) - np.median(before)
+    size = np.abs(np.nan_to_num(change))
+    reach = max(1, int(round(window_s / grid_s)))
+    for i in np.flatnonzero(size >= LEVEL_STEP_MIN_NT):
+        near = size[max(0, i - reach):i + reach + 1]
+        if size[i] < near.max():
+            continue                                    # not the local extreme
+        half = size >= 0.5 * size[i]
+        j0 = i
+        while j0 > 0 and half[j0 - 1]:
+            j0 -= 1
+        j1 = i
+        while j1 < grid.size - 1 and half[j1 + 1]:
+            j1 += 1
+        span = (t >= grid[j0] - pad_s) & (t <= grid[j1] + pad_s)
+        near = (t >= grid[j0] - pad_s - 2 * window_s) & (t <= grid[j1] + pad_s + 2 * window_s)
+        if not (near & ~span & ~fit).any():
+            out |= span      # quiet fitted samples on both sides, no other gap next to it
+    return out
+
+
+def level_step_rows(field: pd.DataFrame, *, candidates: bool = True) -> np.ndarray:
     """Rows of the left-out intervals across which the spin-axis level may change.
 
     Parameters
@@ -182,12 +249,16 @@ def level_step_rows(field: pd.DataFrame) -> np.ndarray:
     field : DataFrame
         A calibrated day without level steps (``ElfinCalibration.field``: ``zone``,
         ``used``, ``fit``, ``bz_despun``, ``igrf_z_despun``, UTC index).
+    candidates : bool
+        Also judge the abrupt level changes of the fitted samples
+        (:func:`level_change_candidates`) as if left out; a kept one is left out of
+        the fits of the day calibrated again with its step.
 
     Returns
     -------
     ndarray of bool (n,)
-        True on the rows of each interval of :func:`left_out_runs` (per zone) that
-        :func:`level_steps_wanted` keeps, judged on the spin-axis residual
+        True on the rows of each interval of :func:`left_out_runs` (per zone, with the
+        candidates merged in) that :func:`level_steps_wanted` keeps, judged on the spin-axis residual
         ``bz_despun - igrf_z_despun``; the ``level_step`` column of a day calibrated
         with them (``level_step_rows`` of
         :func:`~magcal.missions.elfin.pipeline.calibrate_elfin_day`).
@@ -202,6 +273,8 @@ def level_step_rows(field: pd.DataFrame) -> np.ndarray:
         t, fit = ts[sel] - ts[sel][0], fit_all[sel]
         if fit.sum() < 2:
             continue
+        if candidates:
+            fit = fit & ~level_change_candidates(t, resid[sel], fit)
         wanted = level_steps_wanted(t, resid[sel], fit)
         for (a, b), keep in zip(left_out_runs(t, fit), wanted):
             out[sel[a:b]] = keep

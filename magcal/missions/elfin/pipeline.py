@@ -160,13 +160,15 @@ class ElfinSettings:
         (:func:`~magcal.missions.elfin.levels.level_step_rows`: a trend-plus-step fit of
         its spin-axis residual that the step improves threefold, a step of 30 nT or
         more, at least half the excursion inside and 0.4 of the level change next to
-        the interval); the day is then calibrated again with a step there in the
-        linear fit's spin-axis row and in the vector step's tilt, left in the field
-        (``level_step`` column). Without it those slow terms take a current sheet's
-        new level as an offset drift or a tilt. Signal trade on 2022-01-12, 300 nT
-        east-west sheets at 0.35, 0.5 and 0.65 of every zone (36 cases): kept 3 % ->
-        97 % (zone median; 22 of 36 at 90 % or more, 6 not detected at all), distortion
-        27 -> 9 %; 72 pulses across B and the clean day: no step, products unchanged.
+        the interval; also abrupt level changes of fitted samples the detector missed,
+        :func:`~magcal.missions.elfin.levels.level_change_candidates`); the day is then
+        calibrated again with a step there in the linear fit's spin-axis row and in
+        the vector step's tilt, left in the field (``level_step`` column). Without it
+        those slow terms take a current sheet's new level as an offset drift or a
+        tilt. Signal trade on 2022-01-12, 300 nT east-west sheets at 0.35, 0.5 and 0.65
+        of every zone (36 cases): kept 3 % -> 107 % (zone median; 25 of 36 at 90 % or
+        more, size 0.79-1.44 of the truth), distortion 27 -> 8.5 %; 108 pulses and
+        the clean day: no step, products unchanged.
         The bridge trials of a zone with a step put a step at their gaps too. Default
         True; False: no step (the product of before).
     """
@@ -793,7 +795,11 @@ def _with_level_steps(fgs, state, settings, *, linear, **kw) -> ElfinDay:
     rows = level_step_rows(f)        # zones that cannot be calibrated are out already
     if not rows.any():
         return first
-    return calibrate_elfin_day(fgs, state, settings, level_step_rows=rows, **kw)
+    # a kept level change found on fitted samples is left out of the fits from now on
+    given = kw.pop("fit_exclude", None)
+    exclude = rows if given is None else (np.asarray(given, bool) | rows)
+    return calibrate_elfin_day(fgs, state, settings, level_step_rows=rows,
+                               fit_exclude=exclude, **kw)
 
 
 def _joint(linear, incumbent, scores: dict) -> tuple:
