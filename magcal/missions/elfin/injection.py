@@ -319,8 +319,8 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         calibrated.
     hold : bool
         Hold the spin phase at the clean linear solution (the machinery check; no phase
-        refit and no detection of disturbed intervals, so that only the linear fit can
-        absorb).
+        refit, no detection of disturbed intervals and no level steps, so that only the
+        linear fit can absorb).
     mask_signal : float
         If positive, leave the samples where the signal exceeds this fraction of its
         peak out of every fit (clean and injected runs alike): what a fit on quiet
@@ -357,7 +357,8 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
     clean = calibrate_elfin_day(fgs, state, replace(s, bridge_trials=0), diagnostics=False)
     hold_phase = None
     if hold:
-        s = replace(s, phase_refit=False, detect_disturbed=False, bridge_trials=0)
+        s = replace(s, phase_refit=False, detect_disturbed=False, bridge_trials=0,
+                    level_steps=False)
         hold_phase = clean.linear.field["phase"].to_numpy()
         clean = calibrate_elfin_day(fgs, state, s, hold_phase=hold_phase, diagnostics=False)
     f = clean.linear.field

@@ -185,8 +185,10 @@ def level_change_candidates(t_s, axis_residual, fit, *, window_s: float = 15.0,
     ``grid_s``, the median over the fitted samples in the ``window_s`` after minus that
     in the ``window_s`` before; around each local extreme of at least
     :data:`LEVEL_STEP_MIN_NT`, the span where the change stays above half the extreme,
-    widened by ``pad_s``, is a candidate if no sample within ``2 window_s`` of it is
-    left out of the fits (2022-01-12 zones 7 and 8: the falling edge of a disturbance
+    widened by ``pad_s``, is a candidate if the ``2 window_s`` either side are within
+    the fitted span (a short end side makes any trend a step: 2022-01-12 zone 1, an
+    east-west pulse fitted without detection gave one 19 s before the end) and none of
+    their samples is left out of the fits (2022-01-12 zones 7 and 8: the falling edge of a disturbance
     whose top is left out is a level change only against the trend) and none within
     ``edge_s`` of the fitted span's ends. :func:`level_steps_wanted` then judges them with the left-out intervals: a
     field that comes back (a pulse, a disturbance) fails its tests.
@@ -236,7 +238,9 @@ def level_change_candidates(t_s, axis_residual, fit, *, window_s: float = 15.0,
             j1 += 1
         span = (t >= grid[j0] - pad_s) & (t <= grid[j1] + pad_s)
         near = (t >= grid[j0] - pad_s - 2 * window_s) & (t <= grid[j1] + pad_s + 2 * window_s)
-        if not (near & ~span & ~fit).any():
+        inside = (grid[j0] - pad_s - 2 * window_s >= tf[0]
+                  and grid[j1] + pad_s + 2 * window_s <= tf[-1])
+        if inside and not (near & ~span & ~fit).any():
             out |= span      # quiet fitted samples on both sides, no other gap next to it
     return out
 
