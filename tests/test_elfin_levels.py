@@ -181,6 +181,7 @@ def test_a_sheet_injected_on_the_real_day_is_listed_with_its_level_change():
     ts = (f.index.as_unit("ns").asi8 - f.index.as_unit("ns").asi8[0]) / 1e9
     rows = np.flatnonzero(f["level_step"].to_numpy() == 1)
     a, b = ts[rows[0]], ts[rows[-1]]
-    truth = np.median(along[(ts > b) & (ts <= b + 30)]) - np.median(along[(ts < a) & (ts >= a - 30)])
+    truth = (np.median(along[(ts > b) & (ts <= b + 30)])
+             - np.median(along[(ts < a) & (ts >= a - 30)]))
     assert abs(truth) > 250.0
     assert abs(steps[0]["step_nT"] - truth) <= 0.2 * abs(truth)

@@ -51,6 +51,28 @@ def left_out_runs(t_s, fit, *, min_s: float = 5.0) -> list[tuple[int, int]]:
     return [(a, b) for a, b in true_runs(inner) if t[b - 1] - t[a] >= min_s]
 
 
+def level_change(t_s, values, fit, start_s: float, end_s: float,
+                 window_s: float = 30.0) -> float:
+    """Median of ``values`` over the fitted samples in the ``window_s`` after ``end_s``
+    minus that in the ``window_s`` before ``start_s`` (NaN if a side has none): the
+    level change across an interval, or at a time when ``start_s == end_s``.
+
+    Examples
+    --------
+    >>> t = np.arange(0.0, 100.0, 1.0)
+    >>> float(level_change(t, np.where(t > 50, 300.0, 0.0), np.ones(100, bool), 40, 60))
+    300.0
+    """
+    t = np.asarray(t_s, dtype=float)
+    v = np.asarray(values, dtype=float)
+    fit = np.asarray(fit, bool)
+    before = fit & (t < start_s) & (t >= start_s - window_s)
+    after = fit & (t > end_s) & (t <= end_s + window_s)
+    if not (before.any() and after.any()):
+        return float("nan")
+    return float(np.median(v[after]) - np.median(v[before]))
+
+
 def step_columns(marked) -> np.ndarray:
     """Columns (n, m): 1 after each run of ``marked`` rows, 0 before and inside.
 
@@ -103,9 +125,9 @@ def level_steps_wanted(t_s, axis_residual, fit, *, degree: int = LEVEL_TREND_DEG
     that comes back (a pulse) has a large excursion and no step, a current sheet a step
     as large as its excursion, and a disturbance that goes on beyond the interval
     (detected only in part) leaves natural field on the fitted side that a step
-    explains only in part, or only with the trend bent on a short side. Fitting the trend with
-    the steps keeps a sheet's trace in the product without steps (the slow terms
-    tilted to take part of it) from posing as steps at the quiet gaps before it.
+    explains only in part, or only with the trend bent on a short side. Fitting the
+    trend with the steps keeps a sheet's trace in the product without steps (the slow
+    terms tilted to take part of it) from posing as steps at the quiet gaps before it.
 
     Returns
     -------
@@ -144,11 +166,9 @@ def level_steps_wanted(t_s, axis_residual, fit, *, degree: int = LEVEL_TREND_DEG
             before = trend[a] @ coef[:degree + 1] + sum(
                 c for i, c in zip(chosen, coef[degree + 1:]) if runs[i][1] <= a)
             peak = np.max(np.abs(r_s[a:b] - before))
-            near_a = fit & (t < t[a]) & (t >= t[a] - window_s)
-            near_b = fit & (t > t[b - 1]) & (t <= t[b - 1] + window_s)
-            if not (near_a.any() and near_b.any()):
+            local = level_change(t, r_s, fit, t[a], t[b - 1], window_s)
+            if not np.isfinite(local):
                 return False
-            local = np.median(r_s[near_b]) - np.median(r_s[near_a])
             if not (abs(size) >= LEVEL_STEP_MIN_NT and abs(size) >= LEVEL_STEP_MIN_SHARE * peak
                     and local * size >= LEVEL_STEP_MIN_LOCAL * size ** 2):
                 return False
@@ -182,16 +202,17 @@ def level_change_candidates(t_s, axis_residual, fit, *, window_s: float = 15.0,
     A current sheet's rise that the detector of disturbed intervals missed (its plateau
     is not a localized excursion, and the sheet bends the stiff calibration it looks
     at) is still an abrupt change of the product's spin-axis residual. On a grid of
-    ``grid_s``, the median over the fitted samples in the ``window_s`` after minus that
-    in the ``window_s`` before; around each local extreme of at least
-    :data:`LEVEL_STEP_MIN_NT`, the span where the change stays above half the extreme,
-    widened by ``pad_s``, is a candidate if the ``2 window_s`` either side are within
-    the fitted span (a short end side makes any trend a step: 2022-01-12 zone 1, an
-    east-west pulse fitted without detection gave one 19 s before the end) and none of
-    their samples is left out of the fits (2022-01-12 zones 7 and 8: the falling edge of a disturbance
-    whose top is left out is a level change only against the trend) and none within
-    ``edge_s`` of the fitted span's ends. :func:`level_steps_wanted` then judges them with the left-out intervals: a
-    field that comes back (a pulse, a disturbance) fails its tests.
+    ``grid_s`` from ``edge_s`` after the first fitted sample to ``edge_s`` before the
+    last, the :func:`level_change` over ``window_s`` either side; around each local
+    extreme of at least :data:`LEVEL_STEP_MIN_NT`, the span where the change stays
+    above half the extreme, widened by ``pad_s``, is a candidate if the ``2 window_s``
+    either side are within the fitted span (a short end side makes any trend a step:
+    2022-01-12 zone 1, an east-west pulse fitted without detection gave one 19 s
+    before the end) and none of their samples is left out of the fits (2022-01-12
+    zones 7 and 8: the falling edge of a disturbance whose top is left out is a level
+    change only against the trend). :func:`level_steps_wanted` then judges them with
+    the left-out intervals: a field that comes back (a pulse, a disturbance) fails its
+    tests.
 
     Returns
     -------
@@ -212,17 +233,11 @@ def level_change_candidates(t_s, axis_residual, fit, *, window_s: float = 15.0,
     out = np.zeros(t.size, bool)
     if fit.sum() < 10:
         return out
-    tf, rf = t[fit], r[fit]
-    lo, hi = tf[0] + edge_s, tf[-1] - edge_s
-    grid = np.arange(lo, hi + grid_s / 2, grid_s)
+    tf = t[fit]
+    grid = np.arange(tf[0] + edge_s, tf[-1] - edge_s + grid_s / 2, grid_s)
     if grid.size < 3:
         return out
-    change = np.full(grid.size, np.nan)
-    for i, g in enumerate(grid):
-        before = rf[(tf >= g - window_s) & (tf < g)]
-        after = rf[(tf > g) & (tf <= g + window_s)]
-        if before.size and after.size:
-            change[i] = np.median(after) - np.median(before)
+    change = np.array([level_change(t, r, fit, g, g, window_s) for g in grid])
     size = np.abs(np.nan_to_num(change))
     reach = max(1, int(round(window_s / grid_s)))
     for i in np.flatnonzero(size >= LEVEL_STEP_MIN_NT):
@@ -262,9 +277,9 @@ def level_step_rows(field: pd.DataFrame, *, candidates: bool = True) -> np.ndarr
     -------
     ndarray of bool (n,)
         True on the rows of each interval of :func:`left_out_runs` (per zone, with the
-        candidates merged in) that :func:`level_steps_wanted` keeps, judged on the spin-axis residual
-        ``bz_despun - igrf_z_despun``; the ``level_step`` column of a day calibrated
-        with them (``level_step_rows`` of
+        candidates merged in) that :func:`level_steps_wanted` keeps, judged on the
+        spin-axis residual ``bz_despun - igrf_z_despun``; the ``level_step`` column of
+        a day calibrated with them (``level_step_rows`` of
         :func:`~magcal.missions.elfin.pipeline.calibrate_elfin_day`).
     """
     out = np.zeros(len(field), bool)

@@ -393,6 +393,7 @@ class ElfinDay:
         ``zone``, ``start`` and ``end`` (UTC, ISO) and ``step_nT``, the change of the
         spin-axis residual's median over the 30 s of fitted samples either side (the
         kept level change, nT)."""
+        from magcal.missions.elfin.levels import level_change
         from magcal.missions.elfin.timing import true_runs
 
         f = self.calibration.field
@@ -404,11 +405,7 @@ class ElfinDay:
         fit = (f["used"].to_numpy() == 1) & (f["fit"].to_numpy() == 1)
         zone = f["zone"].to_numpy()
         for a, b in true_runs(f["level_step"].to_numpy() == 1):
-            same = fit & (zone == zone[a])
-            before = same & (ts < ts[a]) & (ts >= ts[a] - 30.0)
-            after = same & (ts > ts[b - 1]) & (ts <= ts[b - 1] + 30.0)
-            step = float(np.median(resid[after]) - np.median(resid[before])) \
-                if before.any() and after.any() else float("nan")
+            step = level_change(ts, resid, fit & (zone == zone[a]), ts[a], ts[b - 1])
             out.append({"zone": int(zone[a]), "start": str(f.index[a].tz_convert(None)),
                         "end": str(f.index[b - 1].tz_convert(None)), "step_nT": step})
         return out
