@@ -40,7 +40,12 @@ Usage::
                                            [--no-held] [--settings KEY=VALUE ...]
                                            [--mask-signal FRACTION]
                                            [--mask-injected-only FRACTION]
-                                           [--plot DIR]
+                                           [--centres 0.5,...] [--plot DIR]
+
+The README's whole-day sheet numbers (36 placements, with and without level steps)::
+
+    python workflows/elfin_preservation.py --zones all --signals sheet_ew --no-held \
+        --centres 0.35,0.5,0.65 --settings level_steps=false
 
 About 10 s per signal and run for the whole day (12 zones) on an idle core; the
 default zones (4) take about a third of that. Reads ``../shared/real-data/elfin/``.
@@ -153,6 +158,10 @@ def main(argv=None) -> int:
     ap.add_argument("--mask-injected-only", type=float, default=0.0, metavar="FRACTION",
                     help="also a run with those samples left out of the injected run's "
                          "fits only (a detector that flags exactly the signal)")
+    ap.add_argument("--centres", default="0.5",
+                    help="comma-separated places of the signals in each zone (fractions "
+                         "of its span), one run per place, tables joined (default 0.5), "
+                         "e.g. --zones all --signals sheet_ew --centres 0.35,0.5,0.65")
     ap.add_argument("--plot", type=Path, default=None, metavar="DIR",
                     help="write recovered_<signal>.png of the delivered run to DIR (of the "
                          "--settings run to DIR/settings): the injected signal and "
@@ -163,7 +172,10 @@ def main(argv=None) -> int:
         return 2
     fgs, state = read_elfin_fgs(args.data / FGS_FILE), read_elfin_state(args.data / STATE_FILE)
     zones = None if args.zones == "all" else [int(z) for z in args.zones.split(",")]
+    import pandas as pd
+
     kinds = args.signals.split(",")
+    centres = [float(c) for c in args.centres.split(",")]
     runs = [] if args.no_held else [("held phase (machinery check)", None, True, 0.0, True)]
     runs.append(("delivered", None, False, 0.0, True))
     if args.settings:
@@ -179,14 +191,21 @@ def main(argv=None) -> int:
                  f"samples above {args.mask_injected_only:g} of the signal's peak (the "
                  "clean run with them)")
         runs.append((label, given, False, args.mask_injected_only, False))
-    print(f"ELFIN-A 2022-01-12, zones {args.zones}, signals {', '.join(kinds)}\n{CREDIT}")
+    print(f"ELFIN-A 2022-01-12, zones {args.zones}, signals {', '.join(kinds)}, at "
+          f"{', '.join(map(str, centres))} of each zone\n{CREDIT}")
     _print_shares(kinds)
     for label, settings, hold, mask, mask_clean in runs:
         t0 = time.perf_counter()
-        tab, clean = run_injections(fgs, state, settings, kinds=kinds, zones=zones,
-                                    hold=hold, mask_signal=mask, mask_clean=mask_clean,
-                                    progress=lambda line: print("  " + line),
-                                    plot_dir=_plot_dir(args.plot, label))
+        tabs = []
+        for centre in centres:
+            tab, clean = run_injections(fgs, state, settings, kinds=kinds, zones=zones,
+                                        hold=hold, mask_signal=mask, mask_clean=mask_clean,
+                                        progress=lambda line: print("  " + line),
+                                        plot_dir=_plot_dir(args.plot, label)
+                                        if centre == centres[0] else None, centre=centre)
+            tabs.append(tab.assign(zone=[f"{z}@{centre:g}" for z in tab["zone"]])
+                        if len(centres) > 1 else tab)
+        tab = pd.concat(tabs, ignore_index=True)
         _print(f"{label} ({time.perf_counter() - t0:.0f} s)", tab, clean)
     return 0
 

@@ -300,7 +300,8 @@ def select_zones(fgs: pd.DataFrame, zones) -> pd.DataFrame:
 def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
                    kinds=tuple(SIGNALS), zones=None, hold: bool = False,
                    mask_signal: float = 0.0, mask_clean: bool = True,
-                   progress=None, plot_dir=None) -> tuple[pd.DataFrame, object]:
+                   progress=None, plot_dir=None,
+                   centre: float = 0.5) -> tuple[pd.DataFrame, object]:
     """Inject each signal kind into each chosen zone and measure what every product keeps.
 
     Parameters
@@ -334,6 +335,8 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         out, the floor of any detect-and-exclude scheme.
     progress : callable, optional
         Called with one line per run.
+    centre : float
+        Where in each zone the signals sit (``centre`` of :func:`signal_gei`).
     plot_dir : str or Path, optional
         If given, one PNG per signal (``recovered_<kind>.png``) of what the delivered
         product kept, zone by zone
@@ -364,7 +367,7 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
     f = clean.linear.field
     tables = []
     for kind in kinds:
-        signals = {k: signal_gei(kind, f[f["zone"] == k], state)
+        signals = {k: signal_gei(kind, f[f["zone"] == k], state, centre=centre)
                    for k in dict.fromkeys(f["zone"].to_numpy())}
         injected = inject_counts(fgs, clean.linear, signals)
         base, skip = clean, None
