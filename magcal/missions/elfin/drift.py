@@ -95,7 +95,8 @@ def _shape_residual(b, r0, a, use) -> np.ndarray:
 
 def fit_gain_drift(t_s, b_body, ref_magnitude_nT, *, degree: int = 3, fit_mask=None,
                    n_iter: int = 2, shape=None, robust_c: float = 0.0,
-                   robust_iter: int = 5) -> tuple[np.ndarray, dict]:
+                   robust_iter: int = 5, natural=None,
+                   gain_shapes=None) -> tuple[np.ndarray, dict]:
     """Remove a slowly drifting isotropic spin-plane gain from body-frame vectors.
 
     Model: the measured spin-plane components are ``(1 + g(T))`` times the true ones,
@@ -166,6 +167,9 @@ def fit_gain_drift(t_s, b_body, ref_magnitude_nT, *, degree: int = 3, fit_mask=N
         start, shape = _shape_residual(b, r0, np.asarray(shape, dtype=float), use), None
     if shape is None:
         powers = np.column_stack([T ** d for d in range(degree + 1)])
+        if gain_shapes is not None and np.size(gain_shapes):
+            extra = np.asarray(gain_shapes, dtype=float).reshape(t.size, -1)
+            powers = np.column_stack([powers, extra[:, np.any(extra[use] != 0.0, axis=0)]])
     else:
         # isotropic and 2x halves of a one-direction gain change are equal: the drift is
         # +-shape in |B| (nT); only its sign and a constant gain are fitted
@@ -174,8 +178,12 @@ def fit_gain_drift(t_s, b_body, ref_magnitude_nT, *, degree: int = 3, fit_mask=N
         sign = 1.0 if float(a[use] @ r0[use]) >= 0 else -1.0
         powers = np.column_stack([np.ones_like(t), sign * a / h])
         degree = 0
+    nat = np.zeros((t.size, 0)) if natural is None or shape is not None \
+        else np.asarray(natural, dtype=float).reshape(t.size, -1)
+    nat = nat[:, np.any(nat[use] != 0.0, axis=0)] if nat.size else nat
     total = np.ones(t.size)
     coef = np.zeros(powers.shape[1])
+    amplitude = np.zeros(nat.shape[1])
     weight = np.ones(t.size)
     if robust_c > 0 and shape is None:
         mag = np.linalg.norm(b, axis=1)
@@ -192,8 +200,11 @@ def fit_gain_drift(t_s, b_body, ref_magnitude_nT, *, degree: int = 3, fit_mask=N
         mag = np.linalg.norm(b, axis=1)
         design = powers * ((b[:, 0] ** 2 + b[:, 1] ** 2) / mag)[:, None]
         if shape is None:
-            w = np.linalg.lstsq(design[use] * sw[:, None], (mag - ref)[use] * sw,
+            full = np.column_stack([design, nat])
+            w = np.linalg.lstsq(full[use] * sw[:, None], (mag - ref)[use] * sw,
                                 rcond=None)[0]
+            w, a_nat = w[:powers.shape[1]], w[powers.shape[1]:]
+            amplitude = a_nat          # left in the data: each pass sees all of it
             g = powers @ w
         else:
             fixed = powers[:, 1] if not coef.any() else 0.0 * powers[:, 1]
@@ -207,6 +218,7 @@ def fit_gain_drift(t_s, b_body, ref_magnitude_nT, *, degree: int = 3, fit_mask=N
     r1 = np.linalg.norm(b, axis=1) - ref
     gain = total - 1.0
     info = {"gain_coefficients": coef.tolist(),
+            "natural_amplitudes": amplitude.tolist(),
             "gain_drift_pp": float(np.ptp(gain[use])),
             "gain_mid": float(np.interp(0.0, T[use], gain[use])),
             "weighted_out_fraction": float(np.mean(weight[use] < 0.5)),
@@ -437,7 +449,12 @@ def correct_gain_drift(cal, *, shape_from=None, robust_start_from=None, **kw):
             lin = shape_from_.field.loc[shape_from_.field["zone"] == z["zone"].iloc[0]]
             _, lbody, lref, *_ = _zone_body(lin)
             shape = harmonic_shape(t, lbody, lref, fit_mask=used)
-        fixed, info = fit_gain_drift(t, body, ref_mag, fit_mask=used, shape=shape, **kw)
+        cols = [c for c in z.columns if c.startswith("pulse_b_")]
+        natural = z[cols].to_numpy(float) if cols else None
+        cols = [c for c in z.columns if c.startswith("drift_b_")]
+        extra = z[cols].to_numpy(float) if cols else None
+        fixed, info = fit_gain_drift(t, body, ref_mag, fit_mask=used, shape=shape,
+                                     natural=natural, gain_shapes=extra, **kw)
         new_d = despin(fixed, phase)
         return new_d, {**info, "vector_rms_before_nT": rms((desp - ref)[used]),
                        "vector_rms_after_nT": rms((new_d - ref)[used])}

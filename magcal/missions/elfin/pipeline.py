@@ -43,7 +43,7 @@ SCORED = ("scalar_rms_nT", "scalar_fast_nT", "scalar_slow_nT", "vector_rms_nT")
 SIGNAL_TRADE = ("linear_phase_knot_s", "linear_phase_degree", "linear_axis_degree",
                 "gain_drift", "gain_drift_2x", "gain_drift_robust_c", "vector_step",
                 "vector_knot_s", "fast_drift", "fast_knot_s", "phase_refit", "refit_knot_s",
-                "detect_disturbed", "level_steps")
+                "detect_disturbed", "level_steps", "pulses_b")
 #: Relative (and absolute, nT) growth of a zone median below which it is rounding.
 ROUNDING = 1e-9
 
@@ -171,6 +171,18 @@ class ElfinSettings:
         the clean day: no step, products unchanged.
         The bridge trials of a zone with a step put a step at their gaps too. Default
         True; False: no step (the product of before).
+    pulses_b : bool
+        Keep localized fields along B out of the gain drift
+        (:mod:`magcal.missions.elfin.pulses`): Gaussian pulses found on top of a cubic
+        in the product's ``|B|`` residual (each dividing its sum of squares tenfold or
+        more) are fitted with the drift, those 30 nT or higher and narrower than 150 s
+        FWHM left in the product as a natural field (``pulses_b`` in the JSON), the
+        wider ones removed as part of the drift (a gain drift the cubic lacks). Signal
+        trade on 2022-01-12, 100 nT pulses along B of 90 s FWHM at 0.35, 0.5 and 0.65
+        of every zone: kept 2-8 % -> 74-187 % (zone medians), distortion 37-45 % ->
+        8-16 %; the size is uncertain because the clean day itself holds -30 to +20 nT
+        on a 90 s pulse's shape beyond the cubic. Default False (off: the product of
+        before).
     """
 
     harmonic: bool = True
@@ -193,6 +205,7 @@ class ElfinSettings:
     axis_prior_weight: float = 1.0
     bridge_trials: int = 3
     level_steps: bool = True
+    pulses_b: bool = False
 
     @classmethod
     def from_mapping(cls, given: dict, where: str = "settings") -> ElfinSettings:
@@ -410,6 +423,31 @@ class ElfinDay:
                         "end": str(f.index[b - 1].tz_convert(None)), "step_nT": step})
         return out
 
+    def pulses_along_b(self) -> list[dict]:
+        """The delivered field's pulses along B kept as a natural field
+        (``ElfinSettings.pulses_b``): per ``pulse_b_<j>`` shape of a zone, the ``zone``,
+        its ``centre`` (UTC, ISO), ``fwhm_s`` and ``height_nT`` (the amplitude fitted
+        with the gain drift: what the product keeps)."""
+        f = self.calibration.field
+        cols = [c for c in f.columns if c.startswith("pulse_b_")]
+        if not cols or "gain_drift" not in self.steps:
+            return []
+        drift = self.steps["gain_drift"].set_index("zone")
+        out = []
+        for k in dict.fromkeys(f["zone"].to_numpy()):
+            z = f[f["zone"] == k]
+            shapes = z[cols].to_numpy(float)
+            live = [j for j in range(len(cols)) if np.any(shapes[:, j] != 0.0)]
+            heights = list(drift.loc[k, "natural_amplitudes"]) if k in drift.index else []
+            ts = z.index.as_unit("ns").asi8 / 1e9
+            for i, j in enumerate(live):
+                half = ts[shapes[:, j] >= 0.5]
+                out.append({"zone": int(k),
+                            "centre": str(z.index[int(np.argmax(shapes[:, j]))].tz_convert(None)),
+                            "fwhm_s": float(half[-1] - half[0]) if half.size else 0.0,
+                            "height_nT": float(heights[i]) if i < len(heights) else float("nan")})
+        return out
+
     def to_json(self) -> dict:
         """The calibration document (the keys of ``elfin_calibration.json``)."""
         from dataclasses import asdict
@@ -452,6 +490,13 @@ class ElfinDay:
                         "linear fit's spin-axis row and the vector step's tilt, left in the "
                         "field",
                 "intervals": self.level_step_intervals()}
+        if s.pulses_b:
+            payload["pulses_b"] = {
+                "note": "localized fields along B (Gaussian pulses on top of the gain "
+                        "drift's cubic in the |B| residual, magcal.missions.elfin.pulses) "
+                        "fitted with the gain drift and left in the product; height_nT is "
+                        "what the product keeps",
+                "pulses": self.pulses_along_b()}
         if "disturbed_detection" in self.steps:
             payload["disturbed_detection"] = {
                 "note": "intervals located from the counts alone (magcal.missions.elfin."
@@ -560,7 +605,8 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
                         provenance: dict | None = None, hold_phase=None,
                         fit_exclude=None, fit_exclude_scalar=None,
                         diagnostics: bool = True, linear=None,
-                        zone_numbers=None, level_step_rows=None) -> ElfinDay:
+                        zone_numbers=None, level_step_rows=None,
+                        pulse_templates=None, drift_templates=None) -> ElfinDay:
     """Calibrate one day of ELFIN FGS counts against IGRF through the configured steps.
 
     Parameters
@@ -600,6 +646,13 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
         (``level_step`` column). Default: none, or with ``settings.level_steps`` those
         :func:`~magcal.missions.elfin.levels.level_step_rows` finds on the day
         calibrated without steps (then calibrated again with them).
+    pulse_templates, drift_templates : array_like (len(fgs), m), optional
+        Unit-height time shapes of localized ``|B|`` changes fitted with the gain
+        drift: the first left in the product (natural fields along B; field columns
+        ``pulse_b_<j>``), the second removed with the drift (``drift_b_<j>``).
+        Default: none, or with ``settings.pulses_b`` those
+        :func:`~magcal.missions.elfin.pulses.zone_pulses` finds on the day calibrated
+        without them (decided with the level steps).
 
     Returns
     -------
@@ -643,6 +696,8 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
                                     hold_phase=hold_phase, fit_exclude=fit_exclude,
                                     fit_exclude_scalar=fit_exclude_scalar,
                                     level_step_rows=level_step_rows,
+                                    pulse_templates=pulse_templates,
+                                    drift_templates=drift_templates,
                                     diagnostics=diagnostics)
         zone_numbers = linear.zone_numbers
     if s.detect_disturbed:
@@ -651,18 +706,28 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
         return calibrate_detected(fgs, state, s, provenance=provenance, hold_phase=hold_phase,
                                   fit_exclude=fit_exclude, diagnostics=diagnostics,
                                   linear=linear, zone_numbers=zone_numbers)
-    if s.level_steps and level_step_rows is None:
+    if (s.level_steps and level_step_rows is None) or (s.pulses_b and pulse_templates is None):
         return _with_level_steps(fgs, state, s, provenance=provenance, hold_phase=hold_phase,
                                  fit_exclude=fit_exclude,
                                  fit_exclude_scalar=fit_exclude_scalar,
                                  diagnostics=diagnostics, linear=linear,
-                                 zone_numbers=zone_numbers)
+                                 zone_numbers=zone_numbers, level_step_rows=level_step_rows,
+                                 pulse_templates=pulse_templates,
+                                 drift_templates=drift_templates)
     if linear is None:
         linear = fit_linear(fit_exclude)
         if linear.skipped:
             raise InputError("with the samples left out of the fit, a zone that the plain "
                              "fit calibrates has too few: " + "; ".join(
                                  z.reason for z in linear.skipped))
+    if pulse_templates is not None and np.size(pulse_templates):
+        tpl = np.asarray(pulse_templates, float).reshape(len(linear.field), -1)
+        linear = replace(linear, field=linear.field.assign(
+            **{f"pulse_b_{j + 1}": tpl[:, j] for j in range(tpl.shape[1])}))
+    if drift_templates is not None and np.size(drift_templates):
+        tpl = np.asarray(drift_templates, float).reshape(len(linear.field), -1)
+        linear = replace(linear, field=linear.field.assign(
+            **{f"drift_b_{j + 1}": tpl[:, j] for j in range(tpl.shape[1])}))
     if fit_exclude_scalar is not None:
         # e.g. flagged across B only: still fitted by the steps that fit |B| alone
         lf = linear.field
@@ -722,7 +787,8 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
 
 
 def _without_skipped(fgs, state, settings, linear, *, hold_phase, fit_exclude,
-                     fit_exclude_scalar, level_step_rows=None, **kw) -> ElfinDay:
+                     fit_exclude_scalar, level_step_rows=None, pulse_templates=None,
+                     drift_templates=None, **kw) -> ElfinDay:
     """The day calibrated on the zones ``linear`` could calibrate, their numbers kept,
     with ``linear.skipped`` carried by every product."""
     keep = linear.kept_rows(len(fgs))
@@ -735,7 +801,8 @@ def _without_skipped(fgs, state, settings, linear, *, hold_phase, fit_exclude,
                               fit_exclude_scalar=rows(fit_exclude_scalar), linear=linear,
                               zone_numbers=linear.zone_numbers,
                               level_step_rows=rows(level_step_rows),
-                              **kw)
+                              pulse_templates=rows(pulse_templates),
+                              drift_templates=rows(drift_templates), **kw)
     products = {k: replace(v, skipped=linear.skipped) for k, v in day.products.items()}
     return replace(day, calibration=replace(day.calibration, skipped=linear.skipped),
                    linear=replace(day.linear, skipped=linear.skipped), products=products)
@@ -765,12 +832,17 @@ def _with_bridge(fgs, state, settings, day: ElfinDay, *, hold_phase) -> ElfinDay
     zone = f["zone"].to_numpy()
     stepped = np.isin(zone, np.unique(zone[levels]))
 
+    # ... and its pulses along B
+    pulses, drifts = (f[[c for c in f.columns if c.startswith(p)]].to_numpy(float)
+                      for p in ("pulse_b_", "drift_b_"))
+
     def calibrate(extra):
         return calibrate_elfin_day(fgs[keep], state, plain, hold_phase=held,
                                    fit_exclude=left | extra,
                                    fit_exclude_scalar=left_scalar | extra,
                                    diagnostics=False,
                                    level_step_rows=levels | (extra & stepped),
+                                   pulse_templates=pulses, drift_templates=drifts,
                                    zone_numbers=day.calibration.zone_numbers).calibration.field
 
     table = bridge_trials(calibrate, f, left, settings.bridge_trials)
@@ -780,23 +852,39 @@ def _with_bridge(fgs, state, settings, day: ElfinDay, *, hold_phase) -> ElfinDay
                    steps={**day.steps, "bridge": table})
 
 
-def _with_level_steps(fgs, state, settings, *, linear, **kw) -> ElfinDay:
-    """The day calibrated without level steps, and again with those
-    :func:`~magcal.missions.elfin.levels.level_step_rows` finds on it (if any):
-    the steps are decided once, on the delivered product's spin-axis residual."""
-    from magcal.missions.elfin.levels import level_step_rows
+def _with_level_steps(fgs, state, settings, *, linear, level_step_rows=None,
+                      pulse_templates=None, drift_templates=None, **kw) -> ElfinDay:
+    """The day calibrated without level steps and pulses along B, and again with those
+    :func:`~magcal.missions.elfin.levels.level_step_rows` and
+    :func:`~magcal.missions.elfin.pulses.zone_pulses` find on it (if any): both are
+    decided once, on the delivered product (its spin-axis and ``|B|`` residuals)."""
+    from magcal.missions.elfin.levels import level_step_rows as find_steps
+    from magcal.missions.elfin.pulses import pulse_templates as shapes, zone_pulses
 
-    first = calibrate_elfin_day(fgs, state, settings, linear=linear,
-                                level_step_rows=np.zeros(len(fgs), bool), **kw)
+    none = np.zeros((len(fgs), 0))
+    first = calibrate_elfin_day(
+        fgs, state, settings, linear=linear,
+        level_step_rows=np.zeros(len(fgs), bool) if level_step_rows is None
+        else level_step_rows,
+        pulse_templates=none if pulse_templates is None else pulse_templates,
+        drift_templates=none if drift_templates is None else drift_templates, **kw)
     f = first.calibration.field
-    rows = level_step_rows(f)        # zones that cannot be calibrated are out already
-    if not rows.any():
+    rows = level_step_rows
+    if rows is None:
+        rows = find_steps(f) if settings.level_steps else np.zeros(len(f), bool)
+    natural, drift = pulse_templates, drift_templates
+    if natural is None:
+        found = zone_pulses(f) if settings.pulses_b else zone_pulses(f.iloc[:0])
+        natural = shapes(f, found[found["natural"].astype(bool)])
+        drift = shapes(f, found[~found["natural"].astype(bool)])
+    if not rows.any() and not natural.size and not (drift is not None and drift.size):
         return first
     # a kept level change found on fitted samples is left out of the fits from now on
     given = kw.pop("fit_exclude", None)
     exclude = rows if given is None else (np.asarray(given, bool) | rows)
     return calibrate_elfin_day(fgs, state, settings, level_step_rows=rows,
-                               fit_exclude=exclude, **kw)
+                               fit_exclude=exclude if exclude.any() else given,
+                               pulse_templates=natural, drift_templates=drift, **kw)
 
 
 def _joint(linear, incumbent, scores: dict) -> tuple:
