@@ -171,7 +171,7 @@ def _run(argv=None) -> int:
               f"spread {amp.std(ddof=1):.1f} nT (per-zone standard error "
               f"{np.median(err):.2f} nT)")
     if drift is not None:
-        med = drift.drop(columns=["zone", "gain_coefficients"]).median()
+        med = drift.drop(columns=["zone"]).select_dtypes("number").median()
         print("  spin-plane gain drift (median over zones): "
               f"{100 * med['gain_drift_pp']:.2f} % p-p; scalar RMS "
               f"{med['scalar_rms_before_nT']:.1f} -> {med['scalar_rms_after_nT']:.1f} nT, slow "
