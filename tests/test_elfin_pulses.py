@@ -134,38 +134,55 @@ def zone_1():
     return select_zones(fgs, [1]), state
 
 
-def test_a_pulse_along_b_injected_on_the_real_day_comes_back(zone_1):
+@pytest.fixture(scope="module")
+def zones_1_4():
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.injection import select_zones
+
+    fgs = read_elfin_fgs(real_data_path("elfin", FGS))
+    state = read_elfin_state(real_data_path("elfin", STATE))
+    return select_zones(fgs, [1, 4]), state
+
+
+def test_a_pulse_along_b_injected_on_the_real_day_comes_back(zones_1_4):
     """2022-01-12 zone 1, a 100 nT pulse along B (90 s FWHM) injected at mid-zone
     through the clean calibration: without ``pulses_b`` the drift takes it (8 % of its
     energy kept, measured); with it one natural pulse is listed within 10 s and 25 nT
     of the truth (the clean day holds -10 nT on that shape beyond the cubic) and the
     product keeps at least 60 % of the energy with under 15 % distortion, while the
-    clean zone gets no natural pulse."""
+    clean zones get no natural pulse. The stated height error (the pulse put into
+    zone 4's counts at the same place and found again) covers the truth within twice
+    it."""
     from magcal.missions.elfin.injection import inject_counts, preservation, signal_gei
     from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
 
-    fgs, state = zone_1
-    on = ElfinSettings(bridge_trials=0, pulses_b=True)
+    fgs, state = zones_1_4
+    on = ElfinSettings(bridge_trials=0, pulses_b=True, pulse_trials=1)
     clean = calibrate_elfin_day(fgs, state, on, diagnostics=False)
     assert clean.pulses_along_b() == []
-    sig = signal_gei("pulse_b", clean.linear.field, state)
+    lf = clean.linear.field
+    sig = signal_gei("pulse_b", lf[lf["zone"] == 0], state)
     injected = inject_counts(fgs, clean.linear, {0: sig})
     day = calibrate_elfin_day(injected, state, on, diagnostics=False)
     pulses = day.pulses_along_b()
-    assert len(pulses) == 1
-    truth_t = clean.linear.field.index[int(np.argmax(np.linalg.norm(sig, axis=1)))]
+    assert len(pulses) == 1 and pulses[0]["zone"] == 0
+    truth_t = lf[lf["zone"] == 0].index[int(np.argmax(np.linalg.norm(sig, axis=1)))]
     got_t = pd.Timestamp(pulses[0]["centre"], tz="UTC")
     assert abs((got_t - truth_t).total_seconds()) <= 10.0
     assert pulses[0]["height_nT"] == pytest.approx(100.0, abs=25.0)
-    assert day.to_json()["pulses_b"]["pulses"] == pulses
+    listed = day.to_json()["pulses_b"]["pulses"]
+    assert len(listed) == 1 and len(listed[0]["trial_heights_nT"]) == 1
+    error = listed[0]["height_error_nT"]
+    assert 0.0 < error and abs(listed[0]["height_nT"] - 100.0) <= 2.0 * error
     tab = preservation(clean, day, {0: sig}, "pulse_b")
-    last = tab[tab["product"] == tab["product"].iloc[-1]].iloc[0]
+    last = tab[(tab["product"] == tab["product"].iloc[-1]) & (tab["zone"] == 0)].iloc[0]
     assert last["energy_kept"] >= 0.6 and last["distortion"] <= 0.15
     off = ElfinSettings(bridge_trials=0)
     lost = preservation(calibrate_elfin_day(fgs, state, off, diagnostics=False),
                         calibrate_elfin_day(injected, state, off, diagnostics=False),
                         {0: sig}, "pulse_b")
-    assert lost["energy_kept"].iloc[-1] < 0.2
+    lost = lost[(lost["product"] == lost["product"].iloc[-1]) & (lost["zone"] == 0)]
+    assert lost["energy_kept"].iloc[0] < 0.2
 
 
 def test_clean_day_pulses_are_drift_only(zone_1):

@@ -179,13 +179,19 @@ class ElfinSettings:
         FWHM left in the product as a natural field (``pulses_b`` in the JSON), the
         wider ones removed as part of the drift (a gain drift the cubic lacks). Signal
         trade on 2022-01-12 (delivered settings otherwise), 100 nT pulses along B of
-        90 s FWHM at 0.35, 0.5 and 0.65 of every zone (36 cases): kept 2-8 % -> 92 %
-        (median; 53 % of the cases at 90 % or more, 69 % within 0.5-2 times the
-        energy), distortion 37 -> 9 %; the size is poorly determined because the clean
-        day itself holds -30 to +20 nT on a 90 s pulse's shape beyond the cubic. Clean
-        day: no natural pulse, wide drifts in zones 3, 4, 9, 10 (scalar residual 6.8 ->
-        6.3 nT, zone median). Default False (off: the product of before; on, a day
-        with pulses or drifts is calibrated once more).
+        90 s FWHM at 0.35, 0.5 and 0.65 of every zone (36 cases): kept 2-8 % -> 93 %
+        (median; 56 % of the cases at 90 % or more, 72 % within 0.5-2 times the
+        energy, 0.33-2.98), distortion 37 -> 9 %; the size is poorly determined because
+        the clean day itself holds -30 to +20 nT on a 90 s pulse's shape beyond the
+        cubic, and the width the search picks amplifies that (``pulse_trials`` states
+        it). Clean day: no natural pulse, wide drifts in zones 3, 4, 9, 10 (scalar
+        residual 6.8 -> 6.3 nT, zone median). Default False (off: the product of
+        before; on, a day with pulses or drifts is calibrated once more).
+    pulse_trials : int
+        With ``pulses_b``: the error of each kept pulse's height, from this many other
+        zones without a pulse, each calibrated alone with a pulse like it put into its
+        counts at the same place (:func:`~magcal.missions.elfin.pulses.pulse_trials`;
+        ``height_error_nT`` in the JSON's ``pulses_b``). 0: not measured.
     """
 
     harmonic: bool = True
@@ -209,6 +215,7 @@ class ElfinSettings:
     bridge_trials: int = 3
     level_steps: bool = True
     pulses_b: bool = False
+    pulse_trials: int = 6
 
     @classmethod
     def from_mapping(cls, given: dict, where: str = "settings") -> ElfinSettings:
@@ -226,7 +233,7 @@ class ElfinSettings:
         >>> ElfinSettings.from_mapping({"tilt": 1})
         Traceback (most recent call last):
         ...
-        magcal.errors.InputError: settings: unknown key 'tilt' (known: harmonic, gain_drift, gain_drift_2x, vector_step, tilt_bound_deg, vector_knot_s, fast_drift, phase_refit, linear_phase_knot_s, linear_phase_degree, linear_axis_degree, gain_drift_robust_c, fast_knot_s, refit_knot_s, joint, scan, detect_disturbed, axis_prior_weight, bridge_trials, level_steps, pulses_b)
+        magcal.errors.InputError: settings: unknown key 'tilt' (known: harmonic, gain_drift, gain_drift_2x, vector_step, tilt_bound_deg, vector_knot_s, fast_drift, phase_refit, linear_phase_knot_s, linear_phase_degree, linear_axis_degree, gain_drift_robust_c, fast_knot_s, refit_knot_s, joint, scan, detect_disturbed, axis_prior_weight, bridge_trials, level_steps, pulses_b, pulse_trials)
         """
         known = {f.name: f for f in fields(cls)}
         out = {}
@@ -500,6 +507,13 @@ class ElfinDay:
                         "fitted with the gain drift and left in the product; height_nT is "
                         "what the product keeps",
                 "pulses": self.pulses_along_b()}
+            if "pulse_trials" in self.steps:
+                payload["pulses_b"]["pulses"] = self.steps["pulse_trials"].to_dict(
+                    orient="records")
+                payload["pulses_b"]["note_error"] = (
+                    "height_error_nT: RMS error of the heights found when a pulse like "
+                    "it is put into the counts of other zones at the same place "
+                    "(pulse_trials of them, trial_heights_nT)")
         if "disturbed_detection" in self.steps:
             payload["disturbed_detection"] = {
                 "note": "intervals located from the counts alone (magcal.missions.elfin."
@@ -674,6 +688,19 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
     from magcal.missions.elfin.diagnostics.ripple import ripple_crosscheck
 
     s = settings or ElfinSettings()
+    if s.pulses_b and s.pulse_trials > 0 and zone_numbers is None:
+        from magcal.missions.elfin.pulses import pulse_trials
+
+        day = calibrate_elfin_day(fgs, state, replace(s, pulse_trials=0),
+                                  provenance=provenance, hold_phase=hold_phase,
+                                  fit_exclude=fit_exclude,
+                                  fit_exclude_scalar=fit_exclude_scalar,
+                                  diagnostics=diagnostics, linear=linear,
+                                  level_step_rows=level_step_rows,
+                                  pulse_templates=pulse_templates,
+                                  drift_templates=drift_templates)
+        trials = pulse_trials(fgs, state, s, day, s.pulse_trials)
+        return replace(day, settings=s, steps={**day.steps, "pulse_trials": trials})
     if s.bridge_trials > 0:
         day = calibrate_elfin_day(fgs, state, replace(s, bridge_trials=0),
                                   provenance=provenance, hold_phase=hold_phase,
