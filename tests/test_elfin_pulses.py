@@ -16,7 +16,7 @@ import pytest
 from conftest import real_data_path
 from magcal.alignment.noise import simulate_ou
 from magcal.missions.elfin.drift import fit_gain_drift
-from magcal.missions.elfin.pulses import find_pulses, gaussian, pulse_templates, zone_pulses
+from magcal.missions.elfin.pulses import find_pulses, gaussian, pulse_templates
 
 FGS = "ela_l1_fgs_20220112_v01.cdf"
 STATE = "ela_l1_state_defn_20220112_v01.cdf"
@@ -125,16 +125,6 @@ def test_pulse_templates_put_each_zone_s_shapes_on_its_rows():
 
 
 @pytest.fixture(scope="module")
-def zone_1():
-    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
-    from magcal.missions.elfin.injection import select_zones
-
-    fgs = read_elfin_fgs(real_data_path("elfin", FGS))
-    state = read_elfin_state(real_data_path("elfin", STATE))
-    return select_zones(fgs, [1]), state
-
-
-@pytest.fixture(scope="module")
 def zones_1_4():
     from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
     from magcal.missions.elfin.injection import select_zones
@@ -146,9 +136,9 @@ def zones_1_4():
 
 def test_a_pulse_along_b_injected_on_the_real_day_comes_back(zones_1_4):
     """2022-01-12 zone 1, a 100 nT pulse along B (90 s FWHM) injected at mid-zone
-    through the clean calibration: without ``pulses_b`` the drift takes it (8 % of its
-    energy kept, measured); with it one natural pulse is listed within 10 s and 25 nT
-    of the truth (the clean day holds -10 nT on that shape beyond the cubic) and the
+    through the clean calibration (without ``pulses_b`` the drift takes it: 8 % of its
+    energy kept, asserted in test_elfin_injection): one natural pulse is listed within
+    10 s and 25 nT of the truth (the clean day holds -10 nT on that shape beyond the cubic) and the
     product keeps at least 60 % of the energy with under 15 % distortion, while the
     clean zones get no natural pulse. The stated height error (the pulse put into
     zone 4's counts at the same place and found again) covers the truth within twice
@@ -177,20 +167,3 @@ def test_a_pulse_along_b_injected_on_the_real_day_comes_back(zones_1_4):
     tab = preservation(clean, day, {0: sig}, "pulse_b")
     last = tab[(tab["product"] == tab["product"].iloc[-1]) & (tab["zone"] == 0)].iloc[0]
     assert last["energy_kept"] >= 0.6 and last["distortion"] <= 0.15
-    off = ElfinSettings(bridge_trials=0)
-    lost = preservation(calibrate_elfin_day(fgs, state, off, diagnostics=False),
-                        calibrate_elfin_day(injected, state, off, diagnostics=False),
-                        {0: sig}, "pulse_b")
-    lost = lost[(lost["product"] == lost["product"].iloc[-1]) & (lost["zone"] == 0)]
-    assert lost["energy_kept"].iloc[0] < 0.2
-
-
-def test_clean_day_pulses_are_drift_only(zone_1):
-    """On the clean zone the search may fit a wide drift but lists no natural pulse."""
-    from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
-
-    fgs, state = zone_1
-    day = calibrate_elfin_day(fgs, state, ElfinSettings(bridge_trials=0, level_steps=False),
-                              diagnostics=False)
-    found = zone_pulses(day.calibration.field)
-    assert not found["natural"].astype(bool).any()
