@@ -116,6 +116,14 @@ def _calibrate(data, settings, inputs, disturbed=()):
                      + ("; ".join(f"zone {x['zone']} {x['start'][11:19]}-{x['end'][11:19]} "
                                   f"UTC {x['step_nT']:+.0f} nT" for x in steps)
                         if steps else "none"))
+    if settings.pulses_b:
+        pulses = day.to_json()["pulses_b"]["pulses"]
+        lines.append("pulses along B kept out of the gain drift (pulses_b): "
+                     + ("; ".join(f"zone {x['zone']} {str(x['centre'])[11:19]} UTC "
+                                  f"{x['height_nT']:+.0f} +- "
+                                  f"{x.get('height_error_nT', float('nan')):.0f} nT, "
+                                  f"FWHM {x['fwhm_s']:.0f} s" for x in pulses)
+                        if pulses else "none"))
     lines.append(f"delivered: {day.delivered}")
     summary = {"n_zones": n, "delivered": day.delivered, "zone_medians_nT": medians,
                "settings": asdict(settings)}
