@@ -12,9 +12,10 @@ What separates the two is their time scale: a thermal gain drift is as slow as t
 pass, while a compressional pulse is localized. So the product's ``|B|`` residual is
 searched, zone by zone, for Gaussian pulses on top of a cubic (:func:`find_pulses`:
 greedy, centre and width refined); a pulse is kept when it divides the residual's sum
-of squares by :data:`PULSE_MIN_GAIN` or more, is at least :data:`PULSE_MIN_NT` high
-and narrower than :data:`PULSE_MAX_FWHM_S` (a wider best fit is a drift the cubic
-lacks, not a pulse: the real day has two such, 120-180 s wide, at zone ends). The
+of squares by :data:`PULSE_MIN_GAIN` or more, is at least :data:`PULSE_MIN_NT` high,
+narrower than :data:`PULSE_MAX_FWHM_S` and rises and falls inside the zone (a wider
+best fit, or one cut by a zone end, is a drift the cubic lacks, not a pulse: the real
+day has four such, 170-300 s wide, fitted with the drift and removed). The
 day is then calibrated again with each kept pulse's shape fitted alongside the drift
 and left in the product (``pulse_b_<j>`` field columns; ``fit_gain_drift(natural=)``).
 
