@@ -117,7 +117,7 @@ def _calibrate(data, settings, inputs, disturbed=()):
                                   f"UTC {x['step_nT']:+.0f} nT" for x in steps)
                         if steps else "none"))
     if settings.pulses_b:
-        pulses = day.to_json()["pulses_b"]["pulses"]
+        pulses = day.pulse_listing()
         lines.append("pulses along B kept out of the gain drift (pulses_b): "
                      + ("; ".join(f"zone {x['zone']} {str(x['centre'])[11:19]} UTC "
                                   f"{x['height_nT']:+.0f} +- "

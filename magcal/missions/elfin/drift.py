@@ -93,6 +93,13 @@ def _shape_residual(b, r0, a, use) -> np.ndarray:
     return e - float(np.median(e[use] / h[use])) * h     # robust g_0: a pulse does not move it
 
 
+def _live_columns(shapes, use) -> np.ndarray:
+    """The columns of ``shapes`` (n, m) not zero on every ``use`` sample (another
+    zone's shapes are zero here and would make the fit singular)."""
+    a = np.asarray(shapes, dtype=float).reshape(len(use), -1)
+    return a[:, np.any(a[use] != 0.0, axis=0)]
+
+
 def fit_gain_drift(t_s, b_body, ref_magnitude_nT, *, degree: int = 3, fit_mask=None,
                    n_iter: int = 2, shape=None, robust_c: float = 0.0,
                    robust_iter: int = 5, natural=None,
@@ -167,9 +174,8 @@ def fit_gain_drift(t_s, b_body, ref_magnitude_nT, *, degree: int = 3, fit_mask=N
         start, shape = _shape_residual(b, r0, np.asarray(shape, dtype=float), use), None
     if shape is None:
         powers = np.column_stack([T ** d for d in range(degree + 1)])
-        if gain_shapes is not None and np.size(gain_shapes):
-            extra = np.asarray(gain_shapes, dtype=float).reshape(t.size, -1)
-            powers = np.column_stack([powers, extra[:, np.any(extra[use] != 0.0, axis=0)]])
+        if gain_shapes is not None:
+            powers = np.column_stack([powers, _live_columns(gain_shapes, use)])
     else:
         # isotropic and 2x halves of a one-direction gain change are equal: the drift is
         # +-shape in |B| (nT); only its sign and a constant gain are fitted
@@ -179,8 +185,7 @@ def fit_gain_drift(t_s, b_body, ref_magnitude_nT, *, degree: int = 3, fit_mask=N
         powers = np.column_stack([np.ones_like(t), sign * a / h])
         degree = 0
     nat = np.zeros((t.size, 0)) if natural is None or shape is not None \
-        else np.asarray(natural, dtype=float).reshape(t.size, -1)
-    nat = nat[:, np.any(nat[use] != 0.0, axis=0)] if nat.size else nat
+        else _live_columns(natural, use)
     total = np.ones(t.size)
     coef = np.zeros(powers.shape[1])
     amplitude = np.zeros(nat.shape[1])
@@ -439,6 +444,7 @@ def correct_gain_drift(cal, *, shape_from=None, robust_start_from=None, **kw):
         Per zone: the gain drift (peak-to-peak, fraction; mid-zone value), scalar RMS,
         fast and slow parts before/after, vector RMS before/after (despun, nT).
     """
+    from magcal.missions.elfin.pulses import DRIFT_COLUMNS, NATURAL_COLUMNS, shape_columns
     from magcal.spin.despin import despin
 
     def step(t, z, used):
@@ -449,12 +455,9 @@ def correct_gain_drift(cal, *, shape_from=None, robust_start_from=None, **kw):
             lin = shape_from_.field.loc[shape_from_.field["zone"] == z["zone"].iloc[0]]
             _, lbody, lref, *_ = _zone_body(lin)
             shape = harmonic_shape(t, lbody, lref, fit_mask=used)
-        cols = [c for c in z.columns if c.startswith("pulse_b_")]
-        natural = z[cols].to_numpy(float) if cols else None
-        cols = [c for c in z.columns if c.startswith("drift_b_")]
-        extra = z[cols].to_numpy(float) if cols else None
         fixed, info = fit_gain_drift(t, body, ref_mag, fit_mask=used, shape=shape,
-                                     natural=natural, gain_shapes=extra, **kw)
+                                     natural=shape_columns(z, NATURAL_COLUMNS),
+                                     gain_shapes=shape_columns(z, DRIFT_COLUMNS), **kw)
         new_d = despin(fixed, phase)
         return new_d, {**info, "vector_rms_before_nT": rms((desp - ref)[used]),
                        "vector_rms_after_nT": rms((new_d - ref)[used])}

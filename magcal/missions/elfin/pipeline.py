@@ -438,16 +438,19 @@ class ElfinDay:
         (``ElfinSettings.pulses_b``): per ``pulse_b_<j>`` shape of a zone, the ``zone``,
         its ``centre`` (UTC, ISO), ``fwhm_s`` and ``height_nT`` (the amplitude fitted
         with the gain drift: what the product keeps)."""
+        from magcal.missions.elfin.pulses import NATURAL_COLUMNS, shape_columns
+
         f = self.calibration.field
-        cols = [c for c in f.columns if c.startswith("pulse_b_")]
-        if not cols or "gain_drift" not in self.steps:
+        every = shape_columns(f, NATURAL_COLUMNS)
+        if not every.shape[1] or "gain_drift" not in self.steps:
             return []
         drift = self.steps["gain_drift"].set_index("zone")
         out = []
-        for k in dict.fromkeys(f["zone"].to_numpy()):
-            z = f[f["zone"] == k]
-            shapes = z[cols].to_numpy(float)
-            live = [j for j in range(len(cols)) if np.any(shapes[:, j] != 0.0)]
+        zones = f["zone"].to_numpy()
+        for k in dict.fromkeys(zones):
+            z = f[zones == k]
+            shapes = every[zones == k]
+            live = [j for j in range(shapes.shape[1]) if np.any(shapes[:, j] != 0.0)]
             heights = list(drift.loc[k, "natural_amplitudes"]) if k in drift.index else []
             ts = z.index.as_unit("ns").asi8 / 1e9
             for i, j in enumerate(live):
@@ -457,6 +460,13 @@ class ElfinDay:
                             "fwhm_s": float(half[-1] - half[0]) if half.size else 0.0,
                             "height_nT": float(heights[i]) if i < len(heights) else float("nan")})
         return out
+
+    def pulse_listing(self) -> list[dict]:
+        """The kept pulses along B as delivered: with their height errors
+        (``steps["pulse_trials"]``) where measured, else :meth:`pulses_along_b`."""
+        if "pulse_trials" in self.steps:
+            return self.steps["pulse_trials"].to_dict(orient="records")
+        return self.pulses_along_b()
 
     def to_json(self) -> dict:
         """The calibration document (the keys of ``elfin_calibration.json``)."""
@@ -506,10 +516,8 @@ class ElfinDay:
                         "drift's cubic in the |B| residual, magcal.missions.elfin.pulses) "
                         "fitted with the gain drift and left in the product; height_nT is "
                         "what the product keeps",
-                "pulses": self.pulses_along_b()}
+                "pulses": self.pulse_listing()}
             if "pulse_trials" in self.steps:
-                payload["pulses_b"]["pulses"] = self.steps["pulse_trials"].to_dict(
-                    orient="records")
                 payload["pulses_b"]["note_error"] = (
                     "height_error_nT: RMS error of the heights found when a pulse like "
                     "it is put into the counts of other zones at the same place "
@@ -750,14 +758,16 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
             raise InputError("with the samples left out of the fit, a zone that the plain "
                              "fit calibrates has too few: " + "; ".join(
                                  z.reason for z in linear.skipped))
-    if pulse_templates is not None and np.size(pulse_templates):
-        tpl = np.asarray(pulse_templates, float).reshape(len(linear.field), -1)
-        linear = replace(linear, field=linear.field.assign(
-            **{f"pulse_b_{j + 1}": tpl[:, j] for j in range(tpl.shape[1])}))
-    if drift_templates is not None and np.size(drift_templates):
-        tpl = np.asarray(drift_templates, float).reshape(len(linear.field), -1)
-        linear = replace(linear, field=linear.field.assign(
-            **{f"drift_b_{j + 1}": tpl[:, j] for j in range(tpl.shape[1])}))
+    if pulse_templates is not None or drift_templates is not None:
+        from magcal.missions.elfin.pulses import (DRIFT_COLUMNS, NATURAL_COLUMNS,
+                                                  with_shape_columns)
+
+        lf = linear.field
+        for prefix, shapes in ((NATURAL_COLUMNS, pulse_templates),
+                               (DRIFT_COLUMNS, drift_templates)):
+            if shapes is not None:
+                lf = with_shape_columns(lf, prefix, shapes)
+        linear = replace(linear, field=lf)
     if fit_exclude_scalar is not None:
         # e.g. flagged across B only: still fitted by the steps that fit |B| alone
         lf = linear.field
@@ -863,8 +873,9 @@ def _with_bridge(fgs, state, settings, day: ElfinDay, *, hold_phase) -> ElfinDay
     stepped = np.isin(zone, np.unique(zone[levels]))
 
     # ... and its pulses along B
-    pulses, drifts = (f[[c for c in f.columns if c.startswith(p)]].to_numpy(float)
-                      for p in ("pulse_b_", "drift_b_"))
+    from magcal.missions.elfin.pulses import DRIFT_COLUMNS, NATURAL_COLUMNS, shape_columns
+
+    pulses, drifts = shape_columns(f, NATURAL_COLUMNS), shape_columns(f, DRIFT_COLUMNS)
 
     def calibrate(extra):
         return calibrate_elfin_day(fgs[keep], state, plain, hold_phase=held,
@@ -902,12 +913,12 @@ def _with_level_steps(fgs, state, settings, *, linear, level_step_rows=None,
     rows = level_step_rows
     if rows is None:
         rows = find_steps(f) if settings.level_steps else np.zeros(len(f), bool)
-    natural, drift = pulse_templates, drift_templates
-    if natural is None:
-        found = zone_pulses(f) if settings.pulses_b else zone_pulses(f.iloc[:0])
-        natural = shapes(f, found[found["natural"].astype(bool)])
-        drift = shapes(f, found[~found["natural"].astype(bool)])
-    if not rows.any() and not natural.size and not (drift is not None and drift.size):
+    natural, drift = (none if x is None else x for x in (pulse_templates, drift_templates))
+    if pulse_templates is None and settings.pulses_b:
+        found = zone_pulses(f)
+        kept = found["natural"].astype(bool)
+        natural, drift = shapes(f, found[kept]), shapes(f, found[~kept])
+    if not rows.any() and not np.size(natural) and not np.size(drift):
         return first
     # a kept level change found on fitted samples is left out of the fits from now on
     given = kw.pop("fit_exclude", None)

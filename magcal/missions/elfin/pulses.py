@@ -67,6 +67,9 @@ PULSE_TREND_DEGREE = 3
 PULSE_FLOOR_NT = 1.0
 #: Resampling step of the spin-averaged residual for the search (s).
 PULSE_STEP_S = 1.0
+#: Field columns of the shapes fitted with the gain drift: kept in the product
+#: (natural pulses along B) and removed with the drift.
+NATURAL_COLUMNS, DRIFT_COLUMNS = "pulse_b_", "drift_b_"
 _SIGMA_PER_FWHM = 1.0 / (2.0 * np.sqrt(2.0 * np.log(2.0)))
 
 
@@ -246,7 +249,7 @@ def zone_pulses(field: pd.DataFrame, **kw) -> pd.DataFrame:
     -------
     DataFrame
         ``zone``, ``start`` (UTC of the zone's first row), ``centre_s`` (from it),
-        ``fwhm_s``, ``height_nT``, ``gain``.
+        ``fwhm_s``, ``height_nT``, ``gain``, ``natural`` (see :func:`find_pulses`).
     """
     from magcal.missions.elfin.detect import zone_residuals
     from magcal.missions.elfin.drift import fit_samples
@@ -265,8 +268,20 @@ def zone_pulses(field: pd.DataFrame, **kw) -> pd.DataFrame:
     return out[cols]
 
 
+def shape_columns(frame: pd.DataFrame, prefix: str) -> np.ndarray:
+    """The shapes (len(frame), m) in ``frame``'s columns named ``prefix<j>``
+    (:data:`NATURAL_COLUMNS` or :data:`DRIFT_COLUMNS`; m = 0 without any)."""
+    cols = [c for c in frame.columns if c.startswith(prefix)]
+    return frame[cols].to_numpy(float) if cols else np.zeros((len(frame), 0))
+
+
+def with_shape_columns(frame: pd.DataFrame, prefix: str, shapes) -> pd.DataFrame:
+    """``frame`` with the columns ``prefix1 ..`` holding ``shapes`` (len(frame), m)."""
+    tpl = np.asarray(shapes, float).reshape(len(frame), -1)
+    return frame.assign(**{f"{prefix}{j + 1}": tpl[:, j] for j in range(tpl.shape[1])})
+
+
 def pulse_templates(field: pd.DataFrame, pulses: pd.DataFrame) -> np.ndarray:
-    # prototype: caller selects natural / drift rows
     """Unit-height shapes (len(field), m) of ``pulses`` (:func:`zone_pulses`) on their
     zones' rows (zero elsewhere), ``m`` the most pulses of any zone: the
     ``pulse_templates`` of :func:`~magcal.missions.elfin.pipeline.calibrate_elfin_day`."""
