@@ -25,6 +25,11 @@ from magcal.cli import main
 from magcal.errors import InputError
 from magcal.missions.elfin.pipeline import SIGNAL_TRADE, ElfinDay, ElfinSettings
 
+# one test process for the whole module: its module fixtures (the CLI run, the library
+# call, 25 s each) are then computed once instead of once per process (pyproject runs
+# pytest with --dist loadgroup)
+pytestmark = pytest.mark.xdist_group("elfin_chain")
+
 CONFIG = REPO_ROOT / "data_samples" / "chain" / "ELFIN.toml"
 FGS = "ela_l1_fgs_20220112_v01.cdf"
 STATE = "ela_l1_state_defn_20220112_v01.cdf"
