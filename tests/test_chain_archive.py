@@ -32,6 +32,11 @@ from magcal.cli import main
 from magcal.errors import InputError
 from magcal.provenance import file_sha256
 
+# one test process for the whole module (pyproject runs pytest with --dist loadgroup):
+# its module fixtures (simulated archives and their runs) are then computed once instead
+# of once per process
+pytestmark = pytest.mark.xdist_group("chain_archive")
+
 CHAIN = """
 [input]
 files = ["raw/day_*.csv"]

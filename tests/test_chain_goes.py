@@ -31,6 +31,11 @@ import pytest
 from magcal.cli import main
 from conftest import real_data_path
 
+# one test process for the whole module (pyproject runs pytest with --dist loadgroup):
+# its module fixtures (GOES chain runs, 7-13 s each) are then computed once instead of
+# once per process
+pytestmark = pytest.mark.xdist_group("chain_goes")
+
 KP = "indices/celestrak_SW_2017-2023_subset.txt"
 
 

@@ -18,6 +18,11 @@ import pytest
 from magcal.cli import main
 from magcal.provenance import file_sha256
 
+# one test process for the whole module (pyproject runs pytest with --dist loadgroup):
+# its module fixture (the whole demo, 75 s) is then computed once instead of once per
+# process
+pytestmark = pytest.mark.xdist_group("demo")
+
 DATA = Path(__file__).resolve().parents[1] / "data_samples"
 
 

@@ -15,6 +15,11 @@ from magcal.io.csv import write_csv_frame
 from magcal.io.jsonio import write_json
 from magcal.provenance import make_provenance
 
+# one test process for the whole module (pyproject runs pytest with --dist loadgroup):
+# its module fixtures (chain runs for the report, 16 s) are then computed once instead
+# of once per process
+pytestmark = pytest.mark.xdist_group("report_uncertainty")
+
 
 @pytest.fixture(scope="module")
 def products(tmp_path_factory):
