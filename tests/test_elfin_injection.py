@@ -103,11 +103,12 @@ def runs(day):
     # each step's own absorption, without the detection that leaves the signal out
     fgs, state = day
     kinds = ("gauss_ew", "gauss_along", "pulse_b")
-    steps = ElfinSettings(detect_disturbed=False)
+    # (pulses along B kept out of the drift, pulses_b, are tested in test_elfin_pulses)
+    steps = ElfinSettings(detect_disturbed=False, pulses_b=False)
     held = run_injections(fgs, state, steps, kinds=kinds, hold=True)[0]
     delivered = run_injections(fgs, state, steps, kinds=kinds)[0]
-    free = run_injections(fgs, state, ElfinSettings(gain_drift_2x=True, detect_disturbed=False),
-                          kinds=kinds)[0]
+    free = run_injections(fgs, state, ElfinSettings(gain_drift_2x=True, detect_disturbed=False,
+                                                    pulses_b=False), kinds=kinds)[0]
     splines = run_injections(fgs, state, ElfinSettings(linear_phase_knot_s=30.0,
                                                        phase_refit=True,
                                                        detect_disturbed=False),

@@ -136,8 +136,9 @@ def zones_1_4():
 
 def test_a_pulse_along_b_injected_on_the_real_day_comes_back(zones_1_4):
     """2022-01-12 zone 1, a 100 nT pulse along B (90 s FWHM) injected at mid-zone
-    through the clean calibration (without ``pulses_b`` the drift takes it: 8 % of its
-    energy kept, asserted in test_elfin_injection): one natural pulse is listed within
+    through the clean calibration, with the delivered settings (``pulses_b`` on by
+    default; without it the drift takes the pulse: 8 % of its energy kept, asserted in
+    test_elfin_injection): one natural pulse is listed within
     10 s and 25 nT of the truth (the clean day holds -10 nT on that shape beyond the cubic) and the
     product keeps at least 60 % of the energy with under 15 % distortion, while the
     clean zones get no natural pulse. The stated height error (the pulse put into
@@ -147,7 +148,8 @@ def test_a_pulse_along_b_injected_on_the_real_day_comes_back(zones_1_4):
     from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
 
     fgs, state = zones_1_4
-    on = ElfinSettings(bridge_trials=0, pulses_b=True, pulse_trials=1)
+    on = ElfinSettings(bridge_trials=0, pulse_trials=1)
+    assert on.pulses_b
     clean = calibrate_elfin_day(fgs, state, on, diagnostics=False)
     assert clean.pulses_along_b() == []
     lf = clean.linear.field

@@ -312,7 +312,9 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         The pipeline's settings (default: the delivered ones). With ``hold`` the phase
         refit is switched off and the linear fit keeps the clean phase. The bridge
         trials (``bridge_trials``) run on the injected runs only, where
-        :func:`preservation` compares their stated error with the signal's.
+        :func:`preservation` compares their stated error with the signal's; the pulse
+        trials (``pulse_trials``) not at all (they state an error, the product is the
+        same).
     kinds : sequence of str
         Keys of :data:`SIGNALS`; one run each, carrying that signal in every chosen zone.
     zones : sequence of int, optional
@@ -320,8 +322,8 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         calibrated.
     hold : bool
         Hold the spin phase at the clean linear solution (the machinery check; no phase
-        refit, no detection of disturbed intervals and no level steps, so that only the
-        linear fit can absorb).
+        refit, no detection of disturbed intervals, no level steps and no pulses along
+        B, so that only the linear fit can absorb).
     mask_signal : float
         If positive, leave the samples where the signal exceeds this fraction of its
         peak out of every fit (clean and injected runs alike): what a fit on quiet
@@ -353,7 +355,8 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
 
     from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
 
-    s = settings or ElfinSettings()
+    # the kept fractions do not depend on the pulses' stated height errors
+    s = replace(settings or ElfinSettings(), pulse_trials=0)
     if zones is not None:
         fgs = select_zones(fgs, zones)
     # the clean run needs no bridge trials (they leave the product as it is)
@@ -361,7 +364,7 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
     hold_phase = None
     if hold:
         s = replace(s, phase_refit=False, detect_disturbed=False, bridge_trials=0,
-                    level_steps=False)
+                    level_steps=False, pulses_b=False)
         hold_phase = clean.linear.field["phase"].to_numpy()
         clean = calibrate_elfin_day(fgs, state, s, hold_phase=hold_phase, diagnostics=False)
     f = clean.linear.field
