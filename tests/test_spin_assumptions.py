@@ -57,6 +57,16 @@ def _run(*argv) -> int:
     return main([str(a) for a in argv])
 
 
+@pytest.fixture(scope="module")
+def cal_pos(files):
+    """``magcal spincal`` of the positive-sense record (in nT) with its prior: the
+    reference of the tests that read it (each may run in its own test process)."""
+    pos = files / "CAL_pos.json"
+    assert _run("spincal", files / "pos.csv", "--spin-period", 20, "--prior",
+                files / "prior_pos.json", "-o", pos) == 0
+    return pos
+
+
 def test_measure_tilted_triad():
     """A triad whose spin axis lies 30 deg from sensor 3 in the b1-b3 plane."""
     p = np.linspace(0, 30 * 2 * np.pi, 3000, endpoint=False)
@@ -73,11 +83,9 @@ def test_measure_tilted_triad():
         check_spin_assumptions(found)
 
 
-def test_negative_sense_recovers_the_turned_truth(files, sim):
+def test_negative_sense_recovers_the_turned_truth(files, sim, cal_pos):
     tr = sim.truth
-    pos, neg = files / "CAL_pos.json", files / "CAL_neg.json"
-    assert _run("spincal", files / "pos.csv", "--spin-period", 20, "--prior",
-                files / "prior_pos.json", "-o", pos) == 0
+    pos, neg = cal_pos, files / "CAL_neg.json"
     assert _run("spincal", files / "neg.csv", "--spin-period", 20, "--spin-sense", "auto",
                 "--prior", files / "prior_neg.json", "-o", neg) == 0
     jp, jn = json.loads(pos.read_text()), json.loads(neg.read_text())
@@ -102,14 +110,14 @@ def test_wrong_sense_is_refused(files, tmp_path, capsys):
     assert not out.exists()
 
 
-def test_counts_need_a_scale(files, tmp_path, capsys):
+def test_counts_need_a_scale(files, cal_pos, tmp_path, capsys):
     out = tmp_path / "x.json"
     assert _run("spincal", files / "counts.csv", "--spin-period", 20, "-o", out) == 2
     err = capsys.readouterr().err
     assert "implausible for nT" in err and "--scale" in err and not out.exists()
     assert _run("spincal", files / "counts.csv", "--spin-period", 20, "--scale", 1e-5,
                 "--prior", files / "prior_pos.json", "-o", out) == 0
-    ref = json.loads((files / "CAL_pos.json").read_text())
+    ref = json.loads(cal_pos.read_text())
     got = json.loads(out.read_text())
     assert got["spin_phase"]["input_scale_nT_per_unit"] == 1e-5
     assert_allclose(got["offsets"], ref["offsets"], atol=1e-6)
