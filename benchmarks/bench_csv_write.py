@@ -10,22 +10,13 @@ Run: ``python benchmarks/bench_csv_write.py``
 from __future__ import annotations
 
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from magcal.io.csv import format_times, write_csv_frame
-
-
-def best(func, repeat=3):
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        func()
-        times.append(time.perf_counter() - t0)
-    return min(times)
+from timing import best
 
 
 def main() -> None:
@@ -45,8 +36,8 @@ def main() -> None:
             out.index = pd.Index(format_times(index), name="time")
             out.to_csv(theirs, float_format="%.4f", na_rep="NaN", index_label="time")
 
-        base_s = best(baseline)
-        fast_s = best(lambda: write_csv_frame(mine, frame))
+        base_s = best(baseline)[0]
+        fast_s = best(lambda: write_csv_frame(mine, frame))[0]
         same = mine.read_bytes() == theirs.read_bytes()
     print(f"a day at 1 s ({n} rows): pandas to_csv {base_s:.2f} s, write_csv_frame "
           f"{fast_s:.2f} s = {base_s / fast_s:.1f}x (target >= 3x); byte-identical: {same}")

@@ -56,6 +56,7 @@ bench_archive.BASE_ENV = _USER_ENV
 # the allocator settings of the chain's workers (engine.keep_freed_memory, their pool's
 # initializer), so the in-process day and the floor see what a worker sees
 from magcal.chain.engine import keep_freed_memory  # noqa: E402
+from timing import best  # noqa: E402  (this folder, run as a script)
 
 keep_freed_memory()
 
@@ -237,16 +238,6 @@ def floor_figures(day_file: Path, work: Path) -> dict:
 
 
 # ------------------------------------------------------------------------------ chain
-def best(func, repeat=3):
-    """(fastest seconds of ``repeat`` calls of ``func``, its last value)."""
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = func()
-        times.append(time.perf_counter() - t0)
-    return min(times), out
-
-
 def per_day_figures(work: Path, day_file: Path) -> float:
     """One partition + one corrected day in this process, profiled; seconds."""
     import json

@@ -11,12 +11,11 @@ Run: ``python benchmarks/bench_whitening.py``
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
 from magcal.alignment.ouwhite import kalman_gains, whiten
 from magcal.alignment.twoscale import state_gains, whiten_state
+from timing import best
 
 
 def one_at_a_time(y, phi, k, f):
@@ -30,15 +29,6 @@ def one_at_a_time(y, phi, k, f):
         e[i] = y[i] - pred.sum(axis=0)
         state = pred + k[i][:, None] * e[i]
     return e / np.sqrt(f)[:, None]
-
-
-def best(func, repeat=3):
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = func()
-        times.append(time.perf_counter() - t0)
-    return min(times), out
 
 
 def main() -> None:
