@@ -37,12 +37,11 @@ RHO_MAX = 0.999
 class Gains:
     """Data-independent Kalman quantities of a unit-variance OU + white model.
 
-    ``xhat_t = a_t xhat_{t-1} + k_t y_t``; innovation ``y_t - phi_t xhat_{t-1}`` with
-    variance ``f_t`` (times the total variance ``v``).
+    ``xhat_t = phi_t (1 - k_t) xhat_{t-1} + k_t y_t``; innovation
+    ``y_t - phi_t xhat_{t-1}`` with variance ``f_t`` (times the total variance ``v``).
     """
 
     phi: np.ndarray
-    a: np.ndarray
     k: np.ndarray
     f: np.ndarray
 
@@ -81,7 +80,6 @@ def kalman_gains(times_s, tau_s: float, rho: float, tol: float = 1e-14) -> Gains
     phi = lag_correlation(times_s, tau_s)
     n = phi.size
     s2, w2 = 1.0 - rho, rho
-    a = np.empty(n)
     k = np.empty(n)
     f = np.empty(n)
     change = np.flatnonzero(np.diff(phi) != 0) + 1
@@ -99,20 +97,19 @@ def kalman_gains(times_s, tau_s: float, rho: float, tol: float = 1e-14) -> Gains
                 pm = ph * ph * before + q
                 f[i:i1] = pm + w2
                 k[i:i1] = pm / f[i:i1]
-                a[i:i1] = ph * (1.0 - k[i:i1])
                 break
             pm = ph * ph * p + q
             fi = pm + w2
             ki = pm / fi
             p = (1.0 - ki) * pm
-            a[i], k[i], f[i] = ph * (1.0 - ki), ki, fi
+            k[i], f[i] = ki, fi
             i += 1
             if abs(ki - prev) <= tol * max(ki, 1e-300) and i < i1:
-                a[i:i1], k[i:i1], f[i:i1] = a[i - 1], ki, fi
+                k[i:i1], f[i:i1] = ki, fi
                 break
             prev = ki
     f = np.maximum(f, 1e-300)
-    return Gains(phi=phi, a=a, k=k, f=f)
+    return Gains(phi=phi, k=k, f=f)
 
 
 def riccati_variances(phi: float, n: int, s2: float, w2: float, p0: float):

@@ -269,16 +269,11 @@ def _pack(tau_s, share) -> np.ndarray:
 
 class _Whittle:
     """The profile Whittle likelihood of one :class:`WhittleData`, with what every
-    evaluation shares computed once: Nelder-Mead calls it a few hundred times per
-    fit, and the per-call array set-up cost as much as the FFT (the alignment tests
-    spent two thirds of their time here). Same arithmetic as :func:`whittle_objective`,
-    so the same numbers to the last bit."""
+    evaluation shares (the frequencies kept, their periodogram and leverage) selected
+    once: Nelder-Mead calls it a few hundred times per fit."""
 
     def __init__(self, data: WhittleData, lo: float, hi: float):
-        self.lo, self.hi = lo, hi
-        self.neg_lag = -data.lag
-        self.mask_acf = data.mask_acf
-        self.n_freq = data.periodogram.size
+        self.data, self.lo, self.hi = data, lo, hi
         use = data.kept > 0.5
         self.use = None if use.all() else use
         self.periodogram = data.periodogram[use]
@@ -287,17 +282,10 @@ class _Whittle:
 
     def __call__(self, p) -> tuple[float, float]:
         """Negative log-likelihood and the fitted total variance at ``p``."""
-        tau, share = _unpack(p, self.lo, self.hi)
-        c = share[0] * np.exp(self.neg_lag / tau[0]) + share[1] * np.exp(self.neg_lag / tau[1])
-        c[0] += share[2]
-        c *= self.mask_acf
-        spec = 2.0 * np.fft.rfft(c).real
-        spec -= c[0]
-        spec = spec[1:self.n_freq + 1]
+        spec = self.data.expected(*_unpack(p, self.lo, self.hi))
         if self.use is not None:
             spec = spec[self.use]
-        spec *= self.kept
-        s = np.maximum(spec, 1e-300, out=spec)
+        s = np.maximum(spec * self.kept, 1e-300)
         v = float((self.periodogram / s).mean())
         return float(self.n_use * np.log(max(v, 1e-300)) + np.log(s).sum()), v
 

@@ -450,16 +450,16 @@ def csv_text(times, frame: pd.DataFrame, float_format: str) -> str | None:
     2019-11-01T00:00:00,1.2346,0
     2019-11-01T00:00:01,NaN,3
     """
-    names = [str(c) for c in frame.columns]
-    if any(not isinstance(c, str) or re.search(r'[,"\r\n]', c) for c in frame.columns):
+    names = list(frame.columns)
+    if (len(set(names)) != len(names)
+            or any(not isinstance(c, str) or re.search(r'[,"\r\n]', c) for c in names)):
         return None
-    kinds = [frame[c].dtype.kind for c in frame.columns] if len(set(names)) == len(
-        names) else None
-    if kinds is None or any(k not in "fiu" for k in kinds):
+    kinds = [frame[c].dtype.kind for c in names]
+    if any(k not in "fiu" for k in kinds):
         return None
     end = os.linesep
     row = "%s" + "".join("," + (float_format if k == "f" else "%d") for k in kinds) + end
-    columns = [np.asarray(times, dtype=object)] + [frame[c].to_numpy() for c in frame.columns]
+    columns = [np.asarray(times, dtype=object)] + [frame[c].to_numpy() for c in names]
     parts = []
     for start in range(0, len(frame), CSV_CHUNK_ROWS):
         stop = min(start + CSV_CHUNK_ROWS, len(frame))
