@@ -43,6 +43,32 @@ def test_whitening_is_the_cholesky_innovation_with_gaps():
     assert g.log_det == pytest.approx(2 * np.sum(np.log(np.diag(chol))), rel=1e-10)
 
 
+@pytest.mark.parametrize("model", ["two-scale", "ou+white"])
+def test_gains_that_never_settle_whiten_to_the_cholesky_innovation(model):
+    """Mostly white noise under a correlation time of weeks: the gains change at every
+    one of the 1500 samples (no constant run), so the whole record goes through the
+    block-stepped recursion (and, OU + white, the block-composed Riccati variances after
+    the first 256 samples of a run). Truth: ``L^-1 x`` of the exact covariance."""
+    from magcal.alignment.ouwhite import STEPPED, kalman_gains, whiten
+
+    t = np.arange(1600.0) * 60.0
+    t = np.delete(t, np.arange(700, 800))                 # a 100-sample gap
+    if model == "two-scale":
+        tau, share = (120.0, 2.0e6), np.array([0.1, 0.1, 0.8])
+        g = state_gains(t, tau, share)
+        assert not g.steady
+        got, log_det = whiten_state(np.eye(t.size)[:, :7] + 0.3, g), g.log_det
+    else:
+        tau, share = (60.0, 2.0e6), np.array([0.0, 0.01, 0.99])
+        g = kalman_gains(t, tau[1], share[2])
+        assert np.all(np.diff(g.k[1:700]) != 0) and 700 > STEPPED
+        got, log_det = whiten(np.eye(t.size)[:, :7] + 0.3, g), g.log_det
+    chol = np.linalg.cholesky(_exact(t, tau, share))
+    np.testing.assert_allclose(got, np.linalg.solve(chol, np.eye(t.size)[:, :7] + 0.3),
+                               atol=1e-8)
+    assert log_det == pytest.approx(2 * np.sum(np.log(np.diag(chol))), rel=1e-10)
+
+
 def test_one_scale_reduces_to_the_ou_filter():
     """With the slow and white parts absent the innovation variance is the OU one,
     ``1 - exp(-2 dt / tau)``."""
