@@ -79,3 +79,62 @@ def test_robust_cubic_passes_under_a_pulse_that_drags_least_squares():
     assert (base - y).max() > 40 * sigma
     ols, _ = robust_baseline(t, y, t >= 0, degree=3, l1_iter=0, n_iter=1)
     assert np.abs(ols - trend).max() > 20.0
+
+
+def _field(t, dz, level=None):
+    """A zone whose despun field departs from the model by ``dz`` along the spin axis,
+    across B (ELFIN's spin axis is near east-west: such a field leaves ``|B|`` alone to
+    first order)."""
+    ref = np.column_stack([45000.0 + 0 * t, 0 * t, 0 * t])
+    cols = {"zone": 7, "used": 1}
+    for i, c in enumerate("xyz"):
+        cols[f"b{c}_despun"] = ref[:, i] + (dz if c == "z" else 0.0)
+        cols[f"igrf_{c}_despun"] = ref[:, i]
+    f = _zone(t, ref).assign(**cols)
+    return f if level is None else f.assign(level_step=np.asarray(level, int))
+
+
+def _quiet_axis(t):
+    """3 nT of smoothed white noise on a 10 nT wobble, seeded."""
+    rng = np.random.default_rng(7)
+    return np.convolve(rng.normal(0, 4, t.size), np.ones(5) / 5, mode="same") \
+        + 10 * np.sin(t / 50)
+
+
+def test_a_kept_level_step_keeps_the_disturbance_beside_it_flagged():
+    """A 120 nT disturbance at 80 s and a 300 nT current sheet rising at 185 s: about a
+    baseline that cannot follow the sheet's plateau the robust sigma grows sixfold and
+    the disturbance goes unflagged; with the sheet's level step in the baseline the
+    disturbance is flagged as on the day without the sheet."""
+    from magcal.missions.elfin.detect import detect_in_field
+
+    t = np.arange(0.0, 370.0, 0.2)
+    disturbance = 120 * np.exp(-0.5 * ((t - 80) / 12) ** 2)
+    sheet = -150 * (1 + np.tanh((t - 185) / 4.5))
+    level = (t > 170) & (t < 200)
+    clean, clean_tab = detect_in_field(_field(t, _quiet_axis(t) + disturbance))
+    blind, blind_tab = detect_in_field(_field(t, _quiet_axis(t) + disturbance + sheet))
+    kept, kept_tab = detect_in_field(_field(t, _quiet_axis(t) + disturbance + sheet, level))
+    core = (t > 70) & (t < 90)
+    assert clean[core, 0].all()
+    assert not blind[core, 0].all()                 # what the level step is for
+    assert blind_tab["sigma_z_nT"].iloc[0] > 3 * clean_tab["sigma_z_nT"].iloc[0]
+    before = t < 150
+    assert kept[core, 0].all()
+    # the same interval, its ends within a second (the sigma is 3 % apart)
+    assert np.count_nonzero(kept[before] != clean[before]) <= 10
+    assert kept[level, 0].all()                     # the rise itself is disturbed
+    assert kept_tab["sigma_z_nT"].iloc[0] == pytest.approx(
+        clean_tab["sigma_z_nT"].iloc[0], rel=0.1)
+
+
+def test_a_level_step_the_data_do_not_demand_changes_no_flag():
+    """Level rows where the level does not change: the step would not lower the robust
+    sigma by LEVEL_BASELINE_GAIN, and the flags are those without the level column."""
+    from magcal.missions.elfin.detect import detect_in_field
+
+    t = np.arange(0.0, 370.0, 0.2)
+    dz = _quiet_axis(t) + 120 * np.exp(-0.5 * ((t - 80) / 12) ** 2)
+    plain, _ = detect_in_field(_field(t, dz))
+    marked, _ = detect_in_field(_field(t, dz, (t > 170) & (t < 200)))
+    np.testing.assert_array_equal(marked, plain)

@@ -125,8 +125,12 @@ def calibrate_detected(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, prov
                                    zone_numbers=zone_numbers)
 
     plain = run(known, known, linear=linear)
+    if linear is None and not plain.linear.field["level_step"].any():
+        linear = plain.linear
+    # (a plain day with level steps has its linear fit refitted with them, and with
+    # their rows left out: not the stiff calibration's start)
     found = locate_disturbed(fgs, state, settings, detect=detect, fit_exclude=known,
-                             hold_phase=hold_phase, linear=plain.linear,
+                             hold_phase=hold_phase, linear=linear,
                              zone_numbers=zone_numbers)
     vector, scalar = found.vector, found.scalar
     day = run(vector, scalar, diagnostics)
