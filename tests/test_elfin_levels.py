@@ -8,6 +8,8 @@ default one.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -156,26 +158,31 @@ def test_real_disturbances_flagged_in_part_get_no_step(zones_2_7_8):
     assert on.calibrated_table()["level_step"].eq(0).all()
 
 
-def test_a_sheet_injected_on_the_real_day_is_listed_with_its_level_change():
-    """Zone 1 with a 300 nT east-west sheet injected at mid-zone: one level step, in
-    the JSON with its level change within 20 % of the injected field's spin-axis
-    component (truth: the signal, 30 s medians either side as the product's)."""
+def test_a_sheet_injected_on_the_real_day_is_listed_with_its_level_change_and_error():
+    """Zones 1 and 10 with a 300 nT east-west sheet injected at mid-zone 1: one level
+    step, in the JSON with its level change within 20 % of the injected field's
+    spin-axis component (truth: the signal, 30 s medians either side as the product's).
+    Its stated error comes from a sheet of the step's size put into zone 10: the level
+    zone 10 keeps is within 25 % of what was put in (truth: the trial's own injection),
+    and the error is that level's distance from it."""
     from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
     from magcal.missions.elfin.injection import inject_counts, select_zones, signal_gei
     from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
 
-    fgs = select_zones(read_elfin_fgs(real_data_path("elfin", FGS)), [1])
+    fgs = select_zones(read_elfin_fgs(real_data_path("elfin", FGS)), [1, 10])
     state = read_elfin_state(real_data_path("elfin", STATE))
-    s = ElfinSettings(bridge_trials=0)
-    clean = calibrate_elfin_day(fgs, state, s, diagnostics=False)
+    s = ElfinSettings(bridge_trials=0, level_trials=1)
+    clean = calibrate_elfin_day(fgs, state, replace(s, level_trials=0), diagnostics=False)
     lf = clean.linear.field
-    sig = signal_gei("sheet_ew", lf, state)
+    first = lf["zone"].to_numpy() == 0
+    sig = signal_gei("sheet_ew", lf[first], state)
     day = calibrate_elfin_day(inject_counts(fgs, clean.linear, {0: sig}), state, s,
                               diagnostics=False)
     steps = day.level_step_intervals()
     assert len(steps) == 1 and steps[0]["zone"] == 0
-    assert day.to_json()["level_steps"]["intervals"] == steps
-    f = day.calibration.field
+    listed = day.to_json()["level_steps"]["intervals"]
+    assert [{k: v for k, v in x.items() if k in steps[0]} for x in listed] == steps
+    f = day.calibration.field[first]
     axis = f[["spin_axis_gei_x", "spin_axis_gei_y", "spin_axis_gei_z"]].to_numpy()
     along = np.sum(sig * axis, axis=1)
     ts = (f.index.as_unit("ns").asi8 - f.index.as_unit("ns").asi8[0]) / 1e9
@@ -185,3 +192,13 @@ def test_a_sheet_injected_on_the_real_day_is_listed_with_its_level_change():
              - np.median(along[(ts < a) & (ts >= a - 30)]))
     assert abs(truth) > 250.0
     assert abs(steps[0]["step_nT"] - truth) <= 0.2 * abs(truth)
+    size = abs(steps[0]["step_nT"])
+    (level,) = listed[0]["trial_levels_nT"]
+    assert abs(level - size) <= 0.25 * size
+    assert listed[0]["step_error_nT"] == pytest.approx(abs(level - size), rel=1e-9)
+    # per row: the error from the step to the zone's end, nothing before it or elsewhere
+    column = day.calibrated_table()["level_error_nT"].to_numpy()
+    carried = np.zeros(len(column), bool)
+    carried[np.flatnonzero(first)[rows[0]]:np.flatnonzero(first)[-1] + 1] = True
+    assert np.all(column[carried] == listed[0]["step_error_nT"])
+    assert np.isnan(column[~carried]).all()

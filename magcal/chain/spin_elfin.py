@@ -111,10 +111,12 @@ def _calibrate(data, settings, inputs, disturbed=()):
                      f"bridge_rms_nT): {rms.min():.1f}-{rms.max():.1f} nT RMS in "
                      f"{len(rms)} zones")
     if settings.level_steps:
-        steps = day.level_step_intervals()
+        steps = day.level_step_listing()
         lines.append("spin-axis level kept changed across left-out intervals (level_step): "
                      + ("; ".join(f"zone {x['zone']} {x['start'][11:19]}-{x['end'][11:19]} "
-                                  f"UTC {x['step_nT']:+.0f} nT" for x in steps)
+                                  f"UTC {x['step_nT']:+.0f} +- "
+                                  f"{x.get('step_error_nT', float('nan')):.0f} nT"
+                                  for x in steps)
                         if steps else "none"))
     if settings.pulses_b:
         pulses = day.pulse_listing()

@@ -488,7 +488,7 @@ def locate_disturbed(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
     d = detect or DetectSettings()
     stiff = replace(settings or ElfinSettings(), gain_drift_2x=True, gain_drift_robust_c=0.0,
                     detect_disturbed=False, joint=False, scan=False, bridge_trials=0,
-                    pulses_b=False)
+                    pulses_b=False, level_trials=0)
     known = np.zeros(len(fgs), bool) if fit_exclude is None else np.asarray(fit_exclude, bool)
     flags = np.column_stack([known, known])
     tables = []

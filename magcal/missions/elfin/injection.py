@@ -356,7 +356,7 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
     from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
 
     # the kept fractions do not depend on the pulses' stated height errors
-    s = replace(settings or ElfinSettings(), pulse_trials=0)
+    s = replace(settings or ElfinSettings(), pulse_trials=0, level_trials=0)
     if zones is not None:
         fgs = select_zones(fgs, zones)
     # the clean run needs no bridge trials (they leave the product as it is)

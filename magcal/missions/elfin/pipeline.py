@@ -35,7 +35,7 @@ SHIFTS_S = (-0.4, -0.2, -0.1, 0.0, 0.1, 0.2, 0.4)
 #: Columns of the calibrated table (the first five after ``time`` are the issue's contract).
 CALIBRATED_COLUMNS = ("zone", "used", "bx_gei", "by_gei", "bz_gei", "bx_despun", "by_despun",
                       "bz_despun", "igrf_x_gei", "igrf_y_gei", "igrf_z_gei", "phase", "fit",
-                      "bridge_rms_nT", "level_step")
+                      "bridge_rms_nT", "level_step", "level_error_nT")
 #: Zone medians compared from one step to the next (:meth:`ElfinDay.worse_steps`).
 SCORED = ("scalar_rms_nT", "scalar_fast_nT", "scalar_slow_nT", "vector_rms_nT")
 #: Settings that buy a smaller residual against the model with natural signal lost
@@ -166,9 +166,9 @@ class ElfinSettings:
         the vector step's tilt, left in the field (``level_step`` column). Without it
         those slow terms take a current sheet's new level as an offset drift or a
         tilt. Signal trade on 2022-01-12, 300 nT east-west sheets at 0.35, 0.5 and 0.65
-        of every zone (36 cases): kept 3 % -> 107 % (zone median; 25 of 36 at 90 % or
-        more, size 0.79-1.44 of the truth), distortion 27 -> 8.5 %; 108 pulses and
-        the clean day: no step, products unchanged.
+        of every zone (36 cases): kept 3 % -> 110 % (zone median; 28 of 36 at 90 % or
+        more, 0.70-1.96 of the energy, size about its square root), distortion
+        27 -> 7.8 %; 108 pulses and the clean day: no step, products unchanged.
         The bridge trials of a zone with a step put a step at their gaps too. Default
         True; False: no step (the product of before).
     pulses_b : bool
@@ -194,6 +194,12 @@ class ElfinSettings:
         zones without a pulse, each calibrated alone with a pulse like it put into its
         counts at the same place (:func:`~magcal.missions.elfin.pulses.pulse_trials`;
         ``height_error_nT`` in the JSON's ``pulses_b``). 0: not measured.
+    level_trials : int
+        With ``level_steps``: the error of each kept level step, from this many other
+        zones without a step, each calibrated alone with and without a current sheet
+        of the step's size put into its counts at the same place
+        (:func:`~magcal.missions.elfin.levels.level_trials`; ``step_error_nT`` in the
+        JSON's ``level_steps``). 0: not measured.
     """
 
     harmonic: bool = True
@@ -218,6 +224,7 @@ class ElfinSettings:
     level_steps: bool = True
     pulses_b: bool = True
     pulse_trials: int = 6
+    level_trials: int = 3
 
     @classmethod
     def from_mapping(cls, given: dict, where: str = "settings") -> ElfinSettings:
@@ -235,7 +242,7 @@ class ElfinSettings:
         >>> ElfinSettings.from_mapping({"tilt": 1})
         Traceback (most recent call last):
         ...
-        magcal.errors.InputError: settings: unknown key 'tilt' (known: harmonic, gain_drift, gain_drift_2x, vector_step, tilt_bound_deg, vector_knot_s, fast_drift, phase_refit, linear_phase_knot_s, linear_phase_degree, linear_axis_degree, gain_drift_robust_c, fast_knot_s, refit_knot_s, joint, scan, detect_disturbed, axis_prior_weight, bridge_trials, level_steps, pulses_b, pulse_trials)
+        magcal.errors.InputError: settings: unknown key 'tilt' (known: harmonic, gain_drift, gain_drift_2x, vector_step, tilt_bound_deg, vector_knot_s, fast_drift, phase_refit, linear_phase_knot_s, linear_phase_degree, linear_axis_degree, gain_drift_robust_c, fast_knot_s, refit_knot_s, joint, scan, detect_disturbed, axis_prior_weight, bridge_trials, level_steps, pulses_b, pulse_trials, level_trials)
         """
         known = {f.name: f for f in fields(cls)}
         out = {}
@@ -387,6 +394,7 @@ class ElfinDay:
             f = f.assign(fit=f["used"])
         if "level_step" not in f.columns:
             f = f.assign(level_step=0)
+        f = f.assign(level_error_nT=self.level_error_column())
         table = f[cols].astype(float)
         if not self.calibration.skipped:
             return table
@@ -434,6 +442,31 @@ class ElfinDay:
             out.append({"zone": int(zone[a]), "start": str(f.index[a].tz_convert(None)),
                         "end": str(f.index[b - 1].tz_convert(None)), "step_nT": step})
         return out
+
+    def level_error_column(self) -> np.ndarray:
+        """Per row of the delivered field: the stated error of the kept level it
+        carries (``step_error_nT`` of the zone's last kept step before it, from
+        ``level_trials``; the same on the step's own rows), NaN elsewhere (no step
+        before it in its zone, or not measured)."""
+        f = self.calibration.field
+        out = np.full(len(f), np.nan)
+        if "level_trials" not in self.steps or "level_step" not in f.columns:
+            return out
+        from magcal.missions.elfin.timing import true_runs
+
+        errors = self.steps["level_trials"]["step_error_nT"].to_numpy(float)
+        zone = f["zone"].to_numpy()
+        for (a, _), err in zip(true_runs(f["level_step"].to_numpy() == 1), errors):
+            after = np.arange(len(f)) >= a
+            out[after & (zone == zone[a])] = err
+        return out
+
+    def level_step_listing(self) -> list[dict]:
+        """The kept level steps as delivered: with their errors
+        (``steps["level_trials"]``) where measured, else :meth:`level_step_intervals`."""
+        if "level_trials" in self.steps:
+            return self.steps["level_trials"].to_dict(orient="records")
+        return self.level_step_intervals()
 
     def pulses_along_b(self) -> list[dict]:
         """The delivered field's pulses along B kept as a natural field
@@ -511,7 +544,12 @@ class ElfinDay:
                         "elfin.levels, the level_step column): a step fitted with the "
                         "linear fit's spin-axis row and the vector step's tilt, left in the "
                         "field",
-                "intervals": self.level_step_intervals()}
+                "intervals": self.level_step_listing()}
+            if "level_trials" in self.steps:
+                payload["level_steps"]["note_error"] = (
+                    "step_error_nT: RMS error of the levels kept when a current sheet of "
+                    "the step's size is put into the counts of other zones at the same "
+                    "place (level_trials of them, trial_levels_nT: the level each kept)")
         if s.pulses_b:
             payload["pulses_b"] = {
                 "note": "localized fields along B (Gaussian pulses on top of the gain "
@@ -698,10 +736,13 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
     from magcal.missions.elfin.diagnostics.ripple import ripple_crosscheck
 
     s = settings or ElfinSettings()
-    if s.pulses_b and s.pulse_trials > 0 and zone_numbers is None:
+    pulses_tried = s.pulses_b and s.pulse_trials > 0
+    levels_tried = s.level_steps and s.level_trials > 0
+    if (pulses_tried or levels_tried) and zone_numbers is None:
+        from magcal.missions.elfin.levels import level_trials
         from magcal.missions.elfin.pulses import pulse_trials
 
-        day = calibrate_elfin_day(fgs, state, replace(s, pulse_trials=0),
+        day = calibrate_elfin_day(fgs, state, replace(s, pulse_trials=0, level_trials=0),
                                   provenance=provenance, hold_phase=hold_phase,
                                   fit_exclude=fit_exclude,
                                   fit_exclude_scalar=fit_exclude_scalar,
@@ -709,8 +750,12 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
                                   level_step_rows=level_step_rows,
                                   pulse_templates=pulse_templates,
                                   drift_templates=drift_templates)
-        trials = pulse_trials(fgs, state, s, day, s.pulse_trials)
-        return replace(day, settings=s, steps={**day.steps, "pulse_trials": trials})
+        steps = dict(day.steps)
+        if pulses_tried:
+            steps["pulse_trials"] = pulse_trials(fgs, state, s, day, s.pulse_trials)
+        if levels_tried:
+            steps["level_trials"] = level_trials(fgs, state, s, day, s.level_trials)
+        return replace(day, settings=s, steps=steps)
     if s.bridge_trials > 0:
         day = calibrate_elfin_day(fgs, state, replace(s, bridge_trials=0),
                                   provenance=provenance, hold_phase=hold_phase,

@@ -335,7 +335,7 @@ def pulse_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
     used = f["used"].to_numpy() == 1
     busy = {p["zone"] for p in kept}
     quiet = [k for k in dict.fromkeys(zone) if k not in busy]
-    plain = replace(settings, bridge_trials=0, pulse_trials=0)
+    plain = replace(settings, bridge_trials=0, pulse_trials=0, level_trials=0)
     ns = f.index.as_unit("ns").asi8
     out = []
     for p in kept:
