@@ -12,6 +12,10 @@ day is calibrated again with a free step of the spin-axis level after it
 (:func:`step_columns`), fitted with the slow terms and left in the field
 (``ElfinSettings.level_steps``).
 
+How well a kept level is known is measured, not assumed (:func:`level_trials`,
+``ElfinSettings.level_trials``): the step trades with the zone's slow spin-axis terms,
+so its error is that of a sheet of its size put into other zones and measured again.
+
 The decision is taken once, on the product without steps (residual about 15 nT), not
 inside each fit: the linear fit's own residual (about 100 nT before the gain drift and
 the phase refit) jumps by tens of nT across quiet gaps and gave steps to the bridge
