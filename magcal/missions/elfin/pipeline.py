@@ -464,9 +464,13 @@ class ElfinDay:
     def level_step_listing(self) -> list[dict]:
         """The kept level steps as delivered: with their errors
         (``steps["level_trials"]``) where measured, else :meth:`level_step_intervals`."""
-        if "level_trials" in self.steps:
-            return self.steps["level_trials"].to_dict(orient="records")
-        return self.level_step_intervals()
+        return self._with_trials("level_trials", self.level_step_intervals)
+
+    def _with_trials(self, key: str, plain) -> list[dict]:
+        """``steps[key]``'s records where the trials ran, else ``plain()``."""
+        if key in self.steps:
+            return self.steps[key].to_dict(orient="records")
+        return plain()
 
     def pulses_along_b(self) -> list[dict]:
         """The delivered field's pulses along B kept as a natural field
@@ -499,9 +503,7 @@ class ElfinDay:
     def pulse_listing(self) -> list[dict]:
         """The kept pulses along B as delivered: with their height errors
         (``steps["pulse_trials"]``) where measured, else :meth:`pulses_along_b`."""
-        if "pulse_trials" in self.steps:
-            return self.steps["pulse_trials"].to_dict(orient="records")
-        return self.pulses_along_b()
+        return self._with_trials("pulse_trials", self.pulses_along_b)
 
     def to_json(self) -> dict:
         """The calibration document (the keys of ``elfin_calibration.json``)."""
