@@ -334,7 +334,7 @@ def kept_level(field: pd.DataFrame, clean: pd.DataFrame, u, t_s, t0: float) -> f
 
 
 def level_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
-                 n_trials: int) -> pd.DataFrame:
+                 n_trials: int, *, fit_exclude=None) -> pd.DataFrame:
     """How well the day determines each kept level step: a current sheet of its size put
     into the counts of other zones at the same place and measured again.
 
@@ -342,7 +342,7 @@ def level_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
     current sheet of the step's size (20 s rise, to the zone's end;
     :func:`~magcal.missions.elfin.injection.signal_shape`) is added to the counts of up
     to ``n_trials`` other zones without a step of their own (the nearest in time first),
-    starting at the same fraction of the zone's used span, through the day's linear
+    half risen at the same fraction of the zone's used span, through the day's linear
     calibration (:func:`~magcal.missions.elfin.injection.inject_counts`). The day is
     calibrated again with ``settings`` and the sheets (the trial zones together: a zone
     calibrated alone lacks the day's spin-axis prior and lost 300 nT sheets that the
@@ -350,7 +350,9 @@ def level_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
     (:func:`kept_level`). The RMS of the kept levels' errors is the step's
     stated error: it holds how the zone's slow terms trade with a free step, which no
     fit statistic of the day's own zone shows (on 2022-01-12 a kept sheet's level was
-    off by 7-125 nT while the bridge trials said 2-82 nT).
+    off by 7-125 nT while the bridge trials said 6-82 nT). ``fit_exclude`` (rows of
+    ``fgs``) is what ``day`` was given, so that the trial zones differ from it by the
+    sheets alone.
 
     Returns
     -------
@@ -370,7 +372,9 @@ def level_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
     if not kept or n_trials <= 0:
         return pd.DataFrame(kept, columns=cols[:4]).reindex(columns=cols)
     lin = day.linear
-    counts = fgs[lin.kept_rows(len(fgs))]
+    keep = lin.kept_rows(len(fgs))
+    counts = fgs[keep]
+    exclude = None if fit_exclude is None else np.asarray(fit_exclude, bool)[keep]
     f = lin.field
     delivered = day.calibration.field
     zone = f["zone"].to_numpy()
@@ -404,6 +408,7 @@ def level_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
             # one calibration for the trial zones together: they are fitted apart but
             # for the day's spin-axis prior, which a zone alone would lack
             trial = calibrate_elfin_day(inject_counts(counts, lin, signals), state, plain,
+                                        fit_exclude=exclude,
                                         diagnostics=False).calibration.field
             if len(trial) == len(delivered):
                 levels = [kept_level(trial.iloc[sel], delivered.iloc[sel], u, t, t0)

@@ -756,7 +756,8 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
         if pulses_tried:
             steps["pulse_trials"] = pulse_trials(fgs, state, s, day, s.pulse_trials)
         if levels_tried:
-            steps["level_trials"] = level_trials(fgs, state, s, day, s.level_trials)
+            steps["level_trials"] = level_trials(fgs, state, s, day, s.level_trials,
+                                                 fit_exclude=fit_exclude)
         return replace(day, settings=s, steps=steps)
     if s.bridge_trials > 0:
         day = calibrate_elfin_day(fgs, state, replace(s, bridge_trials=0),
