@@ -29,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from magcal.errors import InputError
 from magcal.missions.elfin.timing import true_runs
 
 #: Smallest jump of the spin-axis residual across a left-out interval (nT) that gets
@@ -359,7 +360,8 @@ def level_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
     DataFrame
         Per kept step: the columns of :meth:`ElfinDay.level_step_intervals`,
         ``trial_levels_nT`` (list: the level each trial zone kept of ``|step_nT|``) and
-        ``step_error_nT`` (NaN without trials).
+        ``step_error_nT`` (NaN without trials: no zone without a step, or the day with
+        the trial sheets could not be calibrated as delivered).
     """
     from dataclasses import replace
 
@@ -407,9 +409,12 @@ def level_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
         if signals:
             # one calibration for the trial zones together: they are fitted apart but
             # for the day's spin-axis prior, which a zone alone would lack
-            trial = calibrate_elfin_day(inject_counts(counts, lin, signals), state, plain,
-                                        fit_exclude=exclude,
-                                        diagnostics=False).calibration.field
+            try:
+                trial = calibrate_elfin_day(inject_counts(counts, lin, signals), state,
+                                            plain, fit_exclude=exclude,
+                                            diagnostics=False).calibration.field
+            except InputError:            # e.g. a trial zone no longer calibrated
+                trial = delivered.iloc[:0]
             if len(trial) == len(delivered):
                 levels = [kept_level(trial.iloc[sel], delivered.iloc[sel], u, t, t0)
                           for sel, u, t, t0 in places.values()]
