@@ -511,4 +511,3 @@ def locate_disturbed(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
             break
     return Disturbed(vector=flags[:, 0], scalar=flags[:, 1],
                      table=pd.concat(tables, ignore_index=True))
-

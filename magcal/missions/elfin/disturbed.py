@@ -125,10 +125,9 @@ def calibrate_detected(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, prov
                                    zone_numbers=zone_numbers)
 
     plain = run(known, known, linear=linear)
-    if linear is None and not plain.linear.field["level_step"].any():
-        linear = plain.linear
-    # (a plain day with level steps has its linear fit refitted with them, and with
-    # their rows left out: not the stiff calibration's start)
+    # the stiff calibration starts from ``linear`` (or fits its own), not from
+    # plain.linear: a plain day with level steps or pulses along B has its linear fit
+    # refitted with them and their rows left out
     found = locate_disturbed(fgs, state, settings, detect=detect, fit_exclude=known,
                              hold_phase=hold_phase, linear=linear,
                              zone_numbers=zone_numbers)

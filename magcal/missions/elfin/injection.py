@@ -282,6 +282,55 @@ def preservation(clean_day, injected_day, signals: dict, kind: str) -> pd.DataFr
     return pd.DataFrame(rows)
 
 
+def trial_places(field: pd.DataFrame, own: int, at, busy, n_trials: int) -> list[tuple]:
+    """Where a signal that zone ``own`` holds at the times ``at`` is put for a trial:
+    up to ``n_trials`` other zones of ``field`` not in ``busy`` and with used samples
+    (the nearest in number first), each at the same fraction of its used span as the
+    mean of ``at`` in zone ``own`` (the pulse and level trials of
+    :mod:`magcal.missions.elfin.pulses` and :mod:`magcal.missions.elfin.levels`).
+
+    Parameters
+    ----------
+    field : DataFrame
+        A calibrated field (``zone``, ``used``, UTC index).
+    own : int
+        The zone holding the signal.
+    at : sequence
+        UTC times without a zone (as the listings write them) whose mean is the place.
+    busy : collection of int
+        Zones not to put a trial into (those with a signal of their own).
+
+    Returns
+    -------
+    list of (k, rows, t_s, t0_s)
+        Per trial zone: its number, its row positions in ``field``, their times from
+        its first sample (s) and the place (s, same origin).
+
+    Examples
+    --------
+    >>> idx = pd.date_range("2022-01-12", periods=6, freq="10s", tz="UTC")
+    >>> f = pd.DataFrame({"zone": [0, 0, 0, 1, 1, 1], "used": 1}, index=idx)
+    >>> [(int(k), rows.tolist(), float(t0)) for k, rows, _, t0 in
+    ...  trial_places(f, 0, ["2022-01-12 00:00:10"], {0}, 3)]
+    [(1, [3, 4, 5], 10.0)]
+    """
+    zone = field["zone"].to_numpy()
+    used = field["used"].to_numpy() == 1
+    ns = field.index.as_unit("ns").asi8
+    mine = np.flatnonzero(zone == own)
+    tu = (ns[mine][used[mine]] - ns[mine][0]) / 1e9
+    when = np.mean([(pd.Timestamp(x, tz="UTC").value - ns[mine][0]) / 1e9 for x in at])
+    share = (when - tu[0]) / max(tu[-1] - tu[0], 1e-9)
+    quiet = [k for k in dict.fromkeys(zone) if k not in busy and used[zone == k].any()]
+    out = []
+    for k in sorted(quiet, key=lambda q: abs(q - own))[:n_trials]:
+        rows = np.flatnonzero(zone == k)
+        t = (ns[rows] - ns[rows][0]) / 1e9
+        tk = t[used[rows]]
+        out.append((k, rows, t, tk[0] + share * (tk[-1] - tk[0])))
+    return out
+
+
 def select_zones(fgs: pd.DataFrame, zones) -> pd.DataFrame:
     """The FGS rows of the zones numbered ``zones`` (0-based, in the day's order;
     zones are split at gaps over 60 s as the pipeline does)."""

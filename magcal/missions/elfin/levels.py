@@ -366,7 +366,7 @@ def level_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
     from dataclasses import replace
 
     from magcal.missions.elfin.injection import SIGNALS, directions, inject_counts, \
-        signal_shape
+        signal_shape, trial_places
     from magcal.missions.elfin.pipeline import calibrate_elfin_day
 
     kept = day.level_step_intervals()
@@ -379,32 +379,20 @@ def level_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
     exclude = None if fit_exclude is None else np.asarray(fit_exclude, bool)[keep]
     f = lin.field
     delivered = day.calibration.field
-    zone = f["zone"].to_numpy()
-    used = f["used"].to_numpy() == 1
     busy = {p["zone"] for p in kept}
-    quiet = [k for k in dict.fromkeys(zone) if k not in busy and used[zone == k].any()]
     plain = replace(settings, bridge_trials=0, pulse_trials=0, level_trials=0)
-    ns = f.index.as_unit("ns").asi8
     unit = SIGNALS["sheet_ew"][0]
     out = []
     for p in kept:
-        own = np.flatnonzero(zone == p["zone"])
-        tu = (ns[own][used[own]] - ns[own][0]) / 1e9
-        start = (pd.Timestamp(p["start"], tz="UTC").value - ns[own][0]) / 1e9
-        end = (pd.Timestamp(p["end"], tz="UTC").value - ns[own][0]) / 1e9
-        share = (0.5 * (start + end) - tu[0]) / max(tu[-1] - tu[0], 1e-9)
         size = abs(p["step_nT"]) if np.isfinite(p["step_nT"]) else 0.0
-        signals, places = {}, {}
-        for k in sorted(quiet, key=lambda q: abs(q - p["zone"]))[:n_trials]:
-            sel = np.flatnonzero(zone == k)
-            t = (ns[sel] - ns[sel][0]) / 1e9
-            tk = t[used[sel]]
-            t0 = tk[0] + share * (tk[-1] - tk[0])
+        signals, places = {}, []
+        for k, sel, t, t0 in trial_places(f, p["zone"], [p["start"], p["end"]], busy,
+                                          n_trials):
             zf = f.iloc[sel]
             u = directions(zf.index, state, zf[["igrf_x_gei", "igrf_y_gei",
                                                 "igrf_z_gei"]].to_numpy(float))["ew"]
             signals[k] = (size / unit) * signal_shape("sheet_ew", t, t0)[:, None] * u
-            places[k] = (sel, u, t, t0)
+            places.append((sel, u, t, t0))
         levels = []
         if signals:
             # one calibration for the trial zones together: they are fitted apart but
@@ -414,10 +402,10 @@ def level_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
                                             plain, fit_exclude=exclude,
                                             diagnostics=False).calibration.field
             except InputError:            # e.g. a trial zone no longer calibrated
-                trial = delivered.iloc[:0]
-            if len(trial) == len(delivered):
+                trial = None
+            if trial is not None and len(trial) == len(delivered):
                 levels = [kept_level(trial.iloc[sel], delivered.iloc[sel], u, t, t0)
-                          for sel, u, t, t0 in places.values()]
+                          for sel, u, t, t0 in places]
         lv = np.asarray(levels, float)
         lv = lv[np.isfinite(lv)]
         out.append({**p, "trial_levels_nT": lv.tolist(),

@@ -196,8 +196,8 @@ class ElfinSettings:
         ``height_error_nT`` in the JSON's ``pulses_b``). 0: not measured.
     level_trials : int
         With ``level_steps``: the error of each kept level step, from this many other
-        zones without a step, each calibrated alone with and without a current sheet
-        of the step's size put into its counts at the same place
+        zones without a step, a current sheet of the step's size put into their counts
+        at the same place and the day calibrated again
         (:func:`~magcal.missions.elfin.levels.level_trials`; ``step_error_nT`` in the
         JSON's ``level_steps``). 0: not measured.
     """

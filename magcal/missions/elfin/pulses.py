@@ -320,7 +320,7 @@ def pulse_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
     """
     from dataclasses import replace
 
-    from magcal.missions.elfin.injection import inject_counts
+    from magcal.missions.elfin.injection import inject_counts, trial_places
     from magcal.missions.elfin.pipeline import calibrate_elfin_day
 
     kept = day.pulses_along_b()
@@ -328,27 +328,16 @@ def pulse_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
     if not kept or n_trials <= 0:
         return pd.DataFrame(kept, columns=cols[:4]).reindex(columns=cols)
     lin = day.linear
-    rows = lin.kept_rows(len(fgs))
-    counts = fgs[rows]
+    counts = fgs[lin.kept_rows(len(fgs))]
     f = lin.field
     zone = f["zone"].to_numpy()
-    used = f["used"].to_numpy() == 1
     busy = {p["zone"] for p in kept}
-    quiet = [k for k in dict.fromkeys(zone) if k not in busy]
     plain = replace(settings, bridge_trials=0, pulse_trials=0, level_trials=0)
     ns = f.index.as_unit("ns").asi8
     out = []
     for p in kept:
-        own = np.flatnonzero(zone == p["zone"])
-        tu = (ns[own][used[own]] - ns[own][0]) / 1e9
-        centre = (pd.Timestamp(p["centre"], tz="UTC").value - ns[own][0]) / 1e9
-        share = (centre - tu[0]) / max(tu[-1] - tu[0], 1e-9)
         heights = []
-        for k in sorted(quiet, key=lambda q: abs(q - p["zone"]))[:n_trials]:
-            sel = np.flatnonzero(zone == k)
-            t = (ns[sel] - ns[sel][0]) / 1e9
-            tk = t[used[sel]]
-            c = tk[0] + share * (tk[-1] - tk[0])
+        for k, sel, t, c in trial_places(f, p["zone"], [p["centre"]], busy, n_trials):
             b = f.iloc[sel][["igrf_x_gei", "igrf_y_gei", "igrf_z_gei"]].to_numpy(float)
             sig = p["height_nT"] * gaussian(t, c, p["fwhm_s"])[:, None] \
                 * b / np.linalg.norm(b, axis=1, keepdims=True)
