@@ -12,8 +12,8 @@ Usage::
 
     python workflows/elfin_pulse_trials.py [--trials 6] [--centres 0.35,0.5,0.65]
 
-About 25 s per run on an idle core (12 minutes for the 36). Reads
-``../shared/real-data/elfin/``. Measured: stated errors 8-65 nT (median 36), the truth
+About 30 s per run on an idle core (18 minutes for the 36). Reads
+``../shared/real-data/elfin/``. Measured: stated errors 8-65 nT (median 38), the truth
 within them in 81 % of the cases and within twice them in all (heights 65-158 nT).
 """
 

@@ -191,9 +191,10 @@ class ElfinSettings:
         calibrated once more (the clean day: 19 -> 23 s). False: the product of before.
     pulse_trials : int
         With ``pulses_b``: the error of each kept pulse's height, from this many other
-        zones without a pulse, each calibrated alone with a pulse like it put into its
-        counts at the same place (:func:`~magcal.missions.elfin.pulses.pulse_trials`;
-        ``height_error_nT`` in the JSON's ``pulses_b``). 0: not measured.
+        zones without a pulse, a pulse like it put into their counts at the same place
+        and the day calibrated again with them together
+        (:func:`~magcal.missions.elfin.pulses.pulse_trials`; ``height_error_nT`` in the
+        JSON's ``pulses_b``). 0: not measured.
     level_trials : int
         With ``level_steps``: the error of each kept level step, from this many other
         zones without a step, a current sheet of the step's size put into their counts
@@ -754,7 +755,8 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
                                   drift_templates=drift_templates)
         steps = dict(day.steps)
         if pulses_tried:
-            steps["pulse_trials"] = pulse_trials(fgs, state, s, day, s.pulse_trials)
+            steps["pulse_trials"] = pulse_trials(fgs, state, s, day, s.pulse_trials,
+                                                 fit_exclude=fit_exclude)
         if levels_tried:
             steps["level_trials"] = level_trials(fgs, state, s, day, s.level_trials,
                                                  fit_exclude=fit_exclude)

@@ -298,7 +298,7 @@ def pulse_templates(field: pd.DataFrame, pulses: pd.DataFrame) -> np.ndarray:
 
 
 def pulse_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
-                 n_trials: int) -> pd.DataFrame:
+                 n_trials: int, *, fit_exclude=None) -> pd.DataFrame:
     """How well the day determines each kept pulse's height: the pulse put into the
     counts of other zones at the same place and found again.
 
@@ -306,20 +306,26 @@ def pulse_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
     its height and width along IGRF is added to the counts of up to ``n_trials`` other
     zones without a pulse of their own (the nearest in time first), at the same
     fraction of the zone's used span, through the day's linear calibration
-    (:func:`~magcal.missions.elfin.injection.inject_counts`); each such zone is
-    calibrated alone with ``settings`` and the height of the natural pulse found
-    within half a FWHM of the place (0 if none) is a trial. The RMS of the trials'
-    errors is the height's stated error: it holds the day's own ``|B|`` structure on
-    that shape beyond the cubic and how the search's width choice amplifies it.
+    (:func:`~magcal.missions.elfin.injection.inject_counts`). The day is calibrated
+    again with ``settings`` and the trial pulses (the trial zones together, as the
+    level trials of :func:`magcal.missions.elfin.levels.level_trials` are: a zone
+    calibrated alone lacks the day's spin-axis prior and its ``fit_exclude``), and the
+    height of the natural pulse found in each trial zone within half a FWHM of the
+    place (0 if none) is a trial. The RMS of the trials' errors is the height's stated
+    error: it holds the day's own ``|B|`` structure on that shape beyond the cubic and
+    how the search's width choice amplifies it. ``fit_exclude`` (rows of ``fgs``) is
+    what ``day`` was given.
 
     Returns
     -------
     DataFrame
         Per kept pulse: ``zone``, ``centre``, ``fwhm_s``, ``height_nT``,
-        ``trial_heights_nT`` (list), ``height_error_nT`` (NaN without trials).
+        ``trial_heights_nT`` (list), ``height_error_nT`` (NaN without trials: no zone
+        without a pulse, or the day with the trial pulses could not be calibrated).
     """
     from dataclasses import replace
 
+    from magcal.errors import InputError
     from magcal.missions.elfin.injection import inject_counts, trial_places
     from magcal.missions.elfin.pipeline import calibrate_elfin_day
 
@@ -328,25 +334,36 @@ def pulse_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
     if not kept or n_trials <= 0:
         return pd.DataFrame(kept, columns=cols[:4]).reindex(columns=cols)
     lin = day.linear
-    counts = fgs[lin.kept_rows(len(fgs))]
+    keep = lin.kept_rows(len(fgs))
+    counts = fgs[keep]
+    exclude = None if fit_exclude is None else np.asarray(fit_exclude, bool)[keep]
     f = lin.field
-    zone = f["zone"].to_numpy()
     busy = {p["zone"] for p in kept}
     plain = replace(settings, bridge_trials=0, pulse_trials=0, level_trials=0)
     ns = f.index.as_unit("ns").asi8
     out = []
     for p in kept:
-        heights = []
+        signals, places = {}, []
         for k, sel, t, c in trial_places(f, p["zone"], [p["centre"]], busy, n_trials):
             b = f.iloc[sel][["igrf_x_gei", "igrf_y_gei", "igrf_z_gei"]].to_numpy(float)
-            sig = p["height_nT"] * gaussian(t, c, p["fwhm_s"])[:, None] \
+            signals[k] = p["height_nT"] * gaussian(t, c, p["fwhm_s"])[:, None] \
                 * b / np.linalg.norm(b, axis=1, keepdims=True)
-            injected = inject_counts(counts, lin, {k: sig})
-            one = calibrate_elfin_day(injected[zone == k], state, plain, diagnostics=False)
-            found = [q for q in one.pulses_along_b()
-                     if abs((pd.Timestamp(q["centre"], tz="UTC").value - ns[sel][0]) / 1e9
-                            - c) <= p["fwhm_s"] / 2]
-            heights.append(found[0]["height_nT"] if found else 0.0)
+            places.append((k, ns[sel][0], c))
+        heights = []
+        if signals:
+            # one calibration for the trial zones together, as the day was calibrated
+            try:
+                trial = calibrate_elfin_day(inject_counts(counts, lin, signals), state,
+                                            plain, fit_exclude=exclude, diagnostics=False)
+            except InputError:            # e.g. a trial zone no longer calibrated
+                trial = None
+            if trial is not None:
+                found = trial.pulses_along_b()
+                for k, start_ns, c in places:
+                    near = [q["height_nT"] for q in found if q["zone"] == k and abs(
+                        (pd.Timestamp(q["centre"], tz="UTC").value - start_ns) / 1e9 - c)
+                        <= p["fwhm_s"] / 2]
+                    heights.append(near[0] if near else 0.0)
         h = np.asarray(heights)
         out.append({**p, "trial_heights_nT": h.tolist(),
                     "height_error_nT": float(np.sqrt(np.mean((h - p["height_nT"]) ** 2)))
