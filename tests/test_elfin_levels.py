@@ -21,6 +21,7 @@ from magcal.missions.elfin.levels import (
     level_step_rows,
     level_steps_wanted,
     step_columns,
+    trial_sheet,
 )
 
 FGS = "ela_l1_fgs_20220112_v01.cdf"
@@ -31,6 +32,37 @@ T = np.arange(0.0, 370.0, 0.2)          # one ELFIN zone at 5 Hz
 
 def _sheet(t0=180.0, size=300.0):
     return size / (1.0 + np.exp(-(T - t0) / 4.5))            # 10-90 % rise in 20 s
+
+
+@pytest.mark.parametrize("step", [250.0, -250.0])
+def test_a_trial_sheet_changes_the_spin_axis_level_with_the_kept_step_s_sign(step):
+    """Truth: a polar orbit in the GEI x-z plane (orbit normal -y), the spin axis 2 deg
+    from the opposite of the orbit normal, as on 2022-01-12. A kept step of +-250 nT
+    gets a trial sheet along the orbit normal whose spin-axis component after its rise
+    is the step times cos 2 deg (the calibration treats the two signs differently, so
+    a trial of the other sign would measure another sheet), and which is 250 nT along
+    the returned unit vectors."""
+    idx = pd.date_range("2022-01-12", periods=T.size, freq="200ms", tz="UTC")
+    w = 2 * np.pi / 5700.0                                      # 95 min orbit
+    ts = np.arange(-60.0, 430.0, 1.0)
+    r, v = 6900.0, 6900.0 * w
+    state = pd.DataFrame({"pos_gei_x": r * np.cos(w * ts), "pos_gei_y": 0.0,
+                          "pos_gei_z": r * np.sin(w * ts), "vel_gei_x": -v * np.sin(w * ts),
+                          "vel_gei_y": 0.0, "vel_gei_z": v * np.cos(w * ts)},
+                         index=idx[0] + pd.to_timedelta(ts, unit="s"))
+    tilt = np.radians(2.0)
+    axis = np.array([np.sin(tilt), 1.0 * np.cos(tilt), 0.0])    # orbit normal is -y
+    zone = pd.DataFrame({"igrf_x_gei": 30000.0, "igrf_y_gei": 2000.0,
+                         "igrf_z_gei": -35000.0,
+                         **{f"spin_axis_gei_{c}": a for c, a in zip("xyz", axis)}},
+                        index=idx)
+    sig, u = trial_sheet(zone, state, step, T, 180.0)
+    after = T > 300.0
+    assert np.allclose(sig[after] @ axis, step * np.cos(tilt), rtol=1e-3)
+    assert np.allclose(np.sum(sig[after] * u[after], axis=1), abs(step), rtol=1e-3)
+    assert np.abs(sig[T < 100.0]).max() < 1e-3 * abs(step)
+    none, _ = trial_sheet(zone, state, float("nan"), T, 180.0)
+    assert not none.any()
 
 
 def test_step_columns_turn_on_after_each_run():

@@ -40,7 +40,7 @@ Usage::
                                            [--no-held] [--settings KEY=VALUE ...]
                                            [--mask-signal FRACTION]
                                            [--mask-injected-only FRACTION]
-                                           [--centres 0.5,...] [--plot DIR]
+                                           [--centres 0.5,...] [--sign -1] [--plot DIR]
 
 The README's whole-day sheet numbers (36 placements, with and without level steps)::
 
@@ -162,6 +162,9 @@ def main(argv=None) -> int:
                     help="comma-separated places of the signals in each zone (fractions "
                          "of its span), one run per place, tables joined (default 0.5), "
                          "e.g. --zones all --signals sheet_ew --centres 0.35,0.5,0.65")
+    ap.add_argument("--sign", type=float, default=1.0, choices=(1.0, -1.0),
+                    help="polarity of every signal (-1: the opposite field; what is kept "
+                         "is not odd in the signal)")
     ap.add_argument("--plot", type=Path, default=None, metavar="DIR",
                     help="write recovered_<signal>.png of the delivered run to DIR (of the "
                          "--settings run to DIR/settings): the injected signal and "
@@ -191,7 +194,8 @@ def main(argv=None) -> int:
                  f"samples above {args.mask_injected_only:g} of the signal's peak (the "
                  "clean run with them)")
         runs.append((label, given, False, args.mask_injected_only, False))
-    print(f"ELFIN-A 2022-01-12, zones {args.zones}, signals {', '.join(kinds)}, at "
+    print(f"ELFIN-A 2022-01-12, zones {args.zones}, signals {', '.join(kinds)}"
+          f"{' (opposite polarity)' if args.sign < 0 else ''}, at "
           f"{', '.join(map(str, centres))} of each zone\n{CREDIT}")
     _print_shares(kinds)
     for label, settings, hold, mask, mask_clean in runs:
@@ -202,7 +206,8 @@ def main(argv=None) -> int:
                                         hold=hold, mask_signal=mask, mask_clean=mask_clean,
                                         progress=lambda line: print("  " + line),
                                         plot_dir=_plot_dir(args.plot, label)
-                                        if centre == centres[0] else None, centre=centre)
+                                        if centre == centres[0] else None, centre=centre,
+                                        sign=args.sign)
             tabs.append(tab.assign(zone=[f"{z}@{centre:g}" for z in tab["zone"]])
                         if len(centres) > 1 else tab)
         tab = pd.concat(tabs, ignore_index=True)

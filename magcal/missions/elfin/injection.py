@@ -349,8 +349,8 @@ def select_zones(fgs: pd.DataFrame, zones) -> pd.DataFrame:
 def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
                    kinds=tuple(SIGNALS), zones=None, hold: bool = False,
                    mask_signal: float = 0.0, mask_clean: bool = True,
-                   progress=None, plot_dir=None,
-                   centre: float = 0.5) -> tuple[pd.DataFrame, object]:
+                   progress=None, plot_dir=None, centre: float = 0.5,
+                   sign: float = 1.0) -> tuple[pd.DataFrame, object]:
     """Inject each signal kind into each chosen zone and measure what every product keeps.
 
     Parameters
@@ -388,6 +388,12 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         Called with one line per run.
     centre : float
         Where in each zone the signals sit (``centre`` of :func:`signal_gei`).
+    sign : float
+        Polarity of every signal (+1 as :data:`SIGNALS` defines them, -1 the opposite
+        field). What a product keeps is not odd in the signal: once a signal is found and
+        kept, so is the day's own structure on its shape that the clean run gave to a
+        drift (2022-01-12: 10-35 nT along B on a 90 s pulse), and a level step the
+        detector finds for one polarity it may miss for the other.
     plot_dir : str or Path, optional
         If given, one PNG per signal (``recovered_<kind>.png``) of what the delivered
         product kept, zone by zone
@@ -419,7 +425,7 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
     f = clean.linear.field
     tables = []
     for kind in kinds:
-        signals = {k: signal_gei(kind, f[f["zone"] == k], state, centre=centre)
+        signals = {k: sign * signal_gei(kind, f[f["zone"] == k], state, centre=centre)
                    for k in dict.fromkeys(f["zone"].to_numpy())}
         injected = inject_counts(fgs, clean.linear, signals)
         base, skip = clean, None

@@ -334,6 +334,47 @@ def kept_level(field: pd.DataFrame, clean: pd.DataFrame, u, t_s, t0: float) -> f
     return float(np.median(change[read])) if read.any() else float("nan")
 
 
+def trial_sheet(zone_field: pd.DataFrame, state: pd.DataFrame, step_nT: float, t_s,
+                t0: float) -> tuple[np.ndarray, np.ndarray]:
+    """An east-west current sheet that changes a zone's spin-axis level as a kept step
+    of ``step_nT`` does (the trial of :func:`level_trials`).
+
+    The sheet (:func:`~magcal.missions.elfin.injection.signal_shape` ``"sheet_ew"``,
+    half risen at ``t0``, s on the zone's clock ``t_s``) is ``|step_nT|`` high along
+    the orbit normal, signed so that its spin-axis component has the step's sign: the
+    calibration does not treat the two signs alike (2022-01-12 zone 7 at mid-zone keeps
+    126 % of a 300 nT sheet and loses the opposite one), so a trial of the other sign
+    would state another sheet's error.
+
+    Parameters
+    ----------
+    zone_field : DataFrame
+        One zone of a calibrated field (UTC index, ``igrf_{x,y,z}_gei``,
+        ``spin_axis_gei_{x,y,z}``).
+    state : DataFrame
+        The ELFIN state (:func:`~magcal.missions.elfin.files.read_elfin_state`).
+    step_nT : float
+        The kept step (spin-axis level change, nT); NaN gives no sheet.
+
+    Returns
+    -------
+    signal : ndarray (n, 3)
+        The sheet in GEI, nT.
+    u : ndarray (n, 3)
+        Unit vectors along which it is ``|step_nT|`` after its rise
+        (:func:`kept_level` reads the trial along them).
+    """
+    from magcal.missions.elfin.injection import SIGNALS, directions, signal_shape
+
+    size = abs(step_nT) if np.isfinite(step_nT) else 0.0
+    b = zone_field[["igrf_x_gei", "igrf_y_gei", "igrf_z_gei"]].to_numpy(float)
+    u = directions(zone_field.index, state, b)["ew"]
+    axis = zone_field[[f"spin_axis_gei_{c}" for c in "xyz"]].to_numpy(float)
+    sign = np.sign(step_nT) if size else 1.0
+    u = u * sign * np.sign(np.median(np.sum(u * axis, axis=1)))
+    return (size / SIGNALS["sheet_ew"][0]) * signal_shape("sheet_ew", t_s, t0)[:, None] * u, u
+
+
 def level_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
                  n_trials: int, *, fit_exclude=None) -> pd.DataFrame:
     """How well the day determines each kept level step: a current sheet of its size put
@@ -343,15 +384,16 @@ def level_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
     current sheet of the step's size (20 s rise, to the zone's end;
     :func:`~magcal.missions.elfin.injection.signal_shape`) is added to the counts of up
     to ``n_trials`` other zones without a step of their own (the nearest in time first),
-    half risen at the same fraction of the zone's used span, through the day's linear
-    calibration (:func:`~magcal.missions.elfin.injection.inject_counts`). The day is
-    calibrated again with ``settings`` and the sheets (the trial zones together: a zone
-    calibrated alone lacks the day's spin-axis prior and lost 300 nT sheets that the
-    day keeps), and the level each trial zone kept read against ``day``
-    (:func:`kept_level`). The RMS of the kept levels' errors is the step's
-    stated error: it holds how the zone's slow terms trade with a free step, which no
-    fit statistic of the day's own zone shows (on 2022-01-12 a kept sheet's level was
-    off by 7-125 nT while the bridge trials said 6-82 nT). ``fit_exclude`` (rows of
+    half risen at the same fraction of the zone's used span and changing the spin-axis
+    level with the step's sign, through the day's linear calibration
+    (:func:`~magcal.missions.elfin.injection.inject_counts`). The day is calibrated
+    again with ``settings`` and the sheets (the trial zones together: a zone calibrated
+    alone lacks the day's spin-axis prior and lost 300 nT sheets that the day keeps),
+    and the level each trial zone kept read against ``day`` (:func:`kept_level`). The
+    RMS of the kept levels' errors is the step's stated error: it holds how the zone's
+    slow terms trade with a free step, which no fit statistic of the day's own zone
+    shows (on 2022-01-12 a kept sheet's level was off by 7-125 nT while the bridge
+    trials said 6-82 nT). ``fit_exclude`` (rows of
     ``fgs``) is what ``day`` was given, so that the trial zones differ from it by the
     sheets alone.
 
@@ -365,8 +407,7 @@ def level_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
     """
     from dataclasses import replace
 
-    from magcal.missions.elfin.injection import SIGNALS, directions, inject_counts, \
-        signal_shape, trial_places
+    from magcal.missions.elfin.injection import inject_counts, trial_places
     from magcal.missions.elfin.pipeline import calibrate_elfin_day
 
     kept = day.level_step_intervals()
@@ -381,17 +422,13 @@ def level_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
     delivered = day.calibration.field
     busy = {p["zone"] for p in kept}
     plain = replace(settings, bridge_trials=0, pulse_trials=0, level_trials=0)
-    unit = SIGNALS["sheet_ew"][0]
     out = []
     for p in kept:
         size = abs(p["step_nT"]) if np.isfinite(p["step_nT"]) else 0.0
         signals, places = {}, []
         for k, sel, t, t0 in trial_places(f, p["zone"], [p["start"], p["end"]], busy,
                                           n_trials):
-            zf = f.iloc[sel]
-            u = directions(zf.index, state, zf[["igrf_x_gei", "igrf_y_gei",
-                                                "igrf_z_gei"]].to_numpy(float))["ew"]
-            signals[k] = (size / unit) * signal_shape("sheet_ew", t, t0)[:, None] * u
+            signals[k], u = trial_sheet(f.iloc[sel], state, p["step_nT"], t, t0)
             places.append((sel, u, t, t0))
         levels = []
         if signals:
