@@ -43,8 +43,9 @@ integer counts. Sanity checks printed: (a) the per-zone RMS of
 the measured axis, what remains is the spin-plane magnitude difference between the
 zone's one linear matrix and the product's drifting gains and offsets: the direction
 about the axis is matched by construction, and the validation waves test the rest);
-(b) the unchanged counts written by this script's CDF writer and run through the CLI
-reproduce the clean product (max |dB|), so recovered signals are not run-to-run noise.
+(b) the unchanged counts written by the CDF writer of ``elfin_messy.py`` and run
+through the CLI reproduce the clean product (max |dB|), so recovered signals are not
+run-to-run noise.
 
 Why it is independent: nothing is imported from ``magcal`` (neither
 ``magcal.missions.elfin`` nor its injection study ``workflows/elfin_preservation.py``);
@@ -84,7 +85,6 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 DATA = HERE.parent.parent / "shared" / "real-data" / "elfin"
 FGS, STATE = "ela_l1_fgs_20220112_v01.cdf", "ela_l1_state_defn_20220112_v01.cdf"
-FILL = -2147483648
 SIGNALS = ("gauss_ew", "gauss_along", "sheet_ew", "pulse_b", "wave_2hz")
 # validation of the injection itself: a 2 Hz wave is far above anything the calibration
 # fits, so it must come back at gain 1 along every direction the signals use
@@ -93,6 +93,9 @@ SHEET_NT, PULSE_NT = 300.0, 100.0
 CLAIMS = {  # the library's own study: zone medians, kept energy % (distortion %)
     "gauss_ew": (108, 16), "gauss_along": (98, 13), "sheet_ew": (108, 10),
     "pulse_b": (80, 8), "wave_2hz": (100, 0)}
+CLAIMS_OPPOSITE = {  # the same with --sign -1 (elfin_preservation.py --sign -1)
+    "gauss_ew": (92, 18), "gauss_along": (88, 13), "sheet_ew": (67, 9),
+    "pulse_b": (130, 10), "wave_2hz": (100, 0)}
 
 
 # ----------------------------------------------------------------------------- I/O
@@ -117,40 +120,6 @@ def read_fgs(path: Path):
     times = np.asarray(cdf.varget("ela_fgs_time"), dtype=np.int64)
     counts = np.asarray(cdf.varget("ela_fgs"), dtype=np.int64).reshape(-1, 3)
     return times, counts
-
-
-def write_fgs(path: Path, times_tt2000: np.ndarray, counts: np.ndarray) -> None:
-    """Write an ELFIN-style FGS file: ``ela_fgs`` (INT4, 3) and ``ela_fgs_time``.
-
-    Parameters
-    ----------
-    path : Path
-        Target CDF (overwritten).
-    times_tt2000 : ndarray of int64
-        TT2000 nanoseconds.
-    counts : ndarray, shape (n, 3)
-        Integer counts (must fit INT4).
-    """
-    import cdflib
-
-    counts = np.asarray(counts)
-    if np.abs(counts).max() >= 2**31 - 1:
-        raise ValueError("injected counts do not fit INT4")
-    path.unlink(missing_ok=True)
-    w = cdflib.cdfwrite.CDF(str(path), cdf_spec={"Majority": "Row_major"})
-    try:
-        w.write_globalattrs({"Source_name": {0: "ELA>ELFIN-A (injected copy, independent check)"}})
-        w.write_var({"Variable": "ela_fgs_time", "Data_Type": 33, "Num_Elements": 1,
-                     "Rec_Vary": True, "Dim_Sizes": [], "Var_Type": "zVariable"},
-                    var_attrs={"FILLVAL": [np.int64(-9223372036854775808), "CDF_TIME_TT2000"]},
-                    var_data=np.asarray(times_tt2000, dtype=np.int64))
-        w.write_var({"Variable": "ela_fgs", "Data_Type": 4, "Num_Elements": 1,
-                     "Rec_Vary": True, "Dim_Sizes": [3], "Var_Type": "zVariable"},
-                    var_attrs={"FILLVAL": [np.int32(FILL), "CDF_INT4"],
-                               "DEPEND_0": "ela_fgs_time", "UNITS": "nT"},
-                    var_data=counts.astype(np.int32))
-    finally:
-        w.close()
 
 
 def read_state(path: Path):
@@ -566,6 +535,8 @@ def inject(counts: np.ndarray, kind: str, geos: dict,
         body = np.einsum("nji,nj->ni", g["R"], s)  # R^T s
         out[g["rows"]] += np.rint(body @ g["cinv"].T).astype(np.int64)
         signals[k] = s
+    if np.abs(out).max() >= 2**31 - 1:
+        raise ValueError("injected counts do not fit the file's INT4")
     return out, signals
 
 
@@ -670,12 +641,16 @@ def main(argv=None) -> int:
                          capture_output=True, text=True, cwd=runs).stdout.strip()
     print(f"CLI: {' '.join(cmd)} run ...  (magcal from {lib})")
 
+    # the plain CDF writer of the messy copy (cdflib only, nothing from magcal)
+    sys.path.insert(0, str(HERE))
+    from elfin_messy import write_fgs
+
     times_tt, counts = read_fgs(fgs)
     import cdflib
     times = np.asarray(cdflib.cdfepoch.to_datetime(times_tt), "datetime64[ns]")
     state = read_state(state_path)
     result = {"cli": cmd, "magcal": lib, "zones": zones, "signals": kinds, "sign": args.sign,
-              "claims_kept_distortion_percent": CLAIMS}
+              "claims_kept_distortion_percent": CLAIMS if args.sign > 0 else CLAIMS_OPPOSITE}
 
     cfg = out / "clean.toml"
     write_config(cfg, fgs, state_path)
@@ -740,7 +715,8 @@ def main(argv=None) -> int:
                 # the step is stated along the spin axis: the truth is the sheet's share
                 g = inj[e["zone"]]
                 after = g["x"] > 0
-                truth = args.sign * SHEET_NT * float(np.median(np.sum(g["ew"] * g["axis_gei"], 1)[after]))
+                share = float(np.median(np.sum(g["ew"] * g["axis_gei"], 1)[after]))
+                truth = args.sign * SHEET_NT * share
                 line += coverage(e.get("step_nT", np.nan), e.get("step_error_nT"), truth)
                 trials = e.get("trial_levels_nT") or []
                 if trials:
@@ -770,9 +746,10 @@ def main(argv=None) -> int:
     for kind, r in result["runs"].items():
         cells = "".join(f"{100 * v['kept']:5.0f} ({100 * v['distortion']:3.0f})   "
                         for v in r["zones"].values())
-        claim = "{:4d} ({:2d})".format(*CLAIMS[kind]) if kind in CLAIMS else "   - (validation)"
-        print(f"{kind:<14}{cells}{100 * r['median_kept']:5.0f} ({100 * r['median_distortion']:3.0f})"
-              f"   {claim}")
+        claims = CLAIMS if args.sign > 0 else CLAIMS_OPPOSITE
+        claim = "{:4d} ({:2d})".format(*claims[kind]) if kind in claims else "   - (validation)"
+        med = f"{100 * r['median_kept']:5.0f} ({100 * r['median_distortion']:3.0f})"
+        print(f"{kind:<14}{cells}{med}   {claim}")
     (out / "independent_injection.json").write_text(json.dumps(result, indent=1, default=float))
     print(f"\nwrote {out / 'independent_injection.json'}")
     return 0
