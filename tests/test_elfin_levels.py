@@ -65,6 +65,29 @@ def test_a_trial_sheet_changes_the_spin_axis_level_with_the_kept_step_s_sign(ste
     assert not none.any()
 
 
+def test_the_level_error_a_row_carries_adds_the_zone_s_steps_in_quadrature():
+    """Truth: the level after two kept steps is their sum, so its stated error is
+    sqrt(e1^2 + e2^2) (60 and 108 nT -> 123.5 nT); the other zone's step does not
+    count, and rows before the zone's first step carry none."""
+    from types import SimpleNamespace
+
+    from magcal.missions.elfin.pipeline import ElfinDay
+
+    zone = np.repeat([0, 1], 10)
+    level = np.zeros(20, int)
+    level[[2, 3, 6, 14]] = 1
+    idx = pd.date_range("2022-01-12", periods=20, freq="1s", tz="UTC")
+    field = pd.DataFrame({"zone": zone, "level_step": level}, index=idx)
+    trials = pd.DataFrame({"zone": [0, 0, 1], "step_error_nT": [60.0, 108.0, 30.0]})
+    day = SimpleNamespace(calibration=SimpleNamespace(field=field),
+                          steps={"level_trials": trials})
+    col = ElfinDay.level_error_column(day)
+    assert np.isnan(col[[0, 1, 10, 11, 12, 13]]).all()
+    assert np.all(col[2:6] == 60.0)
+    assert np.allclose(col[6:10], np.hypot(60.0, 108.0))
+    assert np.all(col[14:] == 30.0)
+
+
 def test_step_columns_turn_on_after_each_run():
     marked = np.zeros(10, bool)
     marked[2:4] = marked[7] = True

@@ -446,9 +446,15 @@ class ElfinDay:
 
     def level_error_column(self) -> np.ndarray:
         """Per row of the delivered field: the stated error of the kept level it
-        carries (``step_error_nT`` of the zone's last kept step before it, from
-        ``level_trials``; the same on the step's own rows), NaN elsewhere (no step
-        before it in its zone, or not measured)."""
+        carries, NaN elsewhere (no step before it in its zone, or not measured).
+
+        The level at a row is the sum of the zone's kept steps up to it (a step's own
+        rows count as after it), so its error is the root sum of squares of their
+        ``step_error_nT`` (``level_trials``): on 2022-01-12 a sheet of the opposite
+        polarity in zone 8 at 0.65 got its own step (+228 +- 108 nT for 300) and one
+        across the real disturbance before it (-199 +- 60 nT for none), and the level
+        after the sheet is off by the two together. A step without a stated error makes
+        the rows after it NaN."""
         f = self.calibration.field
         out = np.full(len(f), np.nan)
         if "level_trials" not in self.steps or "level_step" not in f.columns:
@@ -457,9 +463,13 @@ class ElfinDay:
 
         errors = self.steps["level_trials"]["step_error_nT"].to_numpy(float)
         zone = f["zone"].to_numpy()
+        square = np.zeros(len(f))
+        stepped = np.zeros(len(f), bool)
         for (a, _), err in zip(true_runs(f["level_step"].to_numpy() == 1), errors):
-            after = np.arange(len(f)) >= a
-            out[after & (zone == zone[a])] = err
+            after = (np.arange(len(f)) >= a) & (zone == zone[a])
+            square[after] += err ** 2
+            stepped |= after
+        out[stepped] = np.sqrt(square[stepped])
         return out
 
     def level_step_listing(self) -> list[dict]:
