@@ -88,6 +88,16 @@ def test_the_level_error_a_row_carries_adds_the_zone_s_steps_in_quadrature():
     assert np.all(col[14:] == 30.0)
 
 
+def test_at_most_max_steps_are_kept_strongest_first():
+    """Truth: a 300 nT sheet after one gap and a 100 nT one after another; with
+    ``max_steps = 1`` only the larger is kept, without it both."""
+    sheets = 300.0 / (1.0 + np.exp(-(T - 250.0) / 4.5)) \
+        + 100.0 / (1.0 + np.exp(-(T - 110.0) / 4.5))
+    fit = ~(((T > 235) & (T < 265)) | ((T > 95) & (T < 125)))
+    assert level_steps_wanted(T, sheets, fit).tolist() == [True, True]
+    assert level_steps_wanted(T, sheets, fit, max_steps=1).tolist() == [False, True]
+
+
 def test_step_columns_turn_on_after_each_run():
     marked = np.zeros(10, bool)
     marked[2:4] = marked[7] = True
@@ -257,3 +267,42 @@ def test_a_sheet_injected_on_the_real_day_is_listed_with_its_level_change_and_er
     carried[np.flatnonzero(first)[rows[0]]:np.flatnonzero(first)[-1] + 1] = True
     assert np.all(column[carried] == listed[0]["step_error_nT"])
     assert np.isnan(column[~carried]).all()
+
+
+def test_a_sheet_that_bends_a_real_disturbance_into_a_step_keeps_one_step():
+    """2022-01-12 zones 7 and 8, a 300 nT sheet of the opposite polarity (-300 nT east-
+    west) injected at 0.65 of zone 8 through the clean calibration. Judged all at once
+    on the product without steps, the real disturbance before it also looked like a
+    level change (-197 nT) and the level after the sheet kept -26 nT of -300; with the
+    strongest step first and the others judged on the product with it, the zone keeps
+    one step and the level within 20 % of the truth."""
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.injection import (
+        directions,
+        inject_counts,
+        select_zones,
+        signal_gei,
+    )
+    from magcal.missions.elfin.levels import kept_level
+    from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
+
+    fgs = select_zones(read_elfin_fgs(real_data_path("elfin", FGS)), [7, 8])
+    state = read_elfin_state(real_data_path("elfin", STATE))
+    s = ElfinSettings(bridge_trials=0, pulse_trials=0, level_trials=0)
+    clean = calibrate_elfin_day(fgs, state, s, diagnostics=False)
+    lf = clean.linear.field
+    z = (lf["zone"] == 1).to_numpy()
+    zf = lf[z]
+    sig = -signal_gei("sheet_ew", zf, state, centre=0.65)
+    ns = zf.index.as_unit("ns").asi8
+    t = (ns - ns[0]) / 1e9
+    tu = t[zf["used"].to_numpy() == 1]
+    t0 = tu[0] + 0.65 * (tu[-1] - tu[0])
+    u = directions(zf.index, state, zf[["igrf_x_gei", "igrf_y_gei",
+                                        "igrf_z_gei"]].to_numpy(float))["ew"]
+    day = calibrate_elfin_day(inject_counts(fgs, clean.linear, {1: sig}), state, s,
+                              diagnostics=False)
+    steps = [x for x in day.level_step_intervals() if x["zone"] == 1]
+    assert len(steps) == 1
+    level = kept_level(day.calibration.field[z], clean.calibration.field[z], u, t, t0)
+    assert level == pytest.approx(-300.0, rel=0.2)

@@ -116,7 +116,7 @@ LEVEL_TREND_DEGREE = 3
 
 def level_steps_wanted(t_s, axis_residual, fit, *, degree: int = LEVEL_TREND_DEGREE,
                        smooth_s: float = 3.0, window_s: float = 30.0,
-                       min_s: float = 5.0) -> np.ndarray:
+                       min_s: float = 5.0, max_steps: int | None = None) -> np.ndarray:
     """Which intervals of :func:`left_out_runs` get a level step.
 
     The spin-axis residual on the fitted samples is fitted with a polynomial in time
@@ -181,7 +181,7 @@ def level_steps_wanted(t_s, axis_residual, fit, *, degree: int = LEVEL_TREND_DEG
 
     chosen = []
     rss = float(np.sum(solve(chosen)[1][fit] ** 2))
-    while len(chosen) < len(runs):
+    while len(chosen) < min(len(runs), len(runs) if max_steps is None else max_steps):
         tried = []
         for j in range(len(runs)):
             if j in chosen:
@@ -265,7 +265,8 @@ def level_change_candidates(t_s, axis_residual, fit, *, window_s: float = 15.0,
     return out
 
 
-def level_step_rows(field: pd.DataFrame, *, candidates: bool = True) -> np.ndarray:
+def level_step_rows(field: pd.DataFrame, *, candidates: bool = True,
+                    max_steps: int | None = None) -> np.ndarray:
     """Rows of the left-out intervals across which the spin-axis level may change.
 
     Parameters
@@ -299,7 +300,7 @@ def level_step_rows(field: pd.DataFrame, *, candidates: bool = True) -> np.ndarr
             continue
         if candidates:
             fit = fit & ~level_change_candidates(t, resid[sel], fit)
-        wanted = level_steps_wanted(t, resid[sel], fit)
+        wanted = level_steps_wanted(t, resid[sel], fit, max_steps=max_steps)
         for (a, b), keep in zip(left_out_runs(t, fit), wanted):
             out[sel[a:b]] = keep
     return out

@@ -984,10 +984,29 @@ def _with_level_steps(fgs, state, settings, *, linear, level_step_rows=None,
         return first
     # a kept level change found on fitted samples is left out of the fits from now on
     given = kw.pop("fit_exclude", None)
-    exclude = rows if given is None else (np.asarray(given, bool) | rows)
-    return calibrate_elfin_day(fgs, state, settings, level_step_rows=rows,
-                               fit_exclude=exclude if exclude.any() else given,
-                               pulse_templates=natural, drift_templates=drift, **kw)
+
+    def again(steps):
+        exclude = steps if given is None else (np.asarray(given, bool) | steps)
+        return calibrate_elfin_day(fgs, state, settings, level_step_rows=steps,
+                                   fit_exclude=exclude if exclude.any() else given,
+                                   pulse_templates=natural, drift_templates=drift, **kw)
+
+    if level_step_rows is None and _several_steps_in_a_zone(rows, f["zone"].to_numpy()):
+        # a sheet bends the product without steps, and a real disturbance before it
+        # may then look like a level change too (2022-01-12 zone 8, a sheet of the
+        # opposite polarity at 0.65: a false -199 nT step): the strongest step of each
+        # zone first, the others judged on the product with it
+        strongest = find_steps(f, max_steps=1)
+        rows = strongest | find_steps(again(strongest).calibration.field)
+    return again(rows)
+
+
+def _several_steps_in_a_zone(rows, zone) -> bool:
+    """Whether any zone has more than one run of ``rows``."""
+    from magcal.missions.elfin.timing import true_runs
+
+    starts = [zone[a] for a, _ in true_runs(np.asarray(rows, bool))]
+    return len(starts) != len(set(starts))
 
 
 def _joint(linear, incumbent, scores: dict) -> tuple:
