@@ -17,9 +17,13 @@ How well a kept level is known is measured, not assumed (:func:`level_trials`,
 so its error is that of a sheet of its size put into other zones and measured again.
 
 The decision is taken once, on the product without steps (residual about 15 nT), not
-inside each fit: the linear fit's own residual (about 100 nT before the gain drift and
-the phase refit) jumps by tens of nT across quiet gaps and gave steps to the bridge
-trials' gaps (bridge errors up to 86 nT on the real day).
+inside each fit (but where a zone wants several steps: a sheet bends that product, and
+a real disturbance before it may then look like a level change too, so the strongest
+step is kept first and the others judged on the day calibrated with it;
+``max_steps`` of :func:`level_step_rows`): the linear fit's own residual (about
+100 nT before the gain drift and the phase refit) jumps by tens of nT across quiet
+gaps and gave steps to the bridge trials' gaps (bridge errors up to 86 nT on the real
+day).
 
 Data: ELFIN SOC (PI V. Angelopoulos, UCLA), "Open Data for Scientific Use".
 """
@@ -133,6 +137,7 @@ def level_steps_wanted(t_s, axis_residual, fit, *, degree: int = LEVEL_TREND_DEG
     explains only in part, or only with the trend bent on a short side. Fitting the
     trend with the steps keeps a sheet's trace in the product without steps (the slow
     terms tilted to take part of it) from posing as steps at the quiet gaps before it.
+    ``max_steps`` stops the choice after that many.
 
     Returns
     -------
@@ -278,6 +283,9 @@ def level_step_rows(field: pd.DataFrame, *, candidates: bool = True,
         Also judge the abrupt level changes of the fitted samples
         (:func:`level_change_candidates`) as if left out; a kept one is left out of
         the fits of the day calibrated again with its step.
+    max_steps : int, optional
+        Keep at most this many steps per zone, the strongest first
+        (:func:`level_steps_wanted`).
 
     Returns
     -------

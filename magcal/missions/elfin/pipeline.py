@@ -960,7 +960,9 @@ def _with_level_steps(fgs, state, settings, *, linear, level_step_rows=None,
     """The day calibrated without level steps and pulses along B, and again with those
     :func:`~magcal.missions.elfin.levels.level_step_rows` and
     :func:`~magcal.missions.elfin.pulses.zone_pulses` find on it (if any): both are
-    decided once, on the delivered product (its spin-axis and ``|B|`` residuals)."""
+    decided on the delivered product (its spin-axis and ``|B|`` residuals), once, but
+    for a zone that wants more than one level step (the strongest is kept first and
+    the others judged on the day calibrated with it)."""
     from magcal.missions.elfin.levels import level_step_rows as find_steps
     from magcal.missions.elfin.pulses import pulse_templates as shapes, zone_pulses
 
