@@ -331,6 +331,42 @@ def trial_places(field: pd.DataFrame, own: int, at, busy, n_trials: int) -> list
     return out
 
 
+def trial_day(fgs: pd.DataFrame, state: pd.DataFrame, settings, day, signals: dict, *,
+              fit_exclude=None):
+    """``day`` calibrated again with trial signals in its counts (the pulse and level
+    trials of :mod:`magcal.missions.elfin.pulses` and :mod:`magcal.missions.elfin.levels`).
+
+    The trial zones are calibrated together with the rest of the day, as ``day`` was
+    (a zone alone would lack the day's spin-axis prior), with the same ``fit_exclude``
+    (rows of ``fgs``) and ``settings`` without trials of their own.
+
+    Parameters
+    ----------
+    signals : dict
+        Zone number -> (n_zone, 3) signal in GEI nT, through the day's linear
+        calibration (:func:`inject_counts`).
+
+    Returns
+    -------
+    ElfinDay or None
+        None when the day with the signals cannot be calibrated as delivered (e.g. a
+        trial zone no longer calibrated): the trials then state no error.
+    """
+    from dataclasses import replace
+
+    from magcal.missions.elfin.pipeline import calibrate_elfin_day
+
+    lin = day.linear
+    keep = lin.kept_rows(len(fgs))
+    exclude = None if fit_exclude is None else np.asarray(fit_exclude, bool)[keep]
+    plain = replace(settings, bridge_trials=0, pulse_trials=0, level_trials=0)
+    try:
+        return calibrate_elfin_day(inject_counts(fgs[keep], lin, signals), state, plain,
+                                   fit_exclude=exclude, diagnostics=False)
+    except InputError:
+        return None
+
+
 def select_zones(fgs: pd.DataFrame, zones) -> pd.DataFrame:
     """The FGS rows of the zones numbered ``zones`` (0-based, in the day's order;
     zones are split at gaps over 60 s as the pipeline does)."""

@@ -33,7 +33,6 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from magcal.errors import InputError
 from magcal.missions.elfin.timing import true_runs
 
 #: Smallest jump of the spin-axis residual across a left-out interval (nT) that gets
@@ -414,23 +413,15 @@ def level_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
         ``step_error_nT`` (NaN without trials: no zone without a step, or the day with
         the trial sheets could not be calibrated as delivered).
     """
-    from dataclasses import replace
-
-    from magcal.missions.elfin.injection import inject_counts, trial_places
-    from magcal.missions.elfin.pipeline import calibrate_elfin_day
+    from magcal.missions.elfin.injection import trial_day, trial_places
 
     kept = day.level_step_intervals()
     cols = ["zone", "start", "end", "step_nT", "trial_levels_nT", "step_error_nT"]
     if not kept or n_trials <= 0:
         return pd.DataFrame(kept, columns=cols[:4]).reindex(columns=cols)
-    lin = day.linear
-    keep = lin.kept_rows(len(fgs))
-    counts = fgs[keep]
-    exclude = None if fit_exclude is None else np.asarray(fit_exclude, bool)[keep]
-    f = lin.field
+    f = day.linear.field
     delivered = day.calibration.field
     busy = {p["zone"] for p in kept}
-    plain = replace(settings, bridge_trials=0, pulse_trials=0, level_trials=0)
     out = []
     for p in kept:
         size = abs(p["step_nT"]) if np.isfinite(p["step_nT"]) else 0.0
@@ -441,14 +432,8 @@ def level_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
             places.append((sel, u, t, t0))
         levels = []
         if signals:
-            # one calibration for the trial zones together: they are fitted apart but
-            # for the day's spin-axis prior, which a zone alone would lack
-            try:
-                trial = calibrate_elfin_day(inject_counts(counts, lin, signals), state,
-                                            plain, fit_exclude=exclude,
-                                            diagnostics=False).calibration.field
-            except InputError:            # e.g. a trial zone no longer calibrated
-                trial = None
+            one = trial_day(fgs, state, settings, day, signals, fit_exclude=fit_exclude)
+            trial = None if one is None else one.calibration.field
             if trial is not None and len(trial) == len(delivered):
                 levels = [kept_level(trial.iloc[sel], delivered.iloc[sel], u, t, t0)
                           for sel, u, t, t0 in places]

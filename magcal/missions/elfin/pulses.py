@@ -323,23 +323,14 @@ def pulse_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
         ``trial_heights_nT`` (list), ``height_error_nT`` (NaN without trials: no zone
         without a pulse, or the day with the trial pulses could not be calibrated).
     """
-    from dataclasses import replace
-
-    from magcal.errors import InputError
-    from magcal.missions.elfin.injection import inject_counts, trial_places
-    from magcal.missions.elfin.pipeline import calibrate_elfin_day
+    from magcal.missions.elfin.injection import trial_day, trial_places
 
     kept = day.pulses_along_b()
     cols = ["zone", "centre", "fwhm_s", "height_nT", "trial_heights_nT", "height_error_nT"]
     if not kept or n_trials <= 0:
         return pd.DataFrame(kept, columns=cols[:4]).reindex(columns=cols)
-    lin = day.linear
-    keep = lin.kept_rows(len(fgs))
-    counts = fgs[keep]
-    exclude = None if fit_exclude is None else np.asarray(fit_exclude, bool)[keep]
-    f = lin.field
+    f = day.linear.field
     busy = {p["zone"] for p in kept}
-    plain = replace(settings, bridge_trials=0, pulse_trials=0, level_trials=0)
     ns = f.index.as_unit("ns").asi8
     out = []
     for p in kept:
@@ -351,12 +342,7 @@ def pulse_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day,
             places.append((k, ns[sel][0], c))
         heights = []
         if signals:
-            # one calibration for the trial zones together, as the day was calibrated
-            try:
-                trial = calibrate_elfin_day(inject_counts(counts, lin, signals), state,
-                                            plain, fit_exclude=exclude, diagnostics=False)
-            except InputError:            # e.g. a trial zone no longer calibrated
-                trial = None
+            trial = trial_day(fgs, state, settings, day, signals, fit_exclude=fit_exclude)
             if trial is not None:
                 found = trial.pulses_along_b()
                 for k, start_ns, c in places:
