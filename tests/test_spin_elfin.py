@@ -169,3 +169,34 @@ def test_axis_row_prior_keeps_an_east_west_pulse_where_the_axis_field_is_flat():
     # measured: -0.09 alone, 0.75 with the prior (1 - zone-mean share: 0.84)
     assert gains[0.0] < 0.2
     assert gains[1.0] > 0.6
+
+
+@pytest.mark.realdata
+def test_the_reference_on_the_state_frame_is_the_one_the_fit_would_evaluate():
+    """``with_igrf`` evaluates IGRF once for a day's many fits: the same linear
+    calibration as evaluating it in the fit, the columns are what the fit reads (a
+    100 nT shift in them moves the reference by 100 nT) and a state frame without them
+    for a zone falls back to the model (zone 5 of 2022-01-12)."""
+    import pandas as pd
+    from conftest import real_data_path
+
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.linear import IGRF_COLUMNS, with_igrf
+
+    base = real_data_path("elfin")
+    fgs = read_elfin_fgs(base / "ela_l1_fgs_20220112_v01.cdf")
+    state = read_elfin_state(base / "ela_l1_state_defn_20220112_v01.cdf")
+    a, b = split_zones((fgs.index.asi8 - fgs.index.asi8[0]) / 1e9)[5]
+    zone = fgs.iloc[a:b]
+    plain = calibrate_elfin(zone, state).field
+    ready = with_igrf(state, zone)
+    assert with_igrf(ready, zone) is ready
+    assert np.isfinite(ready[IGRF_COLUMNS].to_numpy()).sum() < 3 * 500   # this zone only
+    pd.testing.assert_frame_equal(calibrate_elfin(zone, ready).field, plain)
+    shifted = ready.copy()
+    shifted["igrf_gei_x"] += 100.0
+    got = calibrate_elfin(zone, shifted).field
+    assert_allclose(got["igrf_x_gei"] - plain["igrf_x_gei"], 100.0, atol=1e-6)
+    gone = ready.copy()
+    gone.loc[:, "igrf_gei_y"] = np.nan
+    pd.testing.assert_frame_equal(calibrate_elfin(zone, gone).field, plain)
