@@ -24,6 +24,11 @@ The runs of the table, so that each step's share can be read:
 * ``--mask-signal 0.05``: the steps without detection, the samples where the signal
   exceeds 5 % of its peak left out of every fit (``fit_exclude``): what the pipeline
   keeps when the disturbed interval is known from elsewhere;
+* ``--both-signs``: every signal also with the opposite polarity; what came back is
+  split into the part that follows the signal (odd, ``(r+ - r-) / 2``) and the part
+  that is the same for either polarity (even: the day's own field over the interval the
+  signal made the calibration leave out, which the clean run gave to a drift)
+  (:func:`magcal.missions.elfin.injection.polarity_parts`);
 * ``--mask-injected-only 0.05``: the same samples left out of the injected run's fits
   only, as a detector would that flags exactly the signal and nothing on the clean
   day; its distortion is the calibration's own change when that interval is left out
@@ -40,7 +45,8 @@ Usage::
                                            [--no-held] [--settings KEY=VALUE ...]
                                            [--mask-signal FRACTION]
                                            [--mask-injected-only FRACTION]
-                                           [--centres 0.5,...] [--sign -1] [--plot DIR]
+                                           [--centres 0.5,...] [--sign -1] [--both-signs]
+                                           [--plot DIR]
 
 The README's whole-day sheet numbers (36 placements, with and without level steps)::
 
@@ -82,12 +88,17 @@ def _print(label, tab, clean) -> None:
 
     pd.set_option("display.width", 200)
     cols = ["energy_kept", "distortion", "energy_kept_ac", "distortion_ac", "zone_mean_share"]
+    both = tab["sign"].nunique() > 1
+    keys = ["signal", "product", "sign"] if both else ["signal", "product"]
     print(f"\n== {label}: zone medians (energy_kept: share of the signal's energy kept in "
           "its shape; _ac: zone means removed from both)")
-    print(tab.groupby(["signal", "product"], sort=False)[cols].median().round(3).to_string())
+    print(tab.groupby(keys, sort=False)[cols].median().round(3).to_string())
     print(f"\n== {label}: delivered product, per zone")
     last = tab[tab["product"] == tab["product"].iloc[-1]]
-    print(last.pivot(index="signal", columns="zone", values="energy_kept").round(3).to_string())
+    print(last.pivot_table(index=keys[::2], columns="zone", values="energy_kept")
+          .round(3).to_string())
+    if both:
+        _print_parts(label, last)
     if "bridge_rms_nT" in last.columns:
         b = last.dropna(subset=["error_rms_nT", "bridge_rms_nT"])
         ratio = b["error_rms_nT"] / b["bridge_rms_nT"]
@@ -118,6 +129,28 @@ def _print(label, tab, clean) -> None:
         print("clean residual on the unflagged samples only (zone medians, nT): "
               + ", ".join(f"{k} {quiet[k]:.2f}" for k in ("scalar_rms_nT", "scalar_fast_nT",
                                                           "vector_rms_nT")))
+
+
+def _print_parts(label, last) -> None:
+    """The delivered product's odd and even parts (``polarity_parts``), zone medians and
+    per zone."""
+    first = last[last["sign"] == last["sign"].iloc[0]]
+    kept = last.pivot_table(index="signal", columns="sign", values="energy_kept",
+                            aggfunc="median", sort=False)
+    kept.columns = [f"energy_kept (sign {s:+g})" for s in kept.columns]
+    parts = first.groupby("signal", sort=False)[["energy_kept_odd", "distortion_odd",
+                                                 "even_rms"]].median()
+    print(f"\n== {label}: delivered product, the signal itself and what changes for "
+          "either polarity (zone medians). odd part (r+ - r-)/2: what the product makes "
+          "of the signal; even part (r+ + r-)/2: the day's own field over the interval "
+          "left out, which the clean run gave to a drift (even_rms: its RMS over the "
+          "signal's)")
+    print(kept.join(parts).round(3).to_string())
+    print(f"\n== {label}: per zone, energy_kept_odd (distortion_odd, even_rms)")
+    for kind, rows in first.groupby("signal", sort=False):
+        print(f"  {kind:12s} " + "  ".join(
+            f"{r.zone}: {r.energy_kept_odd:.3f} ({r.distortion_odd:.3f}, {r.even_rms:.3f})"
+            for r in rows.itertuples()))
 
 
 def _print_shares(kinds) -> None:
@@ -165,6 +198,10 @@ def main(argv=None) -> int:
     ap.add_argument("--sign", type=float, default=1.0, choices=(1.0, -1.0),
                     help="polarity of every signal (-1: the opposite field; what is kept "
                          "is not odd in the signal)")
+    ap.add_argument("--both-signs", action="store_true",
+                    help="also inject every signal with the opposite polarity and print "
+                         "the part of what came back that follows the signal (odd) and "
+                         "the part that does not (even)")
     ap.add_argument("--plot", type=Path, default=None, metavar="DIR",
                     help="write recovered_<signal>.png of the delivered run to DIR (of the "
                          "--settings run to DIR/settings): the injected signal and "
@@ -207,7 +244,7 @@ def main(argv=None) -> int:
                                         progress=lambda line: print("  " + line),
                                         plot_dir=_plot_dir(args.plot, label)
                                         if centre == centres[0] else None, centre=centre,
-                                        sign=args.sign)
+                                        sign=args.sign, both_signs=args.both_signs)
             tabs.append(tab.assign(zone=[f"{z}@{centre:g}" for z in tab["zone"]])
                         if len(centres) > 1 else tab)
         tab = pd.concat(tabs, ignore_index=True)

@@ -282,6 +282,61 @@ def preservation(clean_day, injected_day, signals: dict, kind: str) -> pd.DataFr
     return pd.DataFrame(rows)
 
 
+def polarity_parts(clean_day, plus_day, minus_day, signals: dict, kind: str) -> pd.DataFrame:
+    """Per product and zone: what came back split into the part that follows the
+    signal's polarity and the part that does not.
+
+    With ``r+`` and ``r-`` recovered from the signal and from its opposite
+    (``calibrated(injected) - calibrated(clean)``), the odd part ``(r+ - r-) / 2`` is
+    what the product makes of the signal itself, and the even part ``(r+ + r-) / 2``
+    changes the same way for either polarity: once a signal makes the calibration leave
+    its interval out, the product there shows the day's own field that the clean run
+    gave to a drift (2022-01-12: a pulse along B comes back as its height minus
+    10-33 nT for either sign). That part is a property of the clean product over the
+    interval, which no ELFIN data can check (the model is the only reference); the
+    product states its size as the bridge error (``bridge_rms_nT``).
+
+    Columns: ``energy_kept_odd``, ``gain_odd``, ``distortion_odd`` (:func:`kept` of the
+    odd part against the signal) and ``even_rms`` (RMS of the even part over the
+    signal's RMS), on the samples all three products use. ``plus_day`` carries
+    ``signals`` and ``minus_day`` their negatives.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace as NS
+    >>> t = np.arange(100.0)
+    >>> sig = np.zeros((100, 3)); sig[40:60, 0] = 10.0
+    >>> day = np.column_stack([np.sin(t), np.cos(t), t])
+    >>> def product(field):
+    ...     f = pd.DataFrame(field, columns=["bx_gei", "by_gei", "bz_gei"])
+    ...     return NS(products={"p": NS(field=f.assign(zone=0, used=1))})
+    >>> bump = np.zeros((100, 3)); bump[45:55, 1] = -3.0      # the same for either sign
+    >>> out = polarity_parts(product(day), product(day + 0.9 * sig + bump),
+    ...                      product(day - 0.9 * sig + bump), {0: sig}, "pulse")
+    >>> out[["gain_odd", "distortion_odd", "even_rms"]].round(3).values.tolist()
+    [[0.9, 0.0, 0.212]]
+    """
+    cols = ["bx_gei", "by_gei", "bz_gei"]
+    rows = []
+    for name, plus in plus_day.products.items():
+        fc, fp = clean_day.products[name].field, plus.field
+        fm = minus_day.products[name].field
+        zone = fp["zone"].to_numpy()
+        for k, dg in signals.items():
+            sel = zone == k
+            used = np.all([f["used"].to_numpy()[sel] == 1 for f in (fc, fp, fm)], axis=0)
+            base = fc[cols].to_numpy()[sel]
+            r_plus, r_minus = fp[cols].to_numpy()[sel] - base, fm[cols].to_numpy()[sel] - base
+            dg_u = np.asarray(dg, float)[used]
+            odd = kept(0.5 * (r_plus - r_minus), dg, used)
+            even = 0.5 * (r_plus + r_minus)[used]
+            rows.append({"signal": kind, "product": name, "zone": int(k),
+                         "energy_kept_odd": odd.energy, "gain_odd": odd.gain,
+                         "distortion_odd": odd.distortion,
+                         "even_rms": float(np.sqrt(np.sum(even ** 2) / np.sum(dg_u ** 2)))})
+    return pd.DataFrame(rows)
+
+
 def trial_places(field: pd.DataFrame, own: int, at, busy, n_trials: int) -> list[tuple]:
     """Where a signal that zone ``own`` holds at the times ``at`` is put for a trial:
     up to ``n_trials`` other zones of ``field`` not in ``busy`` and with used samples
@@ -386,7 +441,7 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
                    kinds=tuple(SIGNALS), zones=None, hold: bool = False,
                    mask_signal: float = 0.0, mask_clean: bool = True,
                    progress=None, plot_dir=None, centre: float = 0.5,
-                   sign: float = 1.0) -> tuple[pd.DataFrame, object]:
+                   sign: float = 1.0, both_signs: bool = False) -> tuple[pd.DataFrame, object]:
     """Inject each signal kind into each chosen zone and measure what every product keeps.
 
     Parameters
@@ -430,6 +485,11 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         kept, so is the day's own structure on its shape that the clean run gave to a
         drift (2022-01-12: 10-35 nT along B on a 90 s pulse), and a level step the
         detector finds for one polarity it may miss for the other.
+    both_signs : bool
+        Also inject each signal with the opposite polarity: the table then has the rows
+        of both (column ``sign``) and, on every row, the :func:`polarity_parts` columns
+        that split what came back into the part that follows the signal and the part
+        that does not.
     plot_dir : str or Path, optional
         If given, one PNG per signal (``recovered_<kind>.png``) of what the delivered
         product kept, zone by zone
@@ -438,7 +498,8 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
     Returns
     -------
     table : DataFrame
-        :func:`preservation` rows of every run (zones numbered as in ``zones``).
+        :func:`preservation` rows of every run (zones numbered as in ``zones``), with
+        the signal's polarity (``sign``).
     clean : ElfinDay
         The clean run (its scores are the residual the settings buy).
     """
@@ -477,7 +538,15 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
                                            fit_exclude=skip, diagnostics=False)
         day = calibrate_elfin_day(injected, state, s, hold_phase=hold_phase,
                                   fit_exclude=skip, diagnostics=False)
-        tab = preservation(base, day, signals, kind)
+        tab = preservation(base, day, signals, kind).assign(sign=sign)
+        if both_signs:
+            opposite = {k: -v for k, v in signals.items()}
+            other = calibrate_elfin_day(inject_counts(fgs, clean.linear, opposite), state, s,
+                                        hold_phase=hold_phase, fit_exclude=skip,
+                                        diagnostics=False)
+            parts = polarity_parts(base, day, other, signals, kind)
+            tab = pd.concat([tab, preservation(base, other, opposite, kind).assign(sign=-sign)],
+                            ignore_index=True).merge(parts, on=["signal", "product", "zone"])
         if plot_dir is not None:
             from pathlib import Path
 
@@ -485,13 +554,18 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
 
             Path(plot_dir).mkdir(parents=True, exist_ok=True)
             plot_recovered(Path(plot_dir) / f"recovered_{kind}.png", base, day, signals, kind,
-                           state, tab[tab["product"] == tab["product"].iloc[-1]], zones)
+                           state, tab[(tab["product"] == tab["product"].iloc[-1])
+                                      & (tab["sign"] == sign)], zones)
         if zones is not None:
             tab["zone"] = [list(zones)[k] for k in tab["zone"]]
         tables.append(tab)
         if progress is not None:
             last = tables[-1]
-            last = last[last["product"] == last["product"].iloc[-1]]
-            progress(f"{kind}: delivered product keeps {last['energy_kept'].median():.1%} "
-                     "of the energy (zone median)")
+            last = last[(last["product"] == last["product"].iloc[-1]) & (last["sign"] == sign)]
+            line = (f"{kind}: delivered product keeps {last['energy_kept'].median():.1%} "
+                    "of the energy (zone median)")
+            if both_signs:
+                line += (f"; of the signal itself (odd part) {last['energy_kept_odd'].median():.1%}"
+                         f", distortion {last['distortion_odd'].median():.1%}")
+            progress(line)
     return pd.concat(tables, ignore_index=True), clean
