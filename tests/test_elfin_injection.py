@@ -7,6 +7,8 @@ mean (which any per-zone calibration against a model takes), and the measured
 absorbers are what the settings name. The full table: workflows/elfin_preservation.py.
 """
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -96,7 +98,7 @@ def test_inverse_of_the_clean_calibration_is_exact(day):
 
 
 @pytest.fixture(scope="module")
-def runs(day):
+def runs(day, tmp_path_factory):
     from magcal.missions.elfin.injection import run_injections
     from magcal.missions.elfin.pipeline import ElfinSettings
 
@@ -105,7 +107,9 @@ def runs(day):
     kinds = ("gauss_ew", "gauss_along", "pulse_b")
     # (pulses along B kept out of the drift, pulses_b, are tested in test_elfin_pulses)
     steps = ElfinSettings(detect_disturbed=False, pulses_b=False)
-    both = run_injections(fgs, state, steps, kinds=kinds, hold=True, both_signs=True)[0]
+    pictures = tmp_path_factory.mktemp("parts")
+    both = run_injections(fgs, state, steps, kinds=kinds, hold=True, both_signs=True,
+                          plot_dir=pictures)[0].assign(pictures=str(pictures))
     held = both[both["sign"] == 1.0]
     delivered = run_injections(fgs, state, steps, kinds=kinds)[0]
     free = run_injections(fgs, state, ElfinSettings(gain_drift_2x=True, detect_disturbed=False,
@@ -150,6 +154,8 @@ def test_with_the_phase_held_the_signal_is_the_odd_part_and_nothing_is_even(runs
         assert r["gain_odd"] == pytest.approx(1.0 - r["zone_mean_share"], abs=0.05), kind
         # the gain of the odd part is the mean of the two polarities' gains
         assert r["gain_odd"] == pytest.approx(rows["gain"].mean(), abs=1e-9), kind
+        png = (Path(r["pictures"]) / f"parts_{kind}.png").read_bytes()   # the picture
+        assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000, kind
 
 
 def test_measured_absorbers_are_the_named_switches(runs):

@@ -493,7 +493,9 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
     plot_dir : str or Path, optional
         If given, one PNG per signal (``recovered_<kind>.png``) of what the delivered
         product kept, zone by zone
-        (:func:`~magcal.missions.elfin.injection_plot.plot_recovered`).
+        (:func:`~magcal.missions.elfin.injection_plot.plot_recovered`), and with
+        ``both_signs`` its two parts (``parts_<kind>.png``,
+        :func:`~magcal.missions.elfin.injection_plot.plot_parts`).
 
     Returns
     -------
@@ -550,12 +552,15 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         if plot_dir is not None:
             from pathlib import Path
 
-            from magcal.missions.elfin.injection_plot import plot_recovered
+            from magcal.missions.elfin.injection_plot import plot_parts, plot_recovered
 
             Path(plot_dir).mkdir(parents=True, exist_ok=True)
+            delivered = tab[(tab["product"] == tab["product"].iloc[-1]) & (tab["sign"] == sign)]
             plot_recovered(Path(plot_dir) / f"recovered_{kind}.png", base, day, signals, kind,
-                           state, tab[(tab["product"] == tab["product"].iloc[-1])
-                                      & (tab["sign"] == sign)], zones)
+                           state, delivered, zones)
+            if both_signs:
+                plot_parts(Path(plot_dir) / f"parts_{kind}.png", base, day, other, signals,
+                           kind, state, delivered, zones)
         if zones is not None:
             tab["zone"] = [list(zones)[k] for k in tab["zone"]]
         tables.append(tab)

@@ -5,7 +5,9 @@ product returned along it (``calibrated(injected) - calibrated(clean)``), what i
 returned across it (the distortion's direction part), and the samples the
 calibration left out of its fits, shaded, with the stated bridge error
 (``bridge_rms_nT``) as a band about the recovered field. The numbers behind it are
-:func:`magcal.missions.elfin.injection.preservation`'s.
+:func:`magcal.missions.elfin.injection.preservation`'s. With both polarities
+(:func:`plot_parts`), the signal's own part and the part the same for either
+polarity (:func:`magcal.missions.elfin.injection.polarity_parts`).
 """
 
 from __future__ import annotations
@@ -90,6 +92,76 @@ def plot_recovered(path: str | Path, clean_day, injected_day, signals: dict, kin
     axes[-1, 0].set_xlabel("s from zone start", fontsize=8)
     fig.suptitle(f"ELFIN-A: injected {kind} against what the delivered product kept "
                  f"(GEI)\n{CREDIT}", fontsize=8)
+    fig.tight_layout(rect=(0, 0.35 / (0.6 + 1.9 * len(ks)), 1, 1))
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_parts(path: str | Path, clean_day, plus_day, minus_day, signals: dict, kind: str,
+               state: pd.DataFrame, table: pd.DataFrame | None = None,
+               zone_names=None) -> Path:
+    """The signal's own part and the part the same for either polarity, one panel per
+    zone, as PNG (nT, s from zone start).
+
+    Along the signal's direction: the injected signal, the odd part ``(r+ - r-) / 2``
+    of what the two polarities brought back (what the product makes of the signal) and
+    the even part ``(r+ + r-) / 2`` (the day's own field over the interval the signal
+    made the calibration leave out); the samples either run left out of its fits are
+    shaded. ``plus_day`` carries ``signals``, ``minus_day`` their negatives; ``table``
+    (:func:`~magcal.missions.elfin.injection.polarity_parts` rows of the delivered
+    product) heads each panel with its numbers.
+    """
+    import matplotlib
+
+    from magcal.missions.elfin.injection import SIGNALS, directions
+    from magcal.missions.elfin.linear import CREDIT
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fc, fp, fm = (d.calibration.field for d in (clean_day, plus_day, minus_day))
+    zone = fp["zone"].to_numpy()
+    ks = list(signals)
+    fig, axes = plt.subplots(len(ks), 1, figsize=(9, 0.6 + 1.9 * len(ks)), squeeze=False)
+    for ax, k in zip(axes[:, 0], ks):
+        sel = zone == k
+        zp = fp[sel]
+        used = np.all([f["used"].to_numpy()[sel] == 1 for f in (fc, fp, fm)], axis=0)
+        t = (zp.index.asi8 - zp.index.asi8[0]) / 1e9
+        u = directions(zp.index, state, zp[["igrf_x_gei", "igrf_y_gei",
+                                            "igrf_z_gei"]].to_numpy())[SIGNALS[kind][1]]
+        base = fc[_COLS].to_numpy(float)[sel]
+        r_plus = zp[_COLS].to_numpy(float) - base
+        r_minus = fm[_COLS].to_numpy(float)[sel] - base
+        odd = np.sum(0.5 * (r_plus - r_minus) * u, axis=1)
+        even = np.sum(0.5 * (r_plus + r_minus) * u, axis=1)
+        left = used & ((zp["fit"].to_numpy() == 0) | (fm["fit"].to_numpy()[sel] == 0))
+        if left.any():
+            ax.fill_between(t, 0, 1, where=left, color="0.85", step="mid",
+                            transform=ax.get_xaxis_transform(),
+                            label="left out of the fits (either run)")
+        ax.plot(t[used], np.sum(np.asarray(signals[k], float) * u, axis=1)[used],
+                color="0.2", lw=2.0, label="injected")
+        ax.plot(t[used], odd[used], color="C1", lw=0.9, label="own part (r+ - r-)/2")
+        ax.plot(t[used], even[used], color="C2", lw=0.9,
+                label="the same for either polarity (r+ + r-)/2")
+        head = f"zone {k if zone_names is None else list(zone_names)[k]}"
+        if table is not None:
+            row = table[table["zone"] == k]
+            if len(row):
+                r = row.iloc[0]
+                head += (f": own part kept {r['energy_kept_odd']:.0%}, distortion "
+                         f"{r['distortion_odd']:.0%}; the other part {r['even_rms']:.0%} of "
+                         "the signal (RMS)")
+        ax.set_title(head, fontsize=8, loc="left")
+        ax.set_ylabel("nT", fontsize=8)
+        ax.tick_params(labelsize=7)
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=7, ncol=4, loc="lower center")
+    axes[-1, 0].set_xlabel("s from zone start", fontsize=8)
+    fig.suptitle(f"ELFIN-A: injected {kind}, both polarities: the signal's own part and the "
+                 f"day's (GEI, along the signal)\n{CREDIT}", fontsize=8)
     fig.tight_layout(rect=(0, 0.35 / (0.6 + 1.9 * len(ks)), 1, 1))
     fig.savefig(path, dpi=90)
     plt.close(fig)
