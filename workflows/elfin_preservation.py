@@ -205,7 +205,8 @@ def main(argv=None) -> int:
     ap.add_argument("--plot", type=Path, default=None, metavar="DIR",
                     help="write recovered_<signal>.png of the delivered run to DIR (of the "
                          "--settings run to DIR/settings): the injected signal and "
-                         "what came back, zone by zone")
+                         "what came back, zone by zone; with --both-signs also "
+                         "parts_<signal>.png, the signal's own part and the other")
     args = ap.parse_args(argv)
     if not (args.data / FGS_FILE).is_file():
         print(f"real data not found: {args.data / FGS_FILE}", file=sys.stderr)
