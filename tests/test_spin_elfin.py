@@ -200,3 +200,38 @@ def test_the_reference_on_the_state_frame_is_the_one_the_fit_would_evaluate():
     gone = ready.copy()
     gone.loc[:, "igrf_gei_y"] = np.nan
     pd.testing.assert_frame_equal(calibrate_elfin(zone, gone).field, plain)
+
+
+@pytest.mark.realdata
+def test_frames_indexed_in_microseconds_calibrate_as_in_nanoseconds():
+    """pandas 3 builds time indexes in microseconds; the ELFIN steps count seconds from
+    ``asi8``, so a frame in microseconds would make every time 1000 times too short.
+    Truth: the same samples give the same calibration whatever the index's unit (zone 5
+    of 2022-01-12, the linear fit and the delivered day), and an index that is not one
+    of times is one clear error."""
+    import pandas as pd
+    from conftest import real_data_path
+
+    from magcal.errors import InputError
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
+
+    base = real_data_path("elfin")
+    fgs = read_elfin_fgs(base / "ela_l1_fgs_20220112_v01.cdf")
+    state = read_elfin_state(base / "ela_l1_state_defn_20220112_v01.cdf")
+    a, b = split_zones((fgs.index.asi8 - fgs.index.asi8[0]) / 1e9)[5]
+    zone = fgs.iloc[a:b]
+
+    def us(frame):
+        return frame.set_axis(frame.index.as_unit("us"))
+
+    assert us(zone).index.unit == "us"
+    pd.testing.assert_frame_equal(calibrate_elfin(us(zone), us(state)).field,
+                                  calibrate_elfin(zone, state).field)
+    quick = ElfinSettings(bridge_trials=0, pulse_trials=0, level_trials=0,
+                          detect_disturbed=False)
+    got = calibrate_elfin_day(us(zone), us(state), quick, diagnostics=False)
+    want = calibrate_elfin_day(zone, state, quick, diagnostics=False)
+    pd.testing.assert_frame_equal(got.calibrated_table(), want.calibrated_table())
+    with pytest.raises(InputError, match="not a time index"):
+        calibrate_elfin(zone.reset_index(drop=True), state)

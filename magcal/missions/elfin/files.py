@@ -108,3 +108,35 @@ def read_elfin_state(path: str | os.PathLike) -> pd.DataFrame:
              for c in frame.columns}
     frame.attrs.update({"units": units, "probe": probe, "file": str(p)})
     return frame
+
+
+def ns_index(frame: pd.DataFrame, name: str = "frame") -> pd.DataFrame:
+    """``frame`` with a UTC ``DatetimeIndex`` held in nanoseconds (the same frame if it
+    is one already).
+
+    The ELFIN steps compute seconds as ``index.asi8 / 1e9``; pandas 3 builds indexes in
+    microseconds (``pd.date_range``, parsed strings), which would make every time 1000
+    times too short (zones merged, spline knots misplaced) without an error. A naive
+    index is taken as UTC.
+
+    Raises
+    ------
+    InputError
+        If the index is not a time index.
+
+    Examples
+    --------
+    >>> idx = pd.date_range("2022-01-12", periods=3, freq="1s", unit="us")
+    >>> out = ns_index(pd.DataFrame({"b1": [1.0, 2.0, 3.0]}, index=idx))
+    >>> str(out.index.dtype), float(np.diff(out.index.asi8)[0] / 1e9)
+    ('datetime64[ns, UTC]', 1.0)
+    """
+    if not isinstance(frame.index, pd.DatetimeIndex):
+        raise InputError(f"{name}: the index is not a time index "
+                         f"({type(frame.index).__name__})")
+    idx = frame.index
+    if idx.tz is None:
+        idx = idx.tz_localize("UTC")
+    if idx.unit == "ns" and idx is frame.index:
+        return frame
+    return frame.set_axis(idx.as_unit("ns"), axis=0)

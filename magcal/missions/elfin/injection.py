@@ -509,6 +509,9 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
 
     from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
 
+    from magcal.missions.elfin.files import ns_index
+
+    fgs, state = ns_index(fgs, "FGS frame"), ns_index(state, "state frame")
     # the kept fractions do not depend on the pulses' stated height errors
     s = replace(settings or ElfinSettings(), pulse_trials=0, level_trials=0)
     if zones is not None:

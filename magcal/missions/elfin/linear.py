@@ -32,6 +32,7 @@ import pandas as pd
 from magcal.errors import InputError
 from magcal.io.jsonio import product_dict
 from magcal.missions.elfin.clipping import clipped_samples
+from magcal.missions.elfin.files import ns_index
 from magcal.missions.elfin.phase import (
     TWO_PI,
     despun_basis,
@@ -744,6 +745,7 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
 
     if not {"b1", "b2", "b3"} <= set(fgs.columns):
         raise InputError("FGS frame needs columns b1, b2, b3")
+    fgs, state = ns_index(fgs, "FGS frame"), ns_index(state, "state frame")
     if hold_phase is not None and len(hold_phase) != len(fgs):
         raise InputError(f"hold_phase has {len(hold_phase)} values for {len(fgs)} FGS rows")
     steps = np.zeros(len(fgs), bool) if level_step_rows is None \

@@ -744,11 +744,13 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
     InputError
         Frames without the ELFIN columns, or a zone without orbit and attitude.
     """
+    from magcal.missions.elfin.files import ns_index
     from magcal.missions.elfin.linear import calibrate_elfin, with_igrf
     from magcal.missions.elfin.joint import score_field
     from magcal.missions.elfin.diagnostics.ripple import ripple_crosscheck
 
     s = settings or ElfinSettings()
+    fgs, state = ns_index(fgs, "FGS frame"), ns_index(state, "state frame")
     # the reference once for every fit of the day (the calls below pass this state on)
     state = with_igrf(state, fgs)
     pulses_tried = s.pulses_b and s.pulse_trials > 0
