@@ -20,6 +20,45 @@ import pandas as pd
 _COLS = ["bx_gei", "by_gei", "bz_gei"]
 
 
+def _figure(n: int):
+    """pyplot and a figure of ``n`` zone panels stacked (their axes, one per zone)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(n, 1, figsize=(9, 0.6 + 1.9 * n), squeeze=False)
+    return plt, fig, axes[:, 0]
+
+
+def _clock_and_direction(zone_field: pd.DataFrame, state: pd.DataFrame, kind: str):
+    """Seconds from the zone's first row and the unit vectors (GEI) of the signal's
+    direction there."""
+    from magcal.missions.elfin.injection import SIGNALS, directions
+
+    t = (zone_field.index.asi8 - zone_field.index.asi8[0]) / 1e9
+    b = zone_field[["igrf_x_gei", "igrf_y_gei", "igrf_z_gei"]].to_numpy()
+    return t, directions(zone_field.index, state, b)[SIGNALS[kind][1]]
+
+
+def _label(ax, head: str) -> None:
+    ax.set_title(head, fontsize=8, loc="left")
+    ax.set_ylabel("nT", fontsize=8)
+    ax.tick_params(labelsize=7)
+
+
+def _save(plt, fig, axes, path, title: str, ncol: int) -> Path:
+    """The legend of the first panel below all, the title, and the PNG written."""
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=7, ncol=ncol, loc="lower center")
+    axes[-1].set_xlabel("s from zone start", fontsize=8)
+    fig.suptitle(title, fontsize=8)
+    fig.tight_layout(rect=(0, 0.35 / (0.6 + 1.9 * len(axes)), 1, 1))
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return Path(path)
+
+
 def plot_recovered(path: str | Path, clean_day, injected_day, signals: dict, kind: str,
                    state: pd.DataFrame, table: pd.DataFrame | None = None,
                    zone_names=None) -> Path:
@@ -44,25 +83,16 @@ def plot_recovered(path: str | Path, clean_day, injected_day, signals: dict, kin
         The day's zone numbers of the zones as calibrated (``zones`` of
         :func:`~magcal.missions.elfin.injection.run_injections`), for the panel titles.
     """
-    import matplotlib
-
-    from magcal.missions.elfin.injection import SIGNALS, directions
     from magcal.missions.elfin.linear import CREDIT
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     fc, fi = clean_day.calibration.field, injected_day.calibration.field
     zone = fi["zone"].to_numpy()
-    ks = list(signals)
-    fig, axes = plt.subplots(len(ks), 1, figsize=(9, 0.6 + 1.9 * len(ks)), squeeze=False)
-    for ax, k in zip(axes[:, 0], ks):
+    plt, fig, axes = _figure(len(signals))
+    for ax, k in zip(axes, signals):
         sel = zone == k
         zi = fi[sel]
+        t, u = _clock_and_direction(zi, state, kind)
         used = (zi["used"].to_numpy() == 1) & (fc["used"].to_numpy()[sel] == 1)
-        t = (zi.index.asi8 - zi.index.asi8[0]) / 1e9
-        b = zi[["igrf_x_gei", "igrf_y_gei", "igrf_z_gei"]].to_numpy()
-        u = directions(zi.index, state, b)[SIGNALS[kind][1]]
         dg = np.asarray(signals[k], float)
         rec = zi[_COLS].to_numpy(float) - fc[_COLS].to_numpy(float)[sel]
         along = np.sum(rec * u, axis=1)
@@ -84,18 +114,9 @@ def plot_recovered(path: str | Path, clean_day, injected_day, signals: dict, kin
             if len(row):
                 head += (f": energy kept {row['energy_kept'].iloc[0]:.0%}, distortion "
                          f"{row['distortion'].iloc[0]:.0%}")
-        ax.set_title(head, fontsize=8, loc="left")
-        ax.set_ylabel("nT", fontsize=8)
-        ax.tick_params(labelsize=7)
-    handles, labels = axes[0, 0].get_legend_handles_labels()
-    fig.legend(handles, labels, fontsize=7, ncol=5, loc="lower center")
-    axes[-1, 0].set_xlabel("s from zone start", fontsize=8)
-    fig.suptitle(f"ELFIN-A: injected {kind} against what the delivered product kept "
-                 f"(GEI)\n{CREDIT}", fontsize=8)
-    fig.tight_layout(rect=(0, 0.35 / (0.6 + 1.9 * len(ks)), 1, 1))
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return Path(path)
+        _label(ax, head)
+    return _save(plt, fig, axes, path, f"ELFIN-A: injected {kind} against what the "
+                 f"delivered product kept (GEI)\n{CREDIT}", ncol=5)
 
 
 def plot_parts(path: str | Path, clean_day, plus_day, minus_day, signals: dict, kind: str,
@@ -112,25 +133,16 @@ def plot_parts(path: str | Path, clean_day, plus_day, minus_day, signals: dict, 
     (:func:`~magcal.missions.elfin.injection.polarity_parts` rows of the delivered
     product) heads each panel with its numbers.
     """
-    import matplotlib
-
-    from magcal.missions.elfin.injection import SIGNALS, directions
     from magcal.missions.elfin.linear import CREDIT
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     fc, fp, fm = (d.calibration.field for d in (clean_day, plus_day, minus_day))
     zone = fp["zone"].to_numpy()
-    ks = list(signals)
-    fig, axes = plt.subplots(len(ks), 1, figsize=(9, 0.6 + 1.9 * len(ks)), squeeze=False)
-    for ax, k in zip(axes[:, 0], ks):
+    plt, fig, axes = _figure(len(signals))
+    for ax, k in zip(axes, signals):
         sel = zone == k
         zp = fp[sel]
+        t, u = _clock_and_direction(zp, state, kind)
         used = np.all([f["used"].to_numpy()[sel] == 1 for f in (fc, fp, fm)], axis=0)
-        t = (zp.index.asi8 - zp.index.asi8[0]) / 1e9
-        u = directions(zp.index, state, zp[["igrf_x_gei", "igrf_y_gei",
-                                            "igrf_z_gei"]].to_numpy())[SIGNALS[kind][1]]
         base = fc[_COLS].to_numpy(float)[sel]
         r_plus = zp[_COLS].to_numpy(float) - base
         r_minus = fm[_COLS].to_numpy(float)[sel] - base
@@ -154,15 +166,6 @@ def plot_parts(path: str | Path, clean_day, plus_day, minus_day, signals: dict, 
                 head += (f": own part kept {r['energy_kept_odd']:.0%}, distortion "
                          f"{r['distortion_odd']:.0%}; the other part {r['even_rms']:.0%} of "
                          "the signal (RMS)")
-        ax.set_title(head, fontsize=8, loc="left")
-        ax.set_ylabel("nT", fontsize=8)
-        ax.tick_params(labelsize=7)
-    handles, labels = axes[0, 0].get_legend_handles_labels()
-    fig.legend(handles, labels, fontsize=7, ncol=4, loc="lower center")
-    axes[-1, 0].set_xlabel("s from zone start", fontsize=8)
-    fig.suptitle(f"ELFIN-A: injected {kind}, both polarities: the signal's own part and the "
-                 f"day's (GEI, along the signal)\n{CREDIT}", fontsize=8)
-    fig.tight_layout(rect=(0, 0.35 / (0.6 + 1.9 * len(ks)), 1, 1))
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return Path(path)
+        _label(ax, head)
+    return _save(plt, fig, axes, path, f"ELFIN-A: injected {kind}, both polarities: the "
+                 f"signal's own part and the day's (GEI, along the signal)\n{CREDIT}", ncol=4)
