@@ -134,9 +134,6 @@ def ns_index(frame: pd.DataFrame, name: str = "frame") -> pd.DataFrame:
     if not isinstance(frame.index, pd.DatetimeIndex):
         raise InputError(f"{name}: the index is not a time index "
                          f"({type(frame.index).__name__})")
-    idx = frame.index
-    if idx.tz is None:
-        idx = idx.tz_localize("UTC")
-    if idx.unit == "ns" and idx is frame.index:
+    if frame.index.tz is not None and frame.index.unit == "ns":
         return frame
-    return frame.set_axis(idx.as_unit("ns"), axis=0)
+    return frame.set_axis(utc_index(frame.index, name=frame.index.name), axis=0)

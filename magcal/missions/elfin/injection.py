@@ -282,6 +282,20 @@ def preservation(clean_day, injected_day, signals: dict, kind: str) -> pd.DataFr
     return pd.DataFrame(rows)
 
 
+def recovered_both(clean_field: pd.DataFrame, plus_field: pd.DataFrame,
+                   minus_field: pd.DataFrame, sel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """On the rows ``sel`` of three calibrated fields of the same rows: where all three
+    are used, and ``r+``, ``r-`` (GEI, nT), the plus and minus fields minus the clean
+    one (:func:`polarity_parts`, :func:`~magcal.missions.elfin.injection_plot.plot_parts`).
+    """
+    cols = ["bx_gei", "by_gei", "bz_gei"]
+    used = np.all([f["used"].to_numpy()[sel] == 1
+                   for f in (clean_field, plus_field, minus_field)], axis=0)
+    base = clean_field[cols].to_numpy(float)[sel]
+    return (used, plus_field[cols].to_numpy(float)[sel] - base,
+            minus_field[cols].to_numpy(float)[sel] - base)
+
+
 def polarity_parts(clean_day, plus_day, minus_day, signals: dict, kind: str) -> pd.DataFrame:
     """Per product and zone: what came back split into the part that follows the
     signal's polarity and the part that does not.
@@ -316,17 +330,13 @@ def polarity_parts(clean_day, plus_day, minus_day, signals: dict, kind: str) -> 
     >>> out[["gain_odd", "distortion_odd", "even_rms"]].round(3).values.tolist()
     [[0.9, 0.0, 0.212]]
     """
-    cols = ["bx_gei", "by_gei", "bz_gei"]
     rows = []
     for name, plus in plus_day.products.items():
         fc, fp = clean_day.products[name].field, plus.field
         fm = minus_day.products[name].field
         zone = fp["zone"].to_numpy()
         for k, dg in signals.items():
-            sel = zone == k
-            used = np.all([f["used"].to_numpy()[sel] == 1 for f in (fc, fp, fm)], axis=0)
-            base = fc[cols].to_numpy()[sel]
-            r_plus, r_minus = fp[cols].to_numpy()[sel] - base, fm[cols].to_numpy()[sel] - base
+            used, r_plus, r_minus = recovered_both(fc, fp, fm, zone == k)
             dg_u = np.asarray(dg, float)[used]
             odd = kept(0.5 * (r_plus - r_minus), dg, used)
             even = 0.5 * (r_plus + r_minus)[used]
@@ -507,9 +517,8 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
     """
     from dataclasses import replace
 
-    from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
-
     from magcal.missions.elfin.files import ns_index
+    from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
 
     fgs, state = ns_index(fgs, "FGS frame"), ns_index(state, "state frame")
     # the kept fractions do not depend on the pulses' stated height errors

@@ -31,14 +31,29 @@ def _figure(n: int):
     return plt, fig, axes[:, 0]
 
 
-def _clock_and_direction(zone_field: pd.DataFrame, state: pd.DataFrame, kind: str):
-    """Seconds from the zone's first row and the unit vectors (GEI) of the signal's
-    direction there."""
+def _zone(field: pd.DataFrame, k, state: pd.DataFrame, kind: str):
+    """Zone ``k`` of ``field``: its rows (bool), its frame, seconds from its first row
+    and the unit vectors (GEI) of the signal's direction there."""
     from magcal.missions.elfin.injection import SIGNALS, directions
 
-    t = (zone_field.index.asi8 - zone_field.index.asi8[0]) / 1e9
-    b = zone_field[["igrf_x_gei", "igrf_y_gei", "igrf_z_gei"]].to_numpy()
-    return t, directions(zone_field.index, state, b)[SIGNALS[kind][1]]
+    sel = field["zone"].to_numpy() == k
+    zf = field[sel]
+    t = (zf.index.asi8 - zf.index.asi8[0]) / 1e9
+    b = zf[["igrf_x_gei", "igrf_y_gei", "igrf_z_gei"]].to_numpy()
+    return sel, zf, t, directions(zf.index, state, b)[SIGNALS[kind][1]]
+
+
+def _left_and_signal(ax, t, used, left, left_label: str, signal_along) -> None:
+    """The samples left out of the fits shaded, and the injected signal along its
+    direction."""
+    if left.any():
+        ax.fill_between(t, 0, 1, where=left, color="0.85", step="mid",
+                        transform=ax.get_xaxis_transform(), label=left_label)
+    ax.plot(t[used], signal_along[used], color="0.2", lw=2.0, label="injected")
+
+
+def _zone_head(k, zone_names) -> str:
+    return f"zone {k if zone_names is None else list(zone_names)[k]}"
 
 
 def _label(ax, head: str) -> None:
@@ -86,29 +101,23 @@ def plot_recovered(path: str | Path, clean_day, injected_day, signals: dict, kin
     from magcal.missions.elfin.linear import CREDIT
 
     fc, fi = clean_day.calibration.field, injected_day.calibration.field
-    zone = fi["zone"].to_numpy()
     plt, fig, axes = _figure(len(signals))
     for ax, k in zip(axes, signals):
-        sel = zone == k
-        zi = fi[sel]
-        t, u = _clock_and_direction(zi, state, kind)
+        sel, zi, t, u = _zone(fi, k, state, kind)
         used = (zi["used"].to_numpy() == 1) & (fc["used"].to_numpy()[sel] == 1)
         dg = np.asarray(signals[k], float)
         rec = zi[_COLS].to_numpy(float) - fc[_COLS].to_numpy(float)[sel]
         along = np.sum(rec * u, axis=1)
         across = np.linalg.norm(rec - along[:, None] * u, axis=1)
         left = used & (zi["fit"].to_numpy() == 0) if "fit" in zi.columns else np.zeros_like(used)
-        if left.any():
-            ax.fill_between(t, 0, 1, where=left, color="0.85", step="mid",
-                            transform=ax.get_xaxis_transform(), label="left out of the fits")
+        _left_and_signal(ax, t, used, left, "left out of the fits", np.sum(dg * u, axis=1))
         if "bridge_rms_nT" in zi.columns and left.any():
             e = np.where(left, zi["bridge_rms_nT"].to_numpy(), np.nan)
             ax.fill_between(t, along - e, along + e, color="C1", alpha=0.3, lw=0,
                             label="stated bridge error")
-        ax.plot(t[used], np.sum(dg * u, axis=1)[used], color="0.2", lw=2.0, label="injected")
         ax.plot(t[used], along[used], color="C1", lw=0.8, label="recovered, along it")
         ax.plot(t[used], across[used], color="C0", lw=0.6, label="recovered, across it")
-        head = f"zone {k if zone_names is None else list(zone_names)[k]}"
+        head = _zone_head(k, zone_names)
         if table is not None:
             row = table[table["zone"] == k]
             if len(row):
@@ -133,32 +142,23 @@ def plot_parts(path: str | Path, clean_day, plus_day, minus_day, signals: dict, 
     (:func:`~magcal.missions.elfin.injection.polarity_parts` rows of the delivered
     product) heads each panel with its numbers.
     """
+    from magcal.missions.elfin.injection import recovered_both
     from magcal.missions.elfin.linear import CREDIT
 
     fc, fp, fm = (d.calibration.field for d in (clean_day, plus_day, minus_day))
-    zone = fp["zone"].to_numpy()
     plt, fig, axes = _figure(len(signals))
     for ax, k in zip(axes, signals):
-        sel = zone == k
-        zp = fp[sel]
-        t, u = _clock_and_direction(zp, state, kind)
-        used = np.all([f["used"].to_numpy()[sel] == 1 for f in (fc, fp, fm)], axis=0)
-        base = fc[_COLS].to_numpy(float)[sel]
-        r_plus = zp[_COLS].to_numpy(float) - base
-        r_minus = fm[_COLS].to_numpy(float)[sel] - base
+        sel, zp, t, u = _zone(fp, k, state, kind)
+        used, r_plus, r_minus = recovered_both(fc, fp, fm, sel)
         odd = np.sum(0.5 * (r_plus - r_minus) * u, axis=1)
         even = np.sum(0.5 * (r_plus + r_minus) * u, axis=1)
         left = used & ((zp["fit"].to_numpy() == 0) | (fm["fit"].to_numpy()[sel] == 0))
-        if left.any():
-            ax.fill_between(t, 0, 1, where=left, color="0.85", step="mid",
-                            transform=ax.get_xaxis_transform(),
-                            label="left out of the fits (either run)")
-        ax.plot(t[used], np.sum(np.asarray(signals[k], float) * u, axis=1)[used],
-                color="0.2", lw=2.0, label="injected")
+        _left_and_signal(ax, t, used, left, "left out of the fits (either run)",
+                         np.sum(np.asarray(signals[k], float) * u, axis=1))
         ax.plot(t[used], odd[used], color="C1", lw=0.9, label="own part (r+ - r-)/2")
         ax.plot(t[used], even[used], color="C2", lw=0.9,
                 label="the same for either polarity (r+ + r-)/2")
-        head = f"zone {k if zone_names is None else list(zone_names)[k]}"
+        head = _zone_head(k, zone_names)
         if table is not None:
             row = table[table["zone"] == k]
             if len(row):
