@@ -332,3 +332,37 @@ def test_level_steps_keep_a_current_sheet_and_leave_pulses_and_the_clean_zone_al
     assert clean.steps["vector_correction"]["n_level_steps"].tolist() == [0]
     assert clean.calibration.field["level_step"].sum() == 0
     assert clean.to_json()["signal_trade"]["switches"]["level_steps"] is True
+
+
+def test_a_pulse_beside_the_zone_s_own_disturbance_no_longer_blinds_the_detector():
+    """Zone 6 of 2022-01-12 with a -200 nT east-west pulse at 0.35 of the zone: the
+    pulse (about 100-160 s) and the zone's real disturbance (about 250-320 s) bent the
+    detector's baselines so far that its robust sigma rose from 1.7 to 38 nT and
+    neither was flagged; the delivered product kept 43 % of the pulse's energy. With
+    the blinding excursions left out of the spline fit (peel_gain) both are flagged and
+    the pulse comes back whole (measured: 99.5 % of the energy)."""
+    from magcal.missions.elfin.detect import DetectSettings, locate_disturbed
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.injection import select_zones
+    from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
+
+    fgs = select_zones(read_elfin_fgs(real_data_path("elfin", FGS)), [6])
+    state = read_elfin_state(real_data_path("elfin", STATE))
+    s = ElfinSettings(bridge_trials=0, pulse_trials=0, level_trials=0)
+    clean = calibrate_elfin_day(fgs, state, s, diagnostics=False)
+    sig = -signal_gei("gauss_ew", clean.linear.field, state, centre=0.35)
+    injected = inject_counts(fgs, clean.linear, {0: sig})
+    energy = np.sum(sig ** 2, axis=1)
+    f = clean.linear.field
+    t = (f.index.asi8 - f.index.asi8[0]) / 1e9
+    disturbance = (t > 270) & (t < 300)
+    blind = locate_disturbed(injected, state, s, detect=DetectSettings(peel_gain=0.0))
+    assert not blind.any.any()
+    found = locate_disturbed(injected, state, s)
+    assert energy[found.any].sum() >= 0.9 * energy.sum()
+    assert found.any[disturbance].all()
+    day = calibrate_elfin_day(injected, state, s, diagnostics=False)
+    got = kept(day.calibration.field[["bx_gei", "by_gei", "bz_gei"]].to_numpy()
+               - clean.calibration.field[["bx_gei", "by_gei", "bz_gei"]].to_numpy(), sig,
+               f["used"].to_numpy() == 1)
+    assert 0.9 <= got.energy <= 1.1
