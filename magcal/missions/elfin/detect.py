@@ -263,7 +263,7 @@ def robust_baseline(t_s, values, use, *, degree: int = 3, c: float = 4.685,
 def peeled_baseline(t_s, values, use, *, gain: float = 2.0, max_peels: int = 3,
                     floor_sigma: float = 0.0, share: float = 0.25, pad_s: float = 5.0,
                     edge_s: float = 0.0, magnitude=None, along_share: float = 0.5,
-                    **kw) -> tuple[np.ndarray, float, np.ndarray]:
+                    first=None, **kw) -> tuple[np.ndarray, float, np.ndarray]:
     """:func:`robust_baseline` fitted again without the excursions that inflate its sigma.
 
     Every robust start fails when the disturbed samples are many and gathered in time:
@@ -311,6 +311,8 @@ def peeled_baseline(t_s, values, use, *, gain: float = 2.0, max_peels: int = 3,
         18 % distortion instead of 4 % (36 placements).
     along_share : float
         See ``magnitude``.
+    first : tuple, optional
+        ``robust_baseline(t_s, values, use, **kw)`` if the caller has it already.
     **kw
         Passed to :func:`robust_baseline`.
 
@@ -340,12 +342,12 @@ def peeled_baseline(t_s, values, use, *, gain: float = 2.0, max_peels: int = 3,
     t = np.asarray(t_s, float)
     v = np.asarray(values, float)
     use = np.asarray(use, bool)
-    base, sigma = robust_baseline(t, v, use, **kw)
+    base, sigma = robust_baseline(t, v, use, **kw) if first is None else first
     best = (base, sigma, np.zeros(t.size, bool))
     if gain <= 0 or sigma <= floor_sigma:
         return best
-    first, last = t[use][0], t[use][-1]
-    trial, fit, skip = best[2], (base, sigma), np.zeros(t.size, bool)
+    first_s, last_s = t[use][0], t[use][-1]
+    trial, fit, skip, peels = best[2], (base, sigma), np.zeros(t.size, bool), 0
     for _ in range(2 * max_peels):
         dev = np.abs(v - fit[0])
         k = int(np.argmax(np.where(use & ~trial & ~skip, dev, -1.0)))
@@ -357,7 +359,7 @@ def peeled_baseline(t_s, values, use, *, gain: float = 2.0, max_peels: int = 3,
             b += 1
         lo, hi = t[a] - pad_s, t[b - 1] + pad_s
         window = (t >= lo) & (t <= hi)
-        if lo - first < edge_s or last - hi < edge_s:
+        if lo - first_s < edge_s or last_s - hi < edge_s:
             # the largest departure reaches a zone end: the baseline would be
             # extrapolated over the gap, and a level lasting to the zone's end (a
             # current sheet's plateau) is not an excursion that others hide behind
@@ -372,8 +374,8 @@ def peeled_baseline(t_s, values, use, *, gain: float = 2.0, max_peels: int = 3,
         fit = robust_baseline(t, v, use & ~trial, **kw)
         if fit[1] < best[1]:
             best = (*fit, trial)
-        max_peels -= 1
-        if max_peels <= 0:
+        peels += 1
+        if peels == max_peels:
             break
     return best if best[1] * gain <= sigma else (base, sigma, np.zeros(t.size, bool))
 
@@ -557,7 +559,7 @@ def _zone_flags(t, r, use, level, s: DetectSettings) -> tuple[np.ndarray, dict]:
     knots = (s.baseline_knot_s, 0.0) if s.also_polynomial and s.baseline_knot_s > 0 \
         else (s.baseline_knot_s,)
     sigmas, plain, peeled, stepped = {}, [], [], False
-    spin_plane_peeled = False
+    any_peeled, spin_plane_peeled = False, False
     for knot_s in knots:
         dev = np.zeros((2,) + r.shape)            # about the plain and the peeled baseline
         score = np.zeros((2,) + r.shape)
@@ -568,21 +570,20 @@ def _zone_flags(t, r, use, level, s: DetectSettings) -> tuple[np.ndarray, dict]:
                     "max_peels": s.max_peels, "floor_sigma": s.min_nT / s.threshold,
                     "pad_s": s.pad_s, "edge_s": s.edge_s}
             fit_use, fit_steps = use, None
+            first = robust_baseline(t, r[:, j], use, **kw)
             if name == "z" and steps is not None:
                 # whether the data demand the step is judged without peeling: a level
                 # lasting to the zone's end is not an excursion to leave out
-                _, sigma = robust_baseline(t, r[:, j], use, **kw)
-                _, sigma_s = robust_baseline(t, r[:, j], use & ~level, steps=steps, **kw)
-                if sigma_s * LEVEL_BASELINE_GAIN <= sigma:
+                stepped_fit = robust_baseline(t, r[:, j], use & ~level, steps=steps, **kw)
+                if stepped_fit[1] * LEVEL_BASELINE_GAIN <= first[1]:
                     fit_use, fit_steps, stepped = use & ~level, steps, True
+                    first = stepped_fit
             base, sigma, out = peeled_baseline(t, r[:, j], fit_use, steps=fit_steps,
                                                magnitude=r[:, 3] if j < 3 else None,
-                                               **kw, **peel)
-            fits = [(base, sigma)] * 2
-            if out.any():
-                fits[0] = robust_baseline(t, r[:, j], fit_use, steps=fit_steps, **kw)
-                spin_plane_peeled |= j < 2
-            for i, (b, sg) in enumerate(fits):
+                                               first=first, **kw, **peel)
+            any_peeled |= bool(out.any())
+            spin_plane_peeled |= j < 2 and bool(out.any())
+            for i, (b, sg) in enumerate((first, (base, sigma))):
                 dev[i, :, j] = r[:, j] - b
                 score[i, :, j] = dev[i, :, j] / max(sg, 1e-9)
             sigmas.setdefault(f"sigma_{name}_nT", sigma)
@@ -598,7 +599,7 @@ def _zone_flags(t, r, use, level, s: DetectSettings) -> tuple[np.ndarray, dict]:
         return f
 
     f = flags(plain)
-    if any(not np.array_equal(a[1], b[1]) for a, b in zip(plain, peeled)):
+    if any_peeled:
         f = f | _new_runs(t, flags(peeled), f, s.min_island_s)
         if spin_plane_peeled:
             f[:, 0] |= flags(peeled, slice(0, 2))[:, 0]
