@@ -172,6 +172,53 @@ def test_axis_row_prior_keeps_an_east_west_pulse_where_the_axis_field_is_flat():
 
 
 @pytest.mark.realdata
+def test_a_level_step_trades_with_the_spin_axis_row_where_the_axis_field_hardly_changes():
+    """Zone 10 of 2022-01-12 (spin-axis field std 405 nT, under the prior's 500 nT)
+    fitted with zone 0: a 300 nT east-west current sheet at mid-zone, injected through
+    the clean calibration, its rise given as a level step and the phase held. With the
+    delivered prior (weight 1) the step takes the spin-axis row 12 % lower and the
+    kept level is short by as much: the loss is the row's trade. Drawn hard to zone
+    0's row (weight 100) the row stays and the level is kept. Truth: the injected
+    300 nT."""
+    from conftest import real_data_path
+
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.injection import inject_counts, select_zones, signal_gei
+    from magcal.missions.elfin.levels import kept_level
+
+    base = real_data_path("elfin")
+    fgs = read_elfin_fgs(base / "ela_l1_fgs_20220112_v01.cdf")
+    state = read_elfin_state(base / "ela_l1_state_defn_20220112_v01.cdf")
+    day = select_zones(fgs, (0, 10))
+    found = {}
+    for weight in (1.0, 100.0):
+        clean = calibrate_elfin(day, state, phase_knot_s=None, axis_prior_weight=weight)
+        f = clean.field
+        z10 = (f["zone"] == 1).to_numpy()             # the subset's zones are 0 and 1
+        sheet = signal_gei("sheet_ew", f[z10], state, centre=0.5)
+        size = np.linalg.norm(sheet, axis=1)
+        rise = np.zeros(len(f), bool)
+        rise[z10] = (size > 0.02 * 300.0) & (size < 0.98 * 300.0)
+        kw = dict(phase_knot_s=None, axis_prior_weight=weight, hold_phase=f["phase"].to_numpy(),
+                  level_step_rows=rise, fit_exclude=rise)
+        stepped = calibrate_elfin(day, state, **kw)
+        injected = calibrate_elfin(inject_counts(day, clean, {1: sheet}), state, **kw)
+        t = (f.index.asi8 - f.index.asi8[0]) / 1e9
+        t0 = 0.5 * (t[rise][0] + t[rise][-1])
+        u = np.tile(sheet[-1] / size[-1], (int(z10.sum()), 1))
+        level = kept_level(injected.field[z10], stepped.field[z10], u, t[z10], t0)
+        row = [np.linalg.norm(c.zones[1].coupling[2]) for c in (clean, stepped)]
+        found[weight] = (level / 300.0, row[1] / row[0])
+    kept1, row1 = found[1.0]
+    kept100, row100 = found[100.0]
+    # measured: 0.881 of the level, row 0.883; weight 100: 0.988, 0.989
+    assert kept1 == pytest.approx(row1, abs=0.01)
+    assert kept1 < 0.92
+    assert kept100 == pytest.approx(1.0, abs=0.03)
+    assert row100 == pytest.approx(1.0, abs=0.02)
+
+
+@pytest.mark.realdata
 def test_the_reference_on_the_state_frame_is_the_one_the_fit_would_evaluate():
     """``with_igrf`` evaluates IGRF once for a day's many fits: the same linear
     calibration as evaluating it in the fit, the columns are what the fit reads (a
