@@ -88,6 +88,27 @@ def test_the_level_error_a_row_carries_adds_the_zone_s_steps_in_quadrature():
     assert np.all(col[14:] == 30.0)
 
 
+def test_a_step_in_a_zone_whose_spin_axis_field_hardly_changes_says_so():
+    """The listing states each step's zone's spin-axis field change and whether its row
+    was drawn to the day's: zone 1 of the prior (992 nT, not drawn), zone 3 (74 nT,
+    drawn, under 500 nT: the level trades with the spin-axis gain)."""
+    from types import SimpleNamespace
+
+    from magcal.missions.elfin.pipeline import ElfinDay
+
+    steps = [{"zone": 3, "start": "a", "end": "b", "step_nT": 250.0},
+             {"zone": 1, "start": "c", "end": "d", "step_nT": -90.0}]
+    prior = {"zones": [1], "axis_field_std_nT": [992.0, 74.0]}
+    linear = SimpleNamespace(parameters={"axis_prior": prior}, field=None,
+                             zone_numbers=[1, 3])
+    day = SimpleNamespace(linear=linear, steps={}, level_step_intervals=lambda: steps)
+    day._with_trials = lambda key, plain: ElfinDay._with_trials(day, key, plain)
+    listed = ElfinDay.level_step_listing(day)
+    assert [(x["zone"], x["axis_field_std_nT"], x["axis_field_small"], x["axis_row_prior"])
+            for x in listed] == [(3, 74.0, True, True), (1, 992.0, False, False)]
+    assert [x["step_nT"] for x in listed] == [250.0, -90.0]
+
+
 def test_at_most_max_steps_are_kept_strongest_first():
     """Truth: a 300 nT sheet after one gap and a 100 nT one after another; with
     ``max_steps = 1`` only the larger is kept, without it both."""
@@ -247,6 +268,13 @@ def test_a_sheet_injected_on_the_real_day_is_listed_with_its_level_change_and_er
     assert len(steps) == 1 and steps[0]["zone"] == 0
     listed = day.to_json()["level_steps"]["intervals"]
     assert [{k: v for k, v in x.items() if k in steps[0]} for x in listed] == steps
+    # the zone's spin-axis field over the pass, read off the model (day's zone 1: 605 nT,
+    # its own row trusted)
+    lin = day.linear.field
+    used = (lin["zone"] == 0).to_numpy() & (lin["used"] == 1).to_numpy()
+    assert listed[0]["axis_field_std_nT"] == pytest.approx(
+        float(np.std(lin["igrf_z_despun"].to_numpy()[used])), rel=0.02)
+    assert listed[0]["axis_field_small"] is False and listed[0]["axis_row_prior"] is False
     f = day.calibration.field[first]
     axis = f[["spin_axis_gei_x", "spin_axis_gei_y", "spin_axis_gei_z"]].to_numpy()
     along = np.sum(sig * axis, axis=1)

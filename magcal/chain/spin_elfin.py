@@ -116,6 +116,9 @@ def _calibrate(data, settings, inputs, disturbed=()):
                      + ("; ".join(f"zone {x['zone']} {x['start'][11:19]}-{x['end'][11:19]} "
                                   f"UTC {x['step_nT']:+.0f} +- "
                                   f"{x.get('step_error_nT', float('nan')):.0f} nT"
+                                  + (f" (spin-axis field std {x['axis_field_std_nT']:.0f} nT:"
+                                     " the level trades with the spin-axis gain)"
+                                     if x.get("axis_field_small") else "")
                                   for x in steps)
                         if steps else "none"))
     if settings.pulses_b:

@@ -474,8 +474,31 @@ class ElfinDay:
 
     def level_step_listing(self) -> list[dict]:
         """The kept level steps as delivered: with their errors
-        (``steps["level_trials"]``) where measured, else :meth:`level_step_intervals`."""
-        return self._with_trials("level_trials", self.level_step_intervals)
+        (``steps["level_trials"]``) where measured, else :meth:`level_step_intervals`;
+        and per step its zone's ``axis_field_std_nT`` (the model's spin-axis field over
+        the pass) and ``axis_row_prior`` (the zone's spin-axis row drawn towards the
+        day's, :func:`~magcal.missions.elfin.linear.axis_row_prior`). Where that field
+        hardly changes, the kept level trades with the spin-axis gain, which no ELFIN
+        data fix (2022-01-12 zone 10, 405 nT: a 300 nT sheet kept at 0.88 of its level,
+        the row 12 % lower with the step than without)."""
+        from magcal.missions.elfin.linear import AXIS_PRIOR_MIN_STD_NT
+
+        prior = self.linear.parameters.get("axis_prior")
+        f = self.linear.field
+        numbers = self.linear.zone_numbers
+        out = []
+        for rec in self._with_trials("level_trials", self.level_step_intervals):
+            k = rec["zone"]
+            if prior is not None and k in numbers:
+                std = float(prior["axis_field_std_nT"][numbers.index(k)])
+                drawn = k not in prior["zones"]
+            else:
+                sel = (f["zone"] == k) & (f["used"] == 1)
+                std = float(np.std(f.loc[sel, "igrf_z_despun"]))
+                drawn = False
+            out.append({**rec, "axis_field_std_nT": std, "axis_row_prior": bool(drawn),
+                        "axis_field_small": bool(std < AXIS_PRIOR_MIN_STD_NT)})
+        return out
 
     def _with_trials(self, key: str, plain) -> list[dict]:
         """``steps[key]``'s records where the trials ran, else ``plain()``."""
@@ -558,6 +581,13 @@ class ElfinDay:
                         "linear fit's spin-axis row and the vector step's tilt, left in the "
                         "field",
                 "intervals": self.level_step_listing()}
+            payload["level_steps"]["note_axis"] = (
+                "axis_field_std_nT: standard deviation of the model's spin-axis field over "
+                "the zone's pass; axis_field_small (under 500 nT): the zone's spin-axis "
+                "gain is set only by that change and a kept level trades with it (no "
+                "ELFIN data tell them apart; 2022-01-12 zone 10, 405 nT: a 300 nT sheet "
+                "kept at 0.88); axis_row_prior: the zone's spin-axis row drawn towards "
+                "the day's (axis_prior_weight)")
             if "level_trials" in self.steps:
                 payload["level_steps"]["note_error"] = (
                     "step_error_nT: RMS error of the levels kept when a current sheet of "
