@@ -135,25 +135,38 @@ def test_elfin_gains_period_sense_and_timing(elfin_cal):
     assert payload["schema_version"] == 1 and "ELFIN SOC" in payload["credit"]
 
 
+def _two_zones(other):
+    """Zones 0 and ``other`` of 2022-01-12 (the subset's zones 0 and 1) and the state."""
+    from conftest import real_data_path
+
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.injection import select_zones
+
+    base = real_data_path("elfin")
+    fgs = read_elfin_fgs(base / "ela_l1_fgs_20220112_v01.cdf")
+    state = read_elfin_state(base / "ela_l1_state_defn_20220112_v01.cdf")
+    return select_zones(fgs, (0, other)), state
+
+
+def _clean(day, state, weight):
+    """The pair calibrated with a quadratic phase and the prior's ``weight``, and the
+    rows of its second zone."""
+    clean = calibrate_elfin(day, state, phase_knot_s=None, axis_prior_weight=weight)
+    return clean, (clean.field["zone"] == 1).to_numpy()
+
+
 def test_axis_row_prior_keeps_an_east_west_pulse_where_the_axis_field_is_flat():
     """Zone 3 of 2022-01-12 (spin-axis field std 74 nT) fitted with zone 0 (992 nT):
     on its own the zone's spin-axis row takes an injected 200 nT east-west pulse as a
     gain change even with the phase held; drawn towards zone 0's row it keeps it.
     Truth: the injected pulse (phase held, so only the zone mean may go: 16 %)."""
-    from conftest import real_data_path
+    from magcal.missions.elfin.injection import inject_counts, signal_gei
 
-    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
-    from magcal.missions.elfin.injection import inject_counts, select_zones, signal_gei
-
-    base = real_data_path("elfin")
-    fgs = read_elfin_fgs(base / "ela_l1_fgs_20220112_v01.cdf")
-    state = read_elfin_state(base / "ela_l1_state_defn_20220112_v01.cdf")
-    day = select_zones(fgs, (0, 3))
+    day, state = _two_zones(3)
     gains = {}
     for weight in (0.0, 1.0):
-        clean = calibrate_elfin(day, state, phase_knot_s=None, axis_prior_weight=weight)
+        clean, z3 = _clean(day, state, weight)
         f = clean.field
-        z3 = (f["zone"] == 1).to_numpy()              # the subset's zones are 0 and 1
         sig = signal_gei("gauss_ew", f[z3], state)
         held = calibrate_elfin(inject_counts(day, clean, {1: sig}), state, phase_knot_s=None,
                                axis_prior_weight=weight, hold_phase=f["phase"].to_numpy())
@@ -180,21 +193,14 @@ def test_a_level_step_trades_with_the_spin_axis_row_where_the_axis_field_hardly_
     kept level is short by as much: the loss is the row's trade. Drawn hard to zone
     0's row (weight 100) the row stays and the level is kept. Truth: the injected
     300 nT."""
-    from conftest import real_data_path
-
-    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
-    from magcal.missions.elfin.injection import inject_counts, select_zones, signal_gei
+    from magcal.missions.elfin.injection import inject_counts, signal_gei
     from magcal.missions.elfin.levels import kept_level
 
-    base = real_data_path("elfin")
-    fgs = read_elfin_fgs(base / "ela_l1_fgs_20220112_v01.cdf")
-    state = read_elfin_state(base / "ela_l1_state_defn_20220112_v01.cdf")
-    day = select_zones(fgs, (0, 10))
+    day, state = _two_zones(10)
     found = {}
     for weight in (1.0, 100.0):
-        clean = calibrate_elfin(day, state, phase_knot_s=None, axis_prior_weight=weight)
+        clean, z10 = _clean(day, state, weight)
         f = clean.field
-        z10 = (f["zone"] == 1).to_numpy()             # the subset's zones are 0 and 1
         sheet = signal_gei("sheet_ew", f[z10], state, centre=0.5)
         size = np.linalg.norm(sheet, axis=1)
         rise = np.zeros(len(f), bool)
