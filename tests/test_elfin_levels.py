@@ -107,6 +107,13 @@ def test_a_step_in_a_zone_whose_spin_axis_field_hardly_changes_says_so():
     assert [(x["zone"], x["axis_field_std_nT"], x["axis_field_small"], x["axis_row_prior"])
             for x in listed] == [(3, 74.0, True, True), (1, 992.0, False, False)]
     assert [x["step_nT"] for x in listed] == [250.0, -90.0]
+    # without a prior (axis_prior_weight = 0) the change is read off the field's model
+    bz = np.r_[np.linspace(-4450.0, -3050.0, 50), np.zeros(50)]
+    linear.parameters, linear.field = {}, pd.DataFrame(
+        {"zone": np.repeat([3, 1], 50), "used": 1, "igrf_z_despun": bz})
+    (three, _) = ElfinDay.level_step_listing(day)
+    assert three["axis_field_std_nT"] == pytest.approx(np.std(bz[:50]))     # 409 nT
+    assert three["axis_field_small"] is True and three["axis_row_prior"] is False
 
 
 def test_at_most_max_steps_are_kept_strongest_first():
