@@ -351,13 +351,7 @@ def peeled_baseline(t_s, values, use, *, gain: float = 2.0, max_peels: int = 3,
     for _ in range(2 * max_peels):
         dev = np.abs(v - fit[0])
         k = int(np.argmax(np.where(use & ~trial & ~skip, dev, -1.0)))
-        near = dev > share * dev[k]
-        a, b = k, k + 1
-        while a > 0 and near[a - 1]:
-            a -= 1
-        while b < t.size and near[b]:
-            b += 1
-        lo, hi = t[a] - pad_s, t[b - 1] + pad_s
+        lo, hi = _grown_span(t, k, k + 1, dev > share * dev[k], pad_s)
         window = (t >= lo) & (t <= hi)
         if lo - first_s < edge_s or last_s - hi < edge_s:
             # the largest departure reaches a zone end: the baseline would be
@@ -378,6 +372,16 @@ def peeled_baseline(t_s, values, use, *, gain: float = 2.0, max_peels: int = 3,
         if peels == max_peels:
             break
     return best if best[1] * gain <= sigma else (base, sigma, np.zeros(t.size, bool))
+
+
+def _grown_span(t, a, b, grow, pad_s) -> tuple[float, float]:
+    """Times ``(lo, hi)`` of the rows ``a:b`` grown while ``grow`` holds next to them,
+    padded by ``pad_s`` seconds."""
+    while a > 0 and grow[a - 1]:
+        a -= 1
+    while b < t.size and grow[b]:
+        b += 1
+    return t[a] - pad_s, t[b - 1] + pad_s
 
 
 def _along_b(t, magnitude, use, lo, hi, pad_s) -> float:
@@ -438,11 +442,7 @@ def flag_excursions(t_s, z, dev_nT, use, settings: DetectSettings | None = None
     for a, b in true_runs(hot):
         if t[b - 1] - t[a] < s.min_s:
             continue
-        while a > 0 and warm[a - 1]:
-            a -= 1
-        while b < t.size and warm[b]:
-            b += 1
-        lo, hi = t[a] - s.pad_s, t[b - 1] + s.pad_s
+        lo, hi = _grown_span(t, a, b, warm, s.pad_s)
         if lo - first < s.edge_s or last - hi < s.edge_s:
             continue                      # the calibration would be extrapolated over it
         out |= (t >= lo) & (t <= hi)
