@@ -122,13 +122,7 @@ def _calibrate(data, settings, inputs, disturbed=()):
                                   for x in steps)
                         if steps else "none"))
     if settings.pulses_b:
-        pulses = day.pulse_listing()
-        lines.append("pulses along B kept out of the gain drift (pulses_b): "
-                     + ("; ".join(f"zone {x['zone']} {str(x['centre'])[11:19]} UTC "
-                                  f"{x['height_nT']:+.0f} +- "
-                                  f"{x.get('height_error_nT', float('nan')):.0f} nT, "
-                                  f"FWHM {x['fwhm_s']:.0f} s" for x in pulses)
-                        if pulses else "none"))
+        lines.extend(pulse_lines(day))
     lines.append(f"delivered: {day.delivered}")
     summary = {"n_zones": n, "delivered": day.delivered, "zone_medians_nT": medians,
                "settings": asdict(settings)}
@@ -136,6 +130,27 @@ def _calibrate(data, settings, inputs, disturbed=()):
                              documents={"ELFIN_CAL.json": day.to_json()},
                              provenance=prov,
                              warnings=tuple(empty + day.data_warnings() + day.worse_steps()))
+
+
+def pulse_lines(day) -> list[str]:
+    """The CLI's lines on pulses along B: those kept in the product (with their stated
+    height errors) and the ``|B|`` structures the search found and removed with the
+    gain drift, with the reason (:meth:`~magcal.missions.elfin.pipeline.ElfinDay.
+    pulse_search_listing`)."""
+    pulses = day.pulse_listing()
+    lines = ["pulses along B kept out of the gain drift (pulses_b): "
+             + ("; ".join(f"zone {x['zone']} {str(x['centre'])[11:19]} UTC "
+                          f"{x['height_nT']:+.0f} +- "
+                          f"{x.get('height_error_nT', float('nan')):.0f} nT, "
+                          f"FWHM {x['fwhm_s']:.0f} s" for x in pulses)
+                if pulses else "none")]
+    removed = [x for x in day.pulse_search_listing() if not x["natural"]]
+    if removed:
+        lines.append("|B| structures found and removed with the gain drift: "
+                     + "; ".join(f"zone {x['zone']} {str(x['centre'])[11:19]} UTC "
+                                 f"{x['height_nT']:+.0f} nT, FWHM {x['fwhm_s']:.0f} s "
+                                 f"({x['why']})" for x in removed))
+    return lines
 
 
 def _calibrated(day, probe: str):

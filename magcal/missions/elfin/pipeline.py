@@ -184,8 +184,9 @@ class ElfinSettings:
         energy, 0.33-2.98), distortion 37 -> 9 %; the size is poorly determined because
         the clean day itself holds -30 to +20 nT on a 90 s pulse's shape beyond the
         cubic, and the width the search picks amplifies that (``pulse_trials`` states
-        it). Clean day: no natural pulse, wide drifts in zones 3, 4, 9, 10 (scalar
-        residual 6.8 -> 6.3 nT, zone median). Default True: the drift alone keeps
+        it). Clean day: no natural pulse, wide drifts removed (now zones 9 and 10,
+        stated in the JSON's ``pulses_b.search``; when measured, zones 3, 4, 9, 10,
+        scalar residual 6.8 -> 6.3 nT, zone median). Default True: the drift alone keeps
         2-8 % of such a pulse, so leaving it out costs the science user the signal,
         while the size's uncertainty is stated; a day with pulses or drifts is
         calibrated once more (the clean day: 19 -> 23 s). False: the product of before.
@@ -534,6 +535,23 @@ class ElfinDay:
                             "height_nT": float(heights[i]) if i < len(heights) else float("nan")})
         return out
 
+    def pulse_search_listing(self) -> list[dict]:
+        """What the search for pulses along B found (``steps["pulse_search"]``,
+        :func:`~magcal.missions.elfin.pulses.zone_pulses`): per shape the ``zone``, its
+        ``centre`` (UTC, ISO), ``fwhm_s``, ``height_nT`` (as found on the product
+        without pulses), ``gain``, ``natural`` (kept in the product) and ``why`` (the
+        reason it is removed with the drift instead): so that a wide ``|B|`` structure
+        the drift removes is stated, not lost silently."""
+        found = self.steps.get("pulse_search")
+        if found is None or not len(found):
+            return []
+        return [{"zone": int(r.zone),
+                 "centre": str((r.start + pd.to_timedelta(r.centre_s, unit="s"))
+                               .tz_convert(None)),
+                 "fwhm_s": float(r.fwhm_s), "height_nT": float(r.height_nT),
+                 "gain": float(r.gain), "natural": bool(r.natural), "why": str(r.why)}
+                for r in found.itertuples()]
+
     def pulse_listing(self) -> list[dict]:
         """The kept pulses along B as delivered: with their height errors
         (``steps["pulse_trials"]``) where measured, else :meth:`pulses_along_b`."""
@@ -605,6 +623,18 @@ class ElfinDay:
                     "height_error_nT: RMS error of the heights found when a pulse like "
                     "it is put into the counts of other zones at the same place "
                     "(pulse_trials of them, trial_heights_nT)")
+            if "pulse_search" in self.steps:
+                payload["pulses_b"]["search"] = self.pulse_search_listing()
+                payload["pulses_b"]["note_search"] = (
+                    "every shape the search found in the |B| residual of the product "
+                    "without pulses (height_nT as found there, nT; gain: that residual's "
+                    "sum of squares about the cubic without the shape over that with it, "
+                    "kept from 10): natural ones are kept in the product, the others "
+                    "removed with the gain drift for the reason given (why). A natural "
+                    "pulse whose gain is near 10 is a close call: on 2022-01-12 a zone's "
+                    "own dip (-38 to -49 nT, gain 10.6-21.0) was kept only when an east-"
+                    "west or along-track pulse was put in nearby, against 13-312 for 100 nT pulses "
+                    "along B put into the counts")
         if "disturbed_detection" in self.steps:
             payload["disturbed_detection"] = {
                 "note": "intervals located from the counts alone (magcal.missions.elfin."
@@ -1012,12 +1042,14 @@ def _with_level_steps(fgs, state, settings, *, linear, level_step_rows=None,
     if rows is None:
         rows = find_steps(f) if settings.level_steps else np.zeros(len(f), bool)
     natural, drift = (none if x is None else x for x in (pulse_templates, drift_templates))
+    searched = {}
     if pulse_templates is None and settings.pulses_b:
         found = zone_pulses(f)
         kept = found["natural"].astype(bool)
         natural, drift = shapes(f, found[kept]), shapes(f, found[~kept])
+        searched = {"pulse_search": found}
     if not rows.any() and not np.size(natural) and not np.size(drift):
-        return first
+        return replace(first, steps={**first.steps, **searched})
     # a kept level change found on fitted samples is left out of the fits from now on
     given = kw.pop("fit_exclude", None)
 
@@ -1034,7 +1066,8 @@ def _with_level_steps(fgs, state, settings, *, linear, level_step_rows=None,
         # zone first, the others judged on the product with it
         strongest = find_steps(f, max_steps=1)
         rows = strongest | find_steps(again(strongest).calibration.field)
-    return again(rows)
+    day = again(rows)
+    return replace(day, steps={**day.steps, **searched})
 
 
 def _several_steps_in_a_zone(rows, zone) -> bool:

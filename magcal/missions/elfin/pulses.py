@@ -15,7 +15,11 @@ greedy, centre and width refined); a pulse is kept when it divides the residual'
 of squares by :data:`PULSE_MIN_GAIN` or more, is at least :data:`PULSE_MIN_NT` high,
 narrower than :data:`PULSE_MAX_FWHM_S` and rises and falls inside the zone (a wider
 best fit, or one cut by a zone end, is a drift the cubic lacks, not a pulse: the real
-day has four such, 170-300 s wide, fitted with the drift and removed). The
+day's delivered product has two such, zones 9 and 10, 172 and 179 s wide, +111 and
++104 nT, both cut by the zone end, fitted with the drift and removed). Every shape
+found is stated with the reason it is removed (``why``, :func:`drift_reason`; the
+JSON's ``pulses_b.search`` and the CLI), so a wide ``|B|`` structure is not lost
+silently. The
 day is then calibrated again with each kept pulse's shape fitted alongside the drift
 and left in the product (``pulse_b_<j>`` field columns; ``fit_gain_drift(natural=)``).
 
@@ -32,9 +36,18 @@ the cubic (the amplitude of the true shape fitted to the clean day), and the cub
 a pulse wider than a minute are close to collinear, so the width the search picks
 amplifies that. Hence :func:`pulse_trials`: the height's error from the same pulse
 found again in other zones' counts. No natural pulse on the clean day, on 160 draws of
-correlated plus white noise, nor where the scan finds only drifts (zones 3, 4, 9, 10 of
-the clean day: 170-300 s wide, fitted as drift; scalar residual 6.8 -> 6.3 nT, zone
-median).
+correlated plus white noise, nor where the scan finds only drifts (when measured, zones
+3, 4, 9, 10 of the clean day: 170-300 s wide, fitted as drift; scalar residual 6.8 ->
+6.3 nT, zone median).
+
+A natural pulse whose gain is near :data:`PULSE_MIN_GAIN` is a close call that a
+small change of the residual turns over (2022-01-12 zone 10: its own dip, -38 to
+-49 nT over 120-138 s, gain 10.6-21.0, is kept as natural only when an east-west
+or along-track pulse, whose small part along B changes the ``|B|`` residual by about
+10 nT, is put in nearby; the clean run removes a 179 s drift at the zone's end instead; the 100 nT
+pulses along B put into the counts were found with gains 13-312). That turn-over is
+what costs those east-west and along-track pulses their distortion target (15-24 %,
+4-5 % with ``pulses_b`` off); the gain is listed so that a user can see it.
 
 Data: ELFIN SOC (PI V. Angelopoulos, UCLA), "Open Data for Scientific Use".
 """
@@ -173,7 +186,9 @@ def find_pulses(t_s, residual, fit, *, edge_s: float = 20.0,
     Returns
     -------
     DataFrame
-        One row per kept pulse: ``centre_s``, ``fwhm_s``, ``height_nT``, ``gain``.
+        One row per shape found: ``centre_s``, ``fwhm_s``, ``height_nT``, ``gain``,
+        ``natural`` (kept in the product) and ``why`` (:func:`drift_reason`: why it is
+        removed with the drift instead; "" if natural).
 
     Examples
     --------
@@ -186,7 +201,7 @@ def find_pulses(t_s, residual, fit, *, edge_s: float = 20.0,
     """
     t = np.asarray(t_s, dtype=float)
     fit = np.asarray(fit, bool)
-    cols = ["centre_s", "fwhm_s", "height_nT", "gain", "natural"]
+    cols = ["centre_s", "fwhm_s", "height_nT", "gain", "natural", "why"]
     if fit.sum() < 4 * (degree + 2):
         return pd.DataFrame(columns=cols)
     grid = np.arange(t[fit][0], t[fit][-1], PULSE_STEP_S)
@@ -237,9 +252,28 @@ def find_pulses(t_s, residual, fit, *, edge_s: float = 20.0,
     # the fitted span): one cut by a zone end is as much the cubic's end as a pulse
     inside = (out["centre_s"] - out["fwhm_s"] / 2 >= tg[0] + edge_s) \
         & (out["centre_s"] + out["fwhm_s"] / 2 <= tg[-1] - edge_s)
-    out["natural"] = (np.abs(out["height_nT"]) >= min_nT) & (out["fwhm_s"] < max_fwhm_s) \
-        & inside
+    low, wide = np.abs(out["height_nT"]) < min_nT, out["fwhm_s"] >= max_fwhm_s
+    out["natural"] = ~low & ~wide & inside
+    out["why"] = [drift_reason(*x, min_nT=min_nT, max_fwhm_s=max_fwhm_s)
+                  for x in zip(low, wide, ~inside)]
     return out
+
+
+def drift_reason(low: bool, wide: bool, cut: bool, *, min_nT: float = PULSE_MIN_NT,
+                 max_fwhm_s: float = PULSE_MAX_FWHM_S) -> str:
+    """Why a shape :func:`find_pulses` found is removed with the drift ("" if it is kept
+    as a natural pulse): what the product's JSON and the CLI state for each.
+
+    Examples
+    --------
+    >>> drift_reason(False, True, True)
+    'FWHM 150 s or more; cut by a zone end'
+    >>> drift_reason(False, False, False)
+    ''
+    """
+    return "; ".join(text for flag, text in (
+        (low, f"under {min_nT:g} nT"), (wide, f"FWHM {max_fwhm_s:g} s or more"),
+        (cut, "cut by a zone end")) if flag)
 
 
 def zone_pulses(field: pd.DataFrame, **kw) -> pd.DataFrame:
@@ -249,7 +283,7 @@ def zone_pulses(field: pd.DataFrame, **kw) -> pd.DataFrame:
     -------
     DataFrame
         ``zone``, ``start`` (UTC of the zone's first row), ``centre_s`` (from it),
-        ``fwhm_s``, ``height_nT``, ``gain``, ``natural`` (see :func:`find_pulses`).
+        ``fwhm_s``, ``height_nT``, ``gain``, ``natural``, ``why`` (see :func:`find_pulses`).
     """
     from magcal.missions.elfin.detect import zone_residuals
     from magcal.missions.elfin.drift import fit_samples
@@ -262,7 +296,7 @@ def zone_pulses(field: pd.DataFrame, **kw) -> pd.DataFrame:
         t = (ns - ns[0]) / 1e9
         p = find_pulses(t, zone_residuals(z)[:, 3], fit_samples(z, scalar=True), **kw)
         tabs.append(p.assign(zone=int(k), start=z.index[0]))
-    cols = ["zone", "start", "centre_s", "fwhm_s", "height_nT", "gain", "natural"]
+    cols = ["zone", "start", "centre_s", "fwhm_s", "height_nT", "gain", "natural", "why"]
     out = pd.concat([t for t in tabs if len(t)], ignore_index=True) if any(
         len(t) for t in tabs) else pd.DataFrame(columns=cols)
     return out[cols]
