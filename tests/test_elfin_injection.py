@@ -366,3 +366,23 @@ def test_a_pulse_beside_the_zone_s_own_disturbance_no_longer_blinds_the_detector
                - clean.calibration.field[["bx_gei", "by_gei", "bz_gei"]].to_numpy(), sig,
                f["used"].to_numpy() == 1)
     assert 0.9 <= got.energy <= 1.1
+
+
+def test_target_counts_reads_the_whole_signal_per_polarity_and_the_own_part_per_case():
+    """Closed form: two zones of one signal, both polarities. Zone 1 meets the targets
+    for either sign; zone 2 loses energy for one sign only, while its own part (the odd
+    columns, the same on both sign rows) keeps 0.92 with 0.12 distortion."""
+    import pandas as pd
+
+    from magcal.missions.elfin.injection import target_counts
+
+    tab = pd.DataFrame({"signal": ["s"] * 4, "zone": [1, 2, 1, 2], "sign": [1, 1, -1, -1],
+                        "energy_kept": [0.95, 0.70, 0.91, 1.10],
+                        "distortion": [0.05, 0.08, 0.09, 0.11],
+                        "energy_kept_odd": [0.93, 0.92, 0.93, 0.92],
+                        "distortion_odd": [0.04, 0.12, 0.04, 0.12]})
+    got = target_counts(tab).iloc[0].to_dict()
+    assert got == {"signal": "s", "cases": 4, "energy": 3, "distortion": 3, "both": 2,
+                   "odd_cases": 2, "odd_energy": 2, "odd_distortion": 1, "odd_both": 1}
+    strict = target_counts(tab, min_energy=0.95, max_distortion=0.05).iloc[0]
+    assert (strict["both"], strict["odd_both"]) == (1, 0)

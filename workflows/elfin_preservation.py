@@ -99,6 +99,13 @@ def _print(label, tab, clean) -> None:
           .round(3).to_string())
     if both:
         _print_parts(label, last)
+    from magcal.missions.elfin.injection import TARGET_DISTORTION, TARGET_ENERGY, target_counts
+
+    print(f"\n== {label}: cases meeting the targets (energy kept at least "
+          f"{TARGET_ENERGY:.0%}, distortion at most {TARGET_DISTORTION:.0%}): on the whole "
+          "signal, each polarity a case; odd_: on the signal's own part, one case per "
+          "zone and place")
+    print(target_counts(last).to_string(index=False))
     if "bridge_rms_nT" in last.columns:
         b = last.dropna(subset=["error_rms_nT", "bridge_rms_nT"])
         ratio = b["error_rms_nT"] / b["bridge_rms_nT"]

@@ -347,6 +347,55 @@ def polarity_parts(clean_day, plus_day, minus_day, signals: dict, kind: str) -> 
     return pd.DataFrame(rows)
 
 
+#: The issue's targets for every signal: energy kept and distortion (RMS, of the signal's).
+TARGET_ENERGY, TARGET_DISTORTION = 0.9, 0.1
+
+
+def target_counts(delivered: pd.DataFrame, *, min_energy: float = TARGET_ENERGY,
+                  max_distortion: float = TARGET_DISTORTION) -> pd.DataFrame:
+    """How many cases of each signal meet the preservation targets, read two ways.
+
+    Per case and polarity on the whole signal (``energy_kept`` at least ``min_energy``,
+    ``distortion`` at most ``max_distortion``, and both), and, where both polarities ran
+    (:func:`polarity_parts` columns), on the signal's own part: the odd part
+    ``(r+ - r-) / 2`` without the day's own field that the clean run gave to a drift
+    (``energy_kept_odd``, ``distortion_odd``; one case per zone and place).
+
+    Parameters
+    ----------
+    delivered : DataFrame
+        The delivered product's rows of :func:`run_injections` (``signal``, ``zone``,
+        ``energy_kept``, ``distortion``; ``sign`` and the odd columns with both signs).
+
+    Returns
+    -------
+    DataFrame
+        Per signal: ``cases``, ``energy``, ``distortion``, ``both`` and, with the odd
+        part, ``odd_cases``, ``odd_energy``, ``odd_distortion``, ``odd_both``.
+
+    Examples
+    --------
+    >>> tab = pd.DataFrame({"signal": ["a", "a", "b"], "zone": [1, 2, 1],
+    ...                     "energy_kept": [0.95, 0.80, 1.20],
+    ...                     "distortion": [0.05, 0.05, 0.30]})
+    >>> target_counts(tab).to_dict(orient="records")[0]
+    {'signal': 'a', 'cases': 2, 'energy': 1, 'distortion': 2, 'both': 1}
+    """
+    rows = []
+    for kind, g in delivered.groupby("signal", sort=False):
+        e, d = g["energy_kept"] >= min_energy, g["distortion"] <= max_distortion
+        row = {"signal": kind, "cases": len(g), "energy": int(e.sum()),
+               "distortion": int(d.sum()), "both": int((e & d).sum())}
+        if "energy_kept_odd" in g.columns:
+            one = g[g["sign"] == g["sign"].iloc[0]] if "sign" in g.columns else g
+            eo = one["energy_kept_odd"] >= min_energy
+            do = one["distortion_odd"] <= max_distortion
+            row.update(odd_cases=len(one), odd_energy=int(eo.sum()),
+                       odd_distortion=int(do.sum()), odd_both=int((eo & do).sum()))
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
 def trial_places(field: pd.DataFrame, own: int, at, busy, n_trials: int) -> list[tuple]:
     """Where a signal that zone ``own`` holds at the times ``at`` is put for a trial:
     up to ``n_trials`` other zones of ``field`` not in ``busy`` and with used samples
