@@ -624,17 +624,20 @@ class ElfinDay:
                     "it is put into the counts of other zones at the same place "
                     "(pulse_trials of them, trial_heights_nT)")
             if "pulse_search" in self.steps:
+                from magcal.missions.elfin.pulses import PULSE_MIN_GAIN
+
                 payload["pulses_b"]["search"] = self.pulse_search_listing()
                 payload["pulses_b"]["note_search"] = (
                     "every shape the search found in the |B| residual of the product "
                     "without pulses (height_nT as found there, nT; gain: that residual's "
                     "sum of squares about the cubic without the shape over that with it, "
-                    "kept from 10): natural ones are kept in the product, the others "
-                    "removed with the gain drift for the reason given (why). A natural "
-                    "pulse whose gain is near 10 is a close call: on 2022-01-12 a zone's "
-                    "own dip (-38 to -49 nT, gain 10.6-21.0) was kept only when an east-"
-                    "west or along-track pulse was put in nearby, against 13-312 for 100 nT pulses "
-                    "along B put into the counts")
+                    f"kept from {PULSE_MIN_GAIN:g}): natural ones are kept in the product, "
+                    "the others removed with the gain drift for the reason given (why). "
+                    f"A natural pulse whose gain is near {PULSE_MIN_GAIN:g} is a close "
+                    "call: on 2022-01-12 a zone's own dip (-38 to -49 nT, gain "
+                    "10.6-21.0) was kept only when an east-west or along-track pulse was "
+                    "put in nearby, against 13-312 for 100 nT pulses along B put into "
+                    "the counts")
         if "disturbed_detection" in self.steps:
             payload["disturbed_detection"] = {
                 "note": "intervals located from the counts alone (magcal.missions.elfin."

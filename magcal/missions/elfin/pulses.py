@@ -42,12 +42,13 @@ correlated plus white noise, nor where the scan finds only drifts (when measured
 
 A natural pulse whose gain is near :data:`PULSE_MIN_GAIN` is a close call that a
 small change of the residual turns over (2022-01-12 zone 10: its own dip, -38 to
--49 nT over 120-138 s, gain 10.6-21.0, is kept as natural only when an east-west
-or along-track pulse, whose small part along B changes the ``|B|`` residual by about
-10 nT, is put in nearby; the clean run removes a 179 s drift at the zone's end instead; the 100 nT
-pulses along B put into the counts were found with gains 13-312). That turn-over is
-what costs those east-west and along-track pulses their distortion target (15-24 %,
-4-5 % with ``pulses_b`` off); the gain is listed so that a user can see it.
+-49 nT over 120-138 s, gain 10.6-21.0, is kept as natural only when an east-west or
+along-track pulse, whose small part along B changes the ``|B|`` residual by about
+10 nT, is put in nearby; the clean run removes a 179 s drift at the zone's end
+instead; the 100 nT pulses along B put into the counts were found with gains
+13-312). That turn-over is what costs those east-west and along-track pulses their
+distortion target (15-24 %, 4-5 % with ``pulses_b`` off); the gain is listed so
+that a user can see it.
 
 Data: ELFIN SOC (PI V. Angelopoulos, UCLA), "Open Data for Scientific Use".
 """
