@@ -17,6 +17,7 @@ import pytest
 from conftest import real_data_path
 from magcal.alignment.noise import simulate_ou
 from magcal.missions.elfin.levels import (
+    judge_level_steps,
     level_change_candidates,
     level_step_rows,
     level_steps_wanted,
@@ -150,6 +151,26 @@ def test_a_pulse_left_out_is_not_a_step():
     assert level_steps_wanted(T, r, fit).tolist() == [False]
 
 
+def test_the_judgement_states_each_interval_s_tests_with_the_kept_step_s_size():
+    """Closed form: a 300 nT sheet behind a -0.8 nT/s trend, a quiet gap before it.
+    The sheet's interval is kept with its step within 5 nT of 300 (the trend is fitted
+    with it), nearly all of its excursion and the level beside it; the quiet gap is
+    judged too, not kept, and says which tests it fails (a step of a few nT)."""
+    r = _sheet() - 0.8 * T
+    fit = ~(((T > 160) & (T < 240)) | ((T > 50) & (T < 80)))
+    tab = judge_level_steps(T, r, fit)
+    assert tab["kept"].tolist() == [False, True]
+    sheet = tab.iloc[1]
+    assert sheet["step_nT"] == pytest.approx(300.0, abs=5.0)
+    assert sheet["share"] >= 0.95 and sheet["gain"] >= 3.0 and sheet["why"] == ""
+    assert sheet["start_s"] == pytest.approx(160.2, abs=0.3)
+    quiet = tab.iloc[0]
+    assert abs(quiet["step_nT"]) < 5.0
+    assert quiet["why"].startswith("gain under 3") and "under 30 nT" in quiet["why"]
+    # the choice is level_steps_wanted's
+    assert level_steps_wanted(T, r, fit).tolist() == tab["kept"].tolist()
+
+
 def test_a_disturbance_flagged_in_part_is_not_a_step():
     """A 120 nT bump (60 s sigma) whose rise is fitted and whose tail is left out:
     the trend bends to its fitted side, the level next to the gap hardly changes."""
@@ -248,6 +269,11 @@ def test_real_disturbances_flagged_in_part_get_no_step(zones_2_7_8):
     assert ((f["used"] == 1) & (f["fit"] == 0)).any()      # there are left-out runs
     assert f["level_step"].sum() == 0
     assert np.abs(f[cols].to_numpy() - off.calibration.field[cols].to_numpy()).max() < 1e-9
+    # each was judged and is stated with the tests it fails
+    judged = on.to_json()["level_steps"]["judged"]
+    assert judged and not any(x["kept"] for x in judged)
+    assert all(x["why"] and x["start"] < x["end"] for x in judged)
+    assert {x["zone"] for x in judged} <= {0, 1, 2}
     assert on.calibrated_table()["level_step"].eq(0).all()
 
 

@@ -120,7 +120,8 @@ def _calibrate(data, settings, inputs, disturbed=()):
                                      " the level trades with the spin-axis gain)"
                                      if x.get("axis_field_small") else "")
                                   for x in steps)
-                        if steps else "none"))
+                        if steps else "none")
+                     + _judged_note(day.level_step_judged()))
     if settings.pulses_b:
         lines.extend(pulse_lines(day))
     lines.append(f"delivered: {day.delivered}")
@@ -130,6 +131,18 @@ def _calibrate(data, settings, inputs, disturbed=()):
                              documents={"ELFIN_CAL.json": day.to_json()},
                              provenance=prov,
                              warnings=tuple(empty + day.data_warnings() + day.worse_steps()))
+
+
+def _judged_note(judged: list[dict]) -> str:
+    """How many left-out intervals were judged for a level step and not kept, and the
+    largest of their steps (the rest is in ``ELFIN_CAL.json``)."""
+    lost = [x for x in judged if not x["kept"]]
+    if not lost:
+        return ""
+    big = max(lost, key=lambda x: abs(x["step_nT"]))
+    return (f" ({len(lost)} left-out interval(s) judged and not kept; the largest step: "
+            f"zone {big['zone']} {big['start'][11:19]} UTC {big['step_nT']:+.0f} nT, "
+            f"{big['why']}; level_steps.judged in ELFIN_CAL.json)")
 
 
 def pulse_lines(day) -> list[str]:

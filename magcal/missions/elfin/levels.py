@@ -141,7 +141,8 @@ def level_steps_wanted(t_s, axis_residual, fit, *, degree: int = LEVEL_TREND_DEG
     Returns
     -------
     ndarray of bool (m,)
-        One per run of :func:`left_out_runs`.
+        One per run of :func:`left_out_runs`; :func:`judge_level_steps` gives the
+        tests' values too.
 
     Examples
     --------
@@ -152,12 +153,55 @@ def level_steps_wanted(t_s, axis_residual, fit, *, degree: int = LEVEL_TREND_DEG
     >>> level_steps_wanted(t, sheet, fit).tolist(), level_steps_wanted(t, pulse, fit).tolist()
     ([False, True], [False, False])
     """
+    table = judge_level_steps(t_s, axis_residual, fit, degree=degree, smooth_s=smooth_s,
+                              window_s=window_s, min_s=min_s, max_steps=max_steps)
+    return table["kept"].to_numpy(bool)
+
+
+#: Columns of :func:`judge_level_steps`.
+JUDGED_COLUMNS = ["start_s", "end_s", "step_nT", "share", "local_nT", "gain", "kept", "why"]
+
+
+def judge_level_steps(t_s, axis_residual, fit, *, degree: int = LEVEL_TREND_DEGREE,
+                      smooth_s: float = 3.0, window_s: float = 30.0, min_s: float = 5.0,
+                      max_steps: int | None = None) -> pd.DataFrame:
+    """:func:`level_steps_wanted`'s choice with the values of its tests, per interval.
+
+    For a kept step the values are those of the final fit with the steps kept (its
+    ``gain``: the sum of squares without it over that with it); for one not kept,
+    those of the kept steps with it added (``gain``: the kept steps' sum of squares
+    over that with it). ``why`` names the tests an interval fails ("" if kept):
+    so that a current sheet the product took as an offset drift shows as an interval
+    judged and not kept, with how far it was from a step.
+
+    Returns
+    -------
+    DataFrame
+        One row per run of :func:`left_out_runs`: ``start_s``, ``end_s`` (times of its
+        first and last sample), ``step_nT``, ``share`` (the step over the largest
+        excursion inside the interval), ``local_nT`` (the level change next to it),
+        ``gain``, ``kept`` and ``why``.
+
+    Examples
+    --------
+    >>> t = np.arange(0.0, 300.0, 0.1)
+    >>> pulse = 200.0 * np.exp(-0.5 * ((t - 150.0) / 17.0) ** 2)
+    >>> fit = (t < 120) | (t > 180)
+    >>> row = judge_level_steps(t, pulse, fit).iloc[0]
+    >>> bool(row["kept"]), row["why"].split("; ")[:2]
+    (False, ['gain under 3', 'under 30 nT'])
+    """
     t = np.asarray(t_s, dtype=float)
     r = np.asarray(axis_residual, dtype=float)
     fit = np.asarray(fit, bool) & np.isfinite(r)
     runs = left_out_runs(t, fit, min_s=min_s)
+    table = pd.DataFrame({"start_s": [t[a] for a, _ in runs],
+                          "end_s": [t[b - 1] for _, b in runs],
+                          "step_nT": np.nan, "share": np.nan, "local_nT": np.nan,
+                          "gain": np.nan, "kept": False, "why": ""}, columns=JUDGED_COLUMNS)
     if not runs or fit.sum() <= degree + 1 + len(runs):
-        return np.zeros(len(runs), bool)
+        table["why"] = "too few fitted samples"
+        return table
     width = max(1, int(round(smooth_s / max(float(np.median(np.diff(t))), 1e-9))))
     r_s = np.convolve(np.nan_to_num(r), np.ones(width) / width, mode="same")
     T = 2.0 * (t - t[fit][0]) / (t[fit][-1] - t[fit][0]) - 1.0
@@ -167,40 +211,62 @@ def level_steps_wanted(t_s, axis_residual, fit, *, degree: int = LEVEL_TREND_DEG
     def solve(chosen):
         x = np.column_stack([trend, steps[:, chosen]])
         coef = np.linalg.lstsq(x[fit], r_s[fit], rcond=None)[0]
-        return coef, r_s - x @ coef
+        return coef, float(np.sum((r_s - x @ coef)[fit] ** 2))
 
-    def passes(chosen, coef):
-        for j, size in zip(chosen, coef[degree + 1:]):
-            a, b = runs[j]
-            before = trend[a] @ coef[:degree + 1] + sum(
-                c for i, c in zip(chosen, coef[degree + 1:]) if runs[i][1] <= a)
-            peak = np.max(np.abs(r_s[a:b] - before))
-            local = level_change(t, r_s, fit, t[a], t[b - 1], window_s)
-            if not np.isfinite(local):
-                return False
-            if not (abs(size) >= LEVEL_STEP_MIN_NT and abs(size) >= LEVEL_STEP_MIN_SHARE * peak
-                    and local * size >= LEVEL_STEP_MIN_LOCAL * size ** 2):
-                return False
-        return True
+    def tests(j, chosen, coef) -> tuple:
+        """Step j's size, share, local change and the size tests it fails, in the fit
+        of the steps ``chosen`` (sorted, holding j)."""
+        a, b = runs[j]
+        size = coef[degree + 1 + chosen.index(j)]
+        before = trend[a] @ coef[:degree + 1] + sum(
+            c for i, c in zip(chosen, coef[degree + 1:]) if runs[i][1] <= a)
+        peak = np.max(np.abs(r_s[a:b] - before))
+        local = level_change(t, r_s, fit, t[a], t[b - 1], window_s)
+        fails = []
+        if abs(size) < LEVEL_STEP_MIN_NT:
+            fails.append(f"under {LEVEL_STEP_MIN_NT:g} nT")
+        if abs(size) < LEVEL_STEP_MIN_SHARE * peak:
+            fails.append(f"under {LEVEL_STEP_MIN_SHARE:g} of the excursion inside")
+        if not np.isfinite(local):
+            fails.append("no fitted samples beside it")
+        elif not local * size >= LEVEL_STEP_MIN_LOCAL * size ** 2:
+            fails.append(f"level change beside it under {LEVEL_STEP_MIN_LOCAL:g} of it")
+        return size, abs(size) / peak if peak > 0 else np.inf, local, fails
 
     chosen = []
-    rss = float(np.sum(solve(chosen)[1][fit] ** 2))
+    rss = solve(chosen)[1]
     while len(chosen) < min(len(runs), len(runs) if max_steps is None else max_steps):
         tried = []
         for j in range(len(runs)):
             if j in chosen:
                 continue
             trial = sorted(chosen + [j])
-            coef, resid = solve(trial)
-            new = float(np.sum(resid[fit] ** 2))
-            if new * LEVEL_STEP_MIN_GAIN <= rss and passes(trial, coef):
+            coef, new = solve(trial)
+            if new * LEVEL_STEP_MIN_GAIN <= rss and not any(
+                    tests(i, trial, coef)[3] for i in trial):
                 tried.append((new, trial))
         if not tried:
             break
         rss, chosen = min(tried)
-    out = np.zeros(len(runs), bool)
-    out[chosen] = True
-    return out
+    coef_kept = solve(chosen)[0]
+    for j in range(len(runs)):
+        if j in chosen:
+            rest = [i for i in chosen if i != j]
+            size, share, local, fails = tests(j, chosen, coef_kept)
+            gain = solve(rest)[1] / max(rss, 1e-300)
+        else:
+            trial = sorted(chosen + [j])
+            coef, new = solve(trial)
+            size, share, local, fails = tests(j, trial, coef)
+            gain = rss / max(new, 1e-300)
+            if gain < LEVEL_STEP_MIN_GAIN:
+                fails = [f"gain under {LEVEL_STEP_MIN_GAIN:g}"] + fails
+            if not fails:
+                fails = ["not chosen (max_steps, or a kept step fails with it)"]
+        table.loc[j, ["step_nT", "share", "local_nT", "gain"]] = [size, share, local, gain]
+        table.loc[j, "kept"] = j in chosen
+        table.loc[j, "why"] = "; ".join(fails) if j not in chosen else ""
+    return table
 
 
 def level_change_candidates(t_s, axis_residual, fit, *, window_s: float = 15.0,
@@ -296,6 +362,28 @@ def level_step_rows(field: pd.DataFrame, *, candidates: bool = True,
         :func:`~magcal.missions.elfin.pipeline.calibrate_elfin_day`).
     """
     out = np.zeros(len(field), bool)
+    for _, sel, runs, table in _zone_judgements(field, candidates, max_steps):
+        for (a, b), keep in zip(runs, table["kept"]):
+            out[sel[a:b]] = keep
+    return out
+
+
+def level_step_table(field: pd.DataFrame, *, candidates: bool = True,
+                     max_steps: int | None = None) -> pd.DataFrame:
+    """Every interval :func:`level_step_rows` judges, kept or not, with its tests
+    (:func:`judge_level_steps`): ``zone``, ``start`` (UTC of the zone's first row) and
+    the :data:`JUDGED_COLUMNS` (times in s from it)."""
+    tabs = [table.assign(zone=int(k), start=field.index[sel[0]])
+            for k, sel, _, table in _zone_judgements(field, candidates, max_steps)]
+    cols = ["zone", "start", *JUDGED_COLUMNS]
+    tabs = [t for t in tabs if len(t)]
+    return pd.concat(tabs, ignore_index=True)[cols] if tabs else pd.DataFrame(columns=cols)
+
+
+def _zone_judgements(field: pd.DataFrame, candidates: bool, max_steps):
+    """Per zone of ``field`` with fitted samples: its number, its rows, the runs of
+    :func:`left_out_runs` (with the candidates merged in) and their
+    :func:`judge_level_steps` table."""
     zone = field["zone"].to_numpy()
     fit_all = (field["used"].to_numpy() == 1) & (field["fit"].to_numpy() == 1)
     resid = (field["bz_despun"] - field["igrf_z_despun"]).to_numpy(float)
@@ -307,10 +395,8 @@ def level_step_rows(field: pd.DataFrame, *, candidates: bool = True,
             continue
         if candidates:
             fit = fit & ~level_change_candidates(t, resid[sel], fit)
-        wanted = level_steps_wanted(t, resid[sel], fit, max_steps=max_steps)
-        for (a, b), keep in zip(left_out_runs(t, fit), wanted):
-            out[sel[a:b]] = keep
-    return out
+        yield k, sel, left_out_runs(t, fit), judge_level_steps(t, resid[sel], fit,
+                                                               max_steps=max_steps)
 
 
 #: Seconds after a trial sheet's start from which its kept level is read (its 10-90 %

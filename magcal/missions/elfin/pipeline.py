@@ -535,6 +535,27 @@ class ElfinDay:
                             "height_nT": float(heights[i]) if i < len(heights) else float("nan")})
         return out
 
+    def level_step_judged(self) -> list[dict]:
+        """Every left-out interval judged for a level step, kept or not
+        (``steps["level_search"]``, :func:`~magcal.missions.elfin.levels.
+        level_step_table`): ``zone``, ``start`` and ``end`` (UTC, ISO), ``step_nT``,
+        ``share``, ``local_nT``, ``gain``, ``kept``, ``why`` (the tests it fails) and
+        ``judged_on`` (the product without steps, or, in a zone that wants several,
+        with the strongest kept): so that a current sheet the slow terms took shows as
+        an interval judged and not kept, with how far it was from a step."""
+        judged = self.steps.get("level_search")
+        if judged is None or not len(judged):
+            return []
+
+        def utc(start, s):
+            return str((start + pd.to_timedelta(s, unit="s")).tz_convert(None))
+
+        return [{"zone": int(r.zone), "start": utc(r.start, r.start_s),
+                 "end": utc(r.start, r.end_s), "step_nT": float(r.step_nT),
+                 "share": float(r.share), "local_nT": float(r.local_nT),
+                 "gain": float(r.gain), "kept": bool(r.kept), "why": str(r.why),
+                 "judged_on": str(r.judged_on)} for r in judged.itertuples()]
+
     def pulse_search_listing(self) -> list[dict]:
         """What the search for pulses along B found (``steps["pulse_search"]``,
         :func:`~magcal.missions.elfin.pulses.zone_pulses`): per shape the ``zone``, its
@@ -606,6 +627,20 @@ class ElfinDay:
                 "ELFIN data tell them apart; 2022-01-12 zone 10, 405 nT: a 300 nT sheet "
                 "kept at 0.88); axis_row_prior: the zone's spin-axis row drawn towards "
                 "the day's (axis_prior_weight)")
+            if "level_search" in self.steps:
+                from magcal.missions.elfin import levels as lv
+
+                payload["level_steps"]["judged"] = self.level_step_judged()
+                payload["level_steps"]["note_judged"] = (
+                    "every left-out interval judged for a step on the spin-axis residual "
+                    "(spin-averaged) of the product without steps, kept or not: step_nT "
+                    "fitted with a cubic trend and the kept steps; kept if it divides "
+                    f"the sum of squares by {lv.LEVEL_STEP_MIN_GAIN:g} or more (gain), "
+                    f"is {lv.LEVEL_STEP_MIN_NT:g} nT or more, "
+                    f"{lv.LEVEL_STEP_MIN_SHARE:g} of the largest excursion inside or "
+                    "more (share) and the level change beside it (local_nT, 30 s either "
+                    f"side) is {lv.LEVEL_STEP_MIN_LOCAL:g} of it or more; why: the tests "
+                    "it fails")
             if "level_trials" in self.steps:
                 payload["level_steps"]["note_error"] = (
                     "step_error_nT: RMS error of the levels kept when a current sheet of "
@@ -1030,7 +1065,7 @@ def _with_level_steps(fgs, state, settings, *, linear, level_step_rows=None,
     decided on the delivered product (its spin-axis and ``|B|`` residuals), once, but
     for a zone that wants more than one level step (the strongest is kept first and
     the others judged on the day calibrated with it)."""
-    from magcal.missions.elfin.levels import level_step_rows as find_steps
+    from magcal.missions.elfin.levels import level_step_rows as find_steps, level_step_table
     from magcal.missions.elfin.pulses import pulse_templates as shapes, zone_pulses
 
     none = np.zeros((len(fgs), 0))
@@ -1042,15 +1077,17 @@ def _with_level_steps(fgs, state, settings, *, linear, level_step_rows=None,
         drift_templates=none if drift_templates is None else drift_templates, **kw)
     f = first.calibration.field
     rows = level_step_rows
+    searched = {}
     if rows is None:
         rows = find_steps(f) if settings.level_steps else np.zeros(len(f), bool)
+        if settings.level_steps:
+            searched["level_search"] = level_step_table(f).assign(judged_on="without steps")
     natural, drift = (none if x is None else x for x in (pulse_templates, drift_templates))
-    searched = {}
     if pulse_templates is None and settings.pulses_b:
         found = zone_pulses(f)
         kept = found["natural"].astype(bool)
         natural, drift = shapes(f, found[kept]), shapes(f, found[~kept])
-        searched = {"pulse_search": found}
+        searched["pulse_search"] = found
     if not rows.any() and not np.size(natural) and not np.size(drift):
         return replace(first, steps={**first.steps, **searched})
     # a kept level change found on fitted samples is left out of the fits from now on
@@ -1068,7 +1105,12 @@ def _with_level_steps(fgs, state, settings, *, linear, level_step_rows=None,
         # opposite polarity at 0.65: a false -199 nT step): the strongest step of each
         # zone first, the others judged on the product with it
         strongest = find_steps(f, max_steps=1)
-        rows = strongest | find_steps(again(strongest).calibration.field)
+        with_strongest = again(strongest).calibration.field
+        rows = strongest | find_steps(with_strongest)
+        searched["level_search"] = pd.concat(
+            [level_step_table(f, max_steps=1).assign(judged_on="without steps"),
+             level_step_table(with_strongest).assign(judged_on="with the strongest")],
+            ignore_index=True)
     day = again(rows)
     return replace(day, steps={**day.steps, **searched})
 
