@@ -361,23 +361,24 @@ def level_step_rows(field: pd.DataFrame, *, candidates: bool = True,
         a day calibrated with them (``level_step_rows`` of
         :func:`~magcal.missions.elfin.pipeline.calibrate_elfin_day`).
     """
-    out = np.zeros(len(field), bool)
-    for _, sel, runs, table in _zone_judgements(field, candidates, max_steps):
+    return level_step_decision(field, candidates=candidates, max_steps=max_steps)[0]
+
+
+def level_step_decision(field: pd.DataFrame, *, candidates: bool = True,
+                        max_steps: int | None = None) -> tuple[np.ndarray, pd.DataFrame]:
+    """:func:`level_step_rows` and every interval it judged, kept or not, with its
+    tests (:func:`judge_level_steps`): ``zone``, ``start`` (UTC of the zone's first
+    row) and the :data:`JUDGED_COLUMNS` (times in s from it)."""
+    rows = np.zeros(len(field), bool)
+    tabs = []
+    for k, sel, runs, table in _zone_judgements(field, candidates, max_steps):
         for (a, b), keep in zip(runs, table["kept"]):
-            out[sel[a:b]] = keep
-    return out
-
-
-def level_step_table(field: pd.DataFrame, *, candidates: bool = True,
-                     max_steps: int | None = None) -> pd.DataFrame:
-    """Every interval :func:`level_step_rows` judges, kept or not, with its tests
-    (:func:`judge_level_steps`): ``zone``, ``start`` (UTC of the zone's first row) and
-    the :data:`JUDGED_COLUMNS` (times in s from it)."""
-    tabs = [table.assign(zone=int(k), start=field.index[sel[0]])
-            for k, sel, _, table in _zone_judgements(field, candidates, max_steps)]
+            rows[sel[a:b]] = keep
+        if len(table):
+            tabs.append(table.assign(zone=int(k), start=field.index[sel[0]]))
     cols = ["zone", "start", *JUDGED_COLUMNS]
-    tabs = [t for t in tabs if len(t)]
-    return pd.concat(tabs, ignore_index=True)[cols] if tabs else pd.DataFrame(columns=cols)
+    return rows, (pd.concat(tabs, ignore_index=True)[cols] if tabs
+                  else pd.DataFrame(columns=cols))
 
 
 def _zone_judgements(field: pd.DataFrame, candidates: bool, max_steps):

@@ -1065,7 +1065,7 @@ def _with_level_steps(fgs, state, settings, *, linear, level_step_rows=None,
     decided on the delivered product (its spin-axis and ``|B|`` residuals), once, but
     for a zone that wants more than one level step (the strongest is kept first and
     the others judged on the day calibrated with it)."""
-    from magcal.missions.elfin.levels import level_step_rows as find_steps, level_step_table
+    from magcal.missions.elfin.levels import level_step_decision as decide
     from magcal.missions.elfin.pulses import pulse_templates as shapes, zone_pulses
 
     none = np.zeros((len(fgs), 0))
@@ -1079,9 +1079,10 @@ def _with_level_steps(fgs, state, settings, *, linear, level_step_rows=None,
     rows = level_step_rows
     searched = {}
     if rows is None:
-        rows = find_steps(f) if settings.level_steps else np.zeros(len(f), bool)
+        rows = np.zeros(len(f), bool)
         if settings.level_steps:
-            searched["level_search"] = level_step_table(f).assign(judged_on="without steps")
+            rows, judged = decide(f)
+            searched["level_search"] = judged.assign(judged_on="without steps")
     natural, drift = (none if x is None else x for x in (pulse_templates, drift_templates))
     if pulse_templates is None and settings.pulses_b:
         found = zone_pulses(f)
@@ -1104,13 +1105,12 @@ def _with_level_steps(fgs, state, settings, *, linear, level_step_rows=None,
         # may then look like a level change too (2022-01-12 zone 8, a sheet of the
         # opposite polarity at 0.65: a false -199 nT step): the strongest step of each
         # zone first, the others judged on the product with it
-        strongest = find_steps(f, max_steps=1)
-        with_strongest = again(strongest).calibration.field
-        rows = strongest | find_steps(with_strongest)
+        strongest, first_judged = decide(f, max_steps=1)
+        rows, then_judged = decide(again(strongest).calibration.field)
+        rows = strongest | rows
         searched["level_search"] = pd.concat(
-            [level_step_table(f, max_steps=1).assign(judged_on="without steps"),
-             level_step_table(with_strongest).assign(judged_on="with the strongest")],
-            ignore_index=True)
+            [first_judged.assign(judged_on="without steps"),
+             then_judged.assign(judged_on="with the strongest")], ignore_index=True)
     day = again(rows)
     return replace(day, steps={**day.steps, **searched})
 
