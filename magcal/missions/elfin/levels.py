@@ -160,6 +160,14 @@ def level_steps_wanted(t_s, axis_residual, fit, *, degree: int = LEVEL_TREND_DEG
 
 #: Columns of :func:`judge_level_steps`.
 JUDGED_COLUMNS = ["start_s", "end_s", "step_nT", "share", "local_nT", "gain", "kept", "why"]
+#: What ``level_steps.judged`` of ``ELFIN_CAL.json`` holds (:func:`judge_level_steps`).
+JUDGED_NOTE = (
+    "every left-out interval judged for a step on the spin-axis residual (spin-averaged) "
+    "of the product without steps, kept or not: step_nT fitted with a cubic trend and "
+    f"the kept steps; kept if it divides the sum of squares by {LEVEL_STEP_MIN_GAIN:g} or "
+    f"more (gain), is {LEVEL_STEP_MIN_NT:g} nT or more, {LEVEL_STEP_MIN_SHARE:g} of the "
+    "largest excursion inside or more (share) and the level change beside it (local_nT, "
+    f"30 s either side) is {LEVEL_STEP_MIN_LOCAL:g} of it or more; why: the tests it fails")
 
 
 def judge_level_steps(t_s, axis_residual, fit, *, degree: int = LEVEL_TREND_DEGREE,

@@ -628,19 +628,10 @@ class ElfinDay:
                 "kept at 0.88); axis_row_prior: the zone's spin-axis row drawn towards "
                 "the day's (axis_prior_weight)")
             if "level_search" in self.steps:
-                from magcal.missions.elfin import levels as lv
+                from magcal.missions.elfin.levels import JUDGED_NOTE
 
                 payload["level_steps"]["judged"] = self.level_step_judged()
-                payload["level_steps"]["note_judged"] = (
-                    "every left-out interval judged for a step on the spin-axis residual "
-                    "(spin-averaged) of the product without steps, kept or not: step_nT "
-                    "fitted with a cubic trend and the kept steps; kept if it divides "
-                    f"the sum of squares by {lv.LEVEL_STEP_MIN_GAIN:g} or more (gain), "
-                    f"is {lv.LEVEL_STEP_MIN_NT:g} nT or more, "
-                    f"{lv.LEVEL_STEP_MIN_SHARE:g} of the largest excursion inside or "
-                    "more (share) and the level change beside it (local_nT, 30 s either "
-                    f"side) is {lv.LEVEL_STEP_MIN_LOCAL:g} of it or more; why: the tests "
-                    "it fails")
+                payload["level_steps"]["note_judged"] = JUDGED_NOTE
             if "level_trials" in self.steps:
                 payload["level_steps"]["note_error"] = (
                     "step_error_nT: RMS error of the levels kept when a current sheet of "
@@ -659,20 +650,10 @@ class ElfinDay:
                     "it is put into the counts of other zones at the same place "
                     "(pulse_trials of them, trial_heights_nT)")
             if "pulse_search" in self.steps:
-                from magcal.missions.elfin.pulses import PULSE_MIN_GAIN
+                from magcal.missions.elfin.pulses import SEARCH_NOTE
 
                 payload["pulses_b"]["search"] = self.pulse_search_listing()
-                payload["pulses_b"]["note_search"] = (
-                    "every shape the search found in the |B| residual of the product "
-                    "without pulses (height_nT as found there, nT; gain: that residual's "
-                    "sum of squares about the cubic without the shape over that with it, "
-                    f"kept from {PULSE_MIN_GAIN:g}): natural ones are kept in the product, "
-                    "the others removed with the gain drift for the reason given (why). "
-                    f"A natural pulse whose gain is near {PULSE_MIN_GAIN:g} is a close "
-                    "call: on 2022-01-12 a zone's own dip (-38 to -49 nT, gain "
-                    "10.6-21.0) was kept only when an east-west or along-track pulse was "
-                    "put in nearby, against 13-312 for 100 nT pulses along B put into "
-                    "the counts")
+                payload["pulses_b"]["note_search"] = SEARCH_NOTE
         if "disturbed_detection" in self.steps:
             payload["disturbed_detection"] = {
                 "note": "intervals located from the counts alone (magcal.missions.elfin."

@@ -84,6 +84,16 @@ PULSE_STEP_S = 1.0
 #: Field columns of the shapes fitted with the gain drift: kept in the product
 #: (natural pulses along B) and removed with the drift.
 NATURAL_COLUMNS, DRIFT_COLUMNS = "pulse_b_", "drift_b_"
+#: What ``pulses_b.search`` of ``ELFIN_CAL.json`` holds (:func:`zone_pulses`).
+SEARCH_NOTE = (
+    "every shape the search found in the |B| residual of the product without pulses "
+    "(height_nT as found there, nT; gain: that residual's sum of squares about the cubic "
+    f"without the shape over that with it, kept from {PULSE_MIN_GAIN:g}): natural ones "
+    "are kept in the product, the others removed with the gain drift for the reason "
+    f"given (why). A natural pulse whose gain is near {PULSE_MIN_GAIN:g} is a close call: "
+    "on 2022-01-12 a zone's own dip (-38 to -49 nT, gain 10.6-21.0) was kept only when "
+    "an east-west or along-track pulse was put in nearby, against 13-312 for 100 nT "
+    "pulses along B put into the counts")
 _SIGMA_PER_FWHM = 1.0 / (2.0 * np.sqrt(2.0 * np.log(2.0)))
 
 
