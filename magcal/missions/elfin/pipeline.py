@@ -538,7 +538,7 @@ class ElfinDay:
     def level_step_judged(self) -> list[dict]:
         """Every left-out interval judged for a level step, kept or not
         (``steps["level_search"]``, :func:`~magcal.missions.elfin.levels.
-        level_step_table`): ``zone``, ``start`` and ``end`` (UTC, ISO), ``step_nT``,
+        level_step_decision`): ``zone``, ``start`` and ``end`` (UTC, ISO), ``step_nT``,
         ``share``, ``local_nT``, ``gain``, ``kept``, ``why`` (the tests it fails) and
         ``judged_on`` (the product without steps, or, in a zone that wants several,
         with the strongest kept): so that a current sheet the slow terms took shows as
@@ -546,12 +546,8 @@ class ElfinDay:
         judged = self.steps.get("level_search")
         if judged is None or not len(judged):
             return []
-
-        def utc(start, s):
-            return str((start + pd.to_timedelta(s, unit="s")).tz_convert(None))
-
-        return [{"zone": int(r.zone), "start": utc(r.start, r.start_s),
-                 "end": utc(r.start, r.end_s), "step_nT": float(r.step_nT),
+        return [{"zone": int(r.zone), "start": _utc(r.start, r.start_s),
+                 "end": _utc(r.start, r.end_s), "step_nT": float(r.step_nT),
                  "share": float(r.share), "local_nT": float(r.local_nT),
                  "gain": float(r.gain), "kept": bool(r.kept), "why": str(r.why),
                  "judged_on": str(r.judged_on)} for r in judged.itertuples()]
@@ -566,9 +562,7 @@ class ElfinDay:
         found = self.steps.get("pulse_search")
         if found is None or not len(found):
             return []
-        return [{"zone": int(r.zone),
-                 "centre": str((r.start + pd.to_timedelta(r.centre_s, unit="s"))
-                               .tz_convert(None)),
+        return [{"zone": int(r.zone), "centre": _utc(r.start, r.centre_s),
                  "fwhm_s": float(r.fwhm_s), "height_nT": float(r.height_nT),
                  "gain": float(r.gain), "natural": bool(r.natural), "why": str(r.why)}
                 for r in found.itertuples()]
@@ -1094,6 +1088,13 @@ def _with_level_steps(fgs, state, settings, *, linear, level_step_rows=None,
              then_judged.assign(judged_on="with the strongest")], ignore_index=True)
     day = again(rows)
     return replace(day, steps={**day.steps, **searched})
+
+
+def _utc(start: pd.Timestamp, seconds: float) -> str:
+    """UTC (ISO, no zone suffix) of ``seconds`` after a zone's first row ``start``: the
+    times of the search listings (:meth:`ElfinDay.level_step_judged`,
+    :meth:`ElfinDay.pulse_search_listing`)."""
+    return str((start + pd.to_timedelta(seconds, unit="s")).tz_convert(None))
 
 
 def _several_steps_in_a_zone(rows, zone) -> bool:
