@@ -19,7 +19,9 @@ day's delivered product has two such, zones 9 and 10, 172 and 179 s wide, +111 a
 +104 nT, both cut by the zone end, fitted with the drift and removed). Every shape
 found is stated with the reason it is removed (``why``, :func:`drift_reason`; the
 JSON's ``pulses_b.search`` and the CLI), so a wide ``|B|`` structure is not lost
-silently. The
+silently. A pulse beside such a structure is searched with it as a pair
+(:func:`_best_pair`): the greedy search alone finds one shape between the two, wider
+and higher than the pulse, and not the structure. The
 day is then calibrated again with each kept pulse's shape fitted alongside the drift
 and left in the product (``pulse_b_<j>`` field columns; ``fit_gain_drift(natural=)``).
 
