@@ -133,6 +133,11 @@ def _calibrate(data, settings, inputs, disturbed=()):
                              warnings=tuple(empty + day.data_warnings() + day.worse_steps()))
 
 
+def _at(x: dict, key: str) -> str:
+    """"zone k hh:mm:ss UTC" of a listing entry (the ISO time under ``key``)."""
+    return f"zone {x['zone']} {str(x[key])[11:19]} UTC"
+
+
 def _judged_note(judged: list[dict]) -> str:
     """How many left-out intervals were judged for a level step and not kept, and the
     largest of their steps (the rest is in ``ELFIN_CAL.json``)."""
@@ -141,7 +146,7 @@ def _judged_note(judged: list[dict]) -> str:
         return ""
     big = max(lost, key=lambda x: abs(x["step_nT"]))
     return (f" ({len(lost)} left-out interval(s) judged and not kept; the largest step: "
-            f"zone {big['zone']} {big['start'][11:19]} UTC {big['step_nT']:+.0f} nT, "
+            f"{_at(big, 'start')} {big['step_nT']:+.0f} nT, "
             f"{big['why']}; level_steps.judged in ELFIN_CAL.json)")
 
 
@@ -152,16 +157,15 @@ def pulse_lines(day) -> list[str]:
     pulse_search_listing`)."""
     pulses = day.pulse_listing()
     lines = ["pulses along B kept out of the gain drift (pulses_b): "
-             + ("; ".join(f"zone {x['zone']} {str(x['centre'])[11:19]} UTC "
-                          f"{x['height_nT']:+.0f} +- "
+             + ("; ".join(f"{_at(x, 'centre')} {x['height_nT']:+.0f} +- "
                           f"{x.get('height_error_nT', float('nan')):.0f} nT, "
                           f"FWHM {x['fwhm_s']:.0f} s" for x in pulses)
                 if pulses else "none")]
     removed = [x for x in day.pulse_search_listing() if not x["natural"]]
     if removed:
         lines.append("|B| structures found and removed with the gain drift: "
-                     + "; ".join(f"zone {x['zone']} {str(x['centre'])[11:19]} UTC "
-                                 f"{x['height_nT']:+.0f} nT, FWHM {x['fwhm_s']:.0f} s "
+                     + "; ".join(f"{_at(x, 'centre')} {x['height_nT']:+.0f} nT, "
+                                 f"FWHM {x['fwhm_s']:.0f} s "
                                  f"({x['why']})" for x in removed))
     return lines
 

@@ -157,6 +157,7 @@ def _polish(t, y, trend, pulses, lo, hi):
 
     x0 = np.ravel(pulses)
     start = x0.reshape(-1, 2)
+    q = _orth(trend)
 
     def cost(x):
         p = x.reshape(-1, 2)
@@ -164,7 +165,7 @@ def _polish(t, y, trend, pulses, lo, hi):
                 or np.any(p[:, 1] < 0.75 * start[:, 1]) or np.any(p[:, 1] > start[:, 1] / 0.75) \
                 or np.any(p[:, 0] < lo) or np.any(p[:, 0] > hi):
             return np.inf
-        return _rss(y, _orth(_design(t, trend, p))) if _separable(t, trend, p) else np.inf
+        return _rss(y, _orth(_design(t, trend, p))) if _separable(t, q, p) else np.inf
 
     res = minimize(cost, x0, method="Nelder-Mead",
                    options={"xatol": 0.2, "fatol": 1e-8 * max(cost(x0), 1e-12),
@@ -172,13 +173,12 @@ def _polish(t, y, trend, pulses, lo, hi):
     return [tuple(p) for p in res.x.reshape(-1, 2)] if np.isfinite(res.fun) else pulses
 
 
-def _separable(t, trend, pulses) -> bool:
-    """Whether no two of ``pulses`` correlate (about the trend) more than
-    :data:`PAIR_MAX_CORRELATION`: refined together, two shapes can otherwise merge into
-    one with huge opposite heights."""
+def _separable(t, q, pulses) -> bool:
+    """Whether no two of ``pulses`` correlate (about the trend, orthonormal basis ``q``)
+    more than :data:`PAIR_MAX_CORRELATION`: refined together, two shapes can otherwise
+    merge into one with huge opposite heights."""
     if len(pulses) < 2:
         return True
-    q = _orth(trend)
     g = np.column_stack([gaussian(t, c, w) for c, w in pulses])
     g -= q @ (q.T @ g)
     g /= np.maximum(np.linalg.norm(g, axis=0), 1e-12)
@@ -187,11 +187,16 @@ def _separable(t, trend, pulses) -> bool:
     return bool(c.max() <= PAIR_MAX_CORRELATION)
 
 
+def _cut(t, centre, fwhm, edge_s):
+    """Whether a shape's half maximum comes within ``edge_s`` of the fitted span's ends
+    (scalars or arrays): as much the cubic's end as a pulse."""
+    return (centre - fwhm / 2 < t[0] + edge_s) | (centre + fwhm / 2 > t[-1] - edge_s)
+
+
 def _drift_shape(t, centre, fwhm, edge_s, max_fwhm_s) -> bool:
     """Whether a shape is one the search removes with the drift: ``max_fwhm_s`` wide or
-    more, or its half maximum within ``edge_s`` of the fitted span's ends."""
-    return bool(fwhm >= max_fwhm_s or centre - fwhm / 2 < t[0] + edge_s
-                or centre + fwhm / 2 > t[-1] - edge_s)
+    more, or cut by a zone end (:func:`_cut`)."""
+    return bool(fwhm >= max_fwhm_s or _cut(t, centre, fwhm, edge_s))
 
 
 def _best_pair(t, y, trend, centres, lo, hi, edge_s, max_fwhm_s):
@@ -317,16 +322,16 @@ def find_pulses(t_s, residual, fit, *, edge_s: float = 20.0,
             if best is None or red[j] > best[0]:
                 best = (float(red[j]), (float(centres[j]), w))
         trial = _refine(tg, y, trend, pulses, best[1], lo, hi)
+        rss = _rss(y, _orth(_design(tg, trend, trial)))
         if len(pulses) == 1 and pair_search:
             pair = _best_pair(tg, y, trend, centres, lo, hi, edge_s, max_fwhm_s)
             # the pair replaces the greedy step only where it explains more and each
             # of its shapes is demanded (a pair of which one goes would leave its other
             # shape refined against the first, not the greedy's best)
-            if pair and _rss(y, _orth(_design(tg, trend, pair))) \
-                    < _rss(y, _orth(_design(tg, trend, trial))) \
-                    and min(_gains(tg, y, trend, pair, floor)) >= min_gain:
-                trial = pair
-        if rss0 / (_rss(y, _orth(_design(tg, trend, trial))) + floor) < SEARCH_GAIN:
+            rss_pair = _rss(y, _orth(_design(tg, trend, pair))) if pair else np.inf
+            if rss_pair < rss and min(_gains(tg, y, trend, pair, floor)) >= min_gain:
+                trial, rss = pair, rss_pair
+        if rss0 / (rss + floor) < SEARCH_GAIN:
             break
         pulses = trial
     # each pulse judged against the others: the weakest under min_gain goes, then again
@@ -346,12 +351,11 @@ def find_pulses(t_s, residual, fit, *, edge_s: float = 20.0,
                         "height_nT": amp, "gain": _gains(tg, y, trend, pulses, floor)})
     # a natural pulse rises and falls inside the zone (half maximum ``edge_s`` inside
     # the fitted span): one cut by a zone end is as much the cubic's end as a pulse
-    inside = (out["centre_s"] - out["fwhm_s"] / 2 >= tg[0] + edge_s) \
-        & (out["centre_s"] + out["fwhm_s"] / 2 <= tg[-1] - edge_s)
+    cut = _cut(tg, out["centre_s"], out["fwhm_s"], edge_s)
     low, wide = np.abs(out["height_nT"]) < min_nT, out["fwhm_s"] >= max_fwhm_s
-    out["natural"] = ~low & ~wide & inside
+    out["natural"] = ~low & ~wide & ~cut
     out["why"] = [drift_reason(*x, min_nT=min_nT, max_fwhm_s=max_fwhm_s)
-                  for x in zip(low, wide, ~inside)]
+                  for x in zip(low, wide, cut)]
     return out
 
 
