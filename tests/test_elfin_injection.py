@@ -386,3 +386,47 @@ def test_target_counts_reads_the_whole_signal_per_polarity_and_the_own_part_per_
                    "odd_cases": 2, "odd_energy": 2, "odd_distortion": 1, "odd_both": 1}
     strict = target_counts(tab, min_energy=0.95, max_distortion=0.05).iloc[0]
     assert (strict["both"], strict["odd_both"]) == (1, 0)
+    joined = tab.assign(energy_kept_odd_joined=[0.95, 0.93, 0.95, 0.93],
+                        distortion_odd_joined=[0.03, 0.05, 0.03, 0.05])
+    assert target_counts(joined).iloc[0]["joined_both"] == 2
+
+
+def test_joined_left_out_rows_leave_the_signal_itself_as_the_odd_part():
+    """Zone 4 of 2022-01-12 with a 200 nT east-west pulse at 0.65 of the zone: the
+    detector ends the left-out interval at about 281 s for one polarity and 317 s for
+    the other (the day's own field beside the pulse adds to one excursion and subtracts
+    from the other), and the odd part carries what the fits make of those 35 s
+    (distortion 0.19). Calibrated again with the union of both runs' left-out rows, the
+    odd part is the injected pulse (truth): within 10 % of its energy and distortion
+    under 10 % (measured 1.006 and 0.031)."""
+    from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
+    from magcal.missions.elfin.injection import (
+        joined_parts,
+        left_out_rows,
+        polarity_parts,
+        select_zones,
+    )
+    from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
+
+    fgs = select_zones(read_elfin_fgs(real_data_path("elfin", FGS)), [4])
+    state = read_elfin_state(real_data_path("elfin", STATE))
+    s = ElfinSettings(bridge_trials=0, pulse_trials=0, level_trials=0)
+    clean = calibrate_elfin_day(fgs, state, s, diagnostics=False)
+    sig = signal_gei("gauss_ew", clean.linear.field, state, centre=0.65)
+    counts = (inject_counts(fgs, clean.linear, {0: sig}),
+              inject_counts(fgs, clean.linear, {0: -sig}))
+    plus, minus = (calibrate_elfin_day(c, state, s, diagnostics=False) for c in counts)
+    t = (fgs.index.asi8 - fgs.index.asi8[0]) / 1e9
+    ends = [t[left_out_rows(d.calibration.field)
+              & (d.calibration.field["used"].to_numpy() == 1)].max() for d in (plus, minus)]
+    assert abs(ends[1] - ends[0]) > 20.0            # the premise: the ends differ (35 s)
+    parts = polarity_parts(clean, plus, minus, {0: sig}, "gauss_ew").iloc[-1]
+    assert parts["distortion_odd"] > 0.15            # ... and the odd part shows it (0.19)
+    joined = joined_parts(counts, state, s, clean, plus, minus, {0: sig},
+                          "gauss_ew").iloc[-1]
+    assert joined["product"] == parts["product"] == "+ phase refit"
+    assert 0.9 <= joined["energy_kept_odd_joined"] <= 1.1
+    assert joined["distortion_odd_joined"] <= 0.10
+    with pytest.raises(InputError, match="rows"):
+        joined_parts((counts[0].iloc[:-1], counts[1]), state, s, clean, plus, minus,
+                     {0: sig}, "gauss_ew")

@@ -29,6 +29,11 @@ The runs of the table, so that each step's share can be read:
   that is the same for either polarity (even: the day's own field over the interval the
   signal made the calibration leave out, which the clean run gave to a drift)
   (:func:`magcal.missions.elfin.injection.polarity_parts`);
+* ``--joined`` (with ``--both-signs``): both polarities calibrated once more with the
+  union of their left-out rows given, so that their intervals end at the same places
+  (:func:`magcal.missions.elfin.injection.joined_parts`): how much of the odd part's
+  distortion is where the detector drew an interval's ends (which depends on the day's
+  own field beside the signal) and how much the calibration's own doing;
 * ``--mask-injected-only 0.05``: the same samples left out of the injected run's fits
   only, as a detector would that flags exactly the signal and nothing on the clean
   day; its distortion is the calibration's own change when that interval is left out
@@ -46,6 +51,7 @@ Usage::
                                            [--mask-signal FRACTION]
                                            [--mask-injected-only FRACTION]
                                            [--centres 0.5,...] [--sign -1] [--both-signs]
+                                           [--joined]
                                            [--plot DIR]
 
 The README's whole-day sheet numbers (36 placements, with and without level steps)::
@@ -158,6 +164,16 @@ def _print_parts(label, last) -> None:
         print(f"  {kind:12s} " + "  ".join(
             f"{r.zone}: {r.energy_kept_odd:.3f} ({r.distortion_odd:.3f}, {r.even_rms:.3f})"
             for r in rows.itertuples()))
+    if "distortion_odd_joined" in first.columns:
+        print(f"\n== {label}: the odd part once both polarities leave the same rows out "
+              "(the union of their left-out rows given): per zone, energy_kept_odd "
+              "(distortion_odd) as delivered -> joined; the difference is where the "
+              "detector drew the intervals' ends")
+        for kind, rows in first.groupby("signal", sort=False):
+            print(f"  {kind:12s} " + "  ".join(
+                f"{r.zone}: {r.energy_kept_odd:.2f} ({r.distortion_odd:.2f}) -> "
+                f"{r.energy_kept_odd_joined:.2f} ({r.distortion_odd_joined:.2f})"
+                for r in rows.itertuples()))
 
 
 def _print_shares(kinds) -> None:
@@ -209,6 +225,11 @@ def main(argv=None) -> int:
                     help="also inject every signal with the opposite polarity and print "
                          "the part of what came back that follows the signal (odd) and "
                          "the part that does not (even)")
+    ap.add_argument("--joined", action="store_true",
+                    help="with --both-signs: also both polarities with the union of their "
+                         "left-out rows left out (two more calibrations per signal and "
+                         "place): the odd part's distortion without the detector's "
+                         "polarity-dependent interval ends")
     ap.add_argument("--plot", type=Path, default=None, metavar="DIR",
                     help="write recovered_<signal>.png of the delivered run to DIR (of the "
                          "--settings run to DIR/settings): the injected signal and "
@@ -252,7 +273,8 @@ def main(argv=None) -> int:
                                         progress=lambda line: print("  " + line),
                                         plot_dir=_plot_dir(args.plot, label)
                                         if centre == centres[0] else None, centre=centre,
-                                        sign=args.sign, both_signs=args.both_signs)
+                                        sign=args.sign, both_signs=args.both_signs,
+                                        joined=args.joined and args.both_signs and not hold)
             tabs.append(tab.assign(zone=[f"{z}@{centre:g}" for z in tab["zone"]])
                         if len(centres) > 1 else tab)
         tab = pd.concat(tabs, ignore_index=True)
