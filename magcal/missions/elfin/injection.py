@@ -370,15 +370,18 @@ def joined_parts(counts: tuple, state: pd.DataFrame, settings, clean_day, plus_d
     Where a detector draws a left-out interval's ends depends on the day's own field
     beside the signal, which adds to one polarity's excursion and subtracts from the
     other's: on 2022-01-12, an east-west 40 s pulse at 0.65 of zone 4 was left out to
-    281 s for one sign and to 317 s for the other, and the phase fitted over those
-    35 s differs between the runs. The odd part then carries the day's own field
-    over them (distortion 19 %). Here both injected days (``plus_day``, ``minus_day``,
-    calibrated with ``settings`` from ``counts``, the FGS frames that carry ``signals``
-    and their negatives) are calibrated again with the union of their left-out rows
-    given (``fit_exclude``): what remains
-    of the odd distortion is what the calibration does to the signal itself, the rest
-    is the detector's polarity-dependent extent, which no ELFIN data can pin down (the
-    model is the only reference for the own field there).
+    281 s for one sign and to 317 s for the other, and the fits (there the spin phase)
+    differ over those 35 s. The odd part then carries the day's own field over them
+    (distortion 19 %). Here both injected days (``plus_day``, ``minus_day``, calibrated
+    with ``settings`` from ``counts``, the FGS frames that carry ``signals`` and their
+    negatives) are calibrated again with the union of their left-out rows given
+    (``fit_exclude``): what remains of the odd distortion is what the calibration does
+    to the signal itself, the rest is the detector's polarity-dependent extent, which
+    no ELFIN data can pin down (the model is the only reference for the own field
+    there). Whole day, 36 places: east-west and along-track pulses at both targets on
+    their own part in 24 and 25 as delivered, 36 and 36 joined. Not a fair test for a
+    current sheet or a pulse along B, whose level step and shape are read on the
+    fitted rows beside the interval that the union takes away.
 
     Returns
     -------
