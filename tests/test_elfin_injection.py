@@ -308,6 +308,41 @@ def test_a_run_the_bridge_check_rejects_goes_back_into_the_fits(day, monkeypatch
     assert np.abs(f[cols].to_numpy() - plain[cols].to_numpy()).max() < 1e-6
 
 
+def test_a_zone_its_flags_would_leave_unfittable_is_fitted_on_every_sample(day, monkeypatch):
+    """Zone 1 with the detector forced to flag all but its first 150 samples (the
+    linear fit needs 200): the day used to fail with an InputError. Now the zone's
+    flags are dropped and said so, and its product is the one without detection
+    (truth: the same rows calibrated with ``detect_disturbed = false``)."""
+    from dataclasses import replace
+
+    import magcal.missions.elfin.disturbed as disturbed
+    from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
+
+    fgs, state = day
+    real = disturbed.locate_disturbed
+
+    def flag_nearly_all(*args, **kw):
+        found = real(*args, **kw)
+        most = np.arange(len(fgs)) >= 150
+        return replace(found, vector=found.vector | most, scalar=found.scalar | most)
+
+    monkeypatch.setattr(disturbed, "locate_disturbed", flag_nearly_all)
+    s = ElfinSettings(bridge_trials=0, level_trials=0, pulse_trials=0)
+    got = calibrate_elfin_day(fgs, state, s, diagnostics=False)
+    f = got.calibration.field
+    assert (f.loc[f["used"] == 1, "fit"] == 1).all()
+    table = got.steps["disturbed_detection"]
+    assert table["dropped"].all()
+    assert table["drop_reason"].str.contains("linear fit fails without the flagged rows").all()
+    assert got.to_json()["disturbed_detection"]["zones"][0]["drop_reason"].startswith(
+        "the linear fit fails")
+    assert any("not left out of the fits" in w for w in got.data_warnings())
+    plain = calibrate_elfin_day(fgs, state, replace(s, detect_disturbed=False),
+                                diagnostics=False).calibration.field
+    cols = ["bx_gei", "by_gei", "bz_gei"]
+    assert np.abs(f[cols].to_numpy() - plain[cols].to_numpy()).max() < 1e-6
+
+
 def test_level_steps_keep_a_current_sheet_and_leave_pulses_and_the_clean_zone_alone(day):
     """``level_steps``: the spin-axis level may change across a left-out interval where
     the product without steps says so (:mod:`magcal.missions.elfin.levels`). Zone 1 with

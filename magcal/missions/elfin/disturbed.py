@@ -90,6 +90,30 @@ def bridge_check(flagged_field: pd.DataFrame, plain_field: pd.DataFrame, flags
                                        "tone_change_nT", "kept"])
 
 
+def _run_keeping_zones(run, vector, scalar, known, diagnostics):
+    """``run(vector, scalar, diagnostics)``; a zone whose linear fit fails once its
+    flagged rows are left out is fitted with them (flags of that zone reset to
+    ``known``) rather than the day failing.
+
+    Returns the day, the flags used and ``{zone: reason}`` of the zones so treated.
+    """
+    from magcal.missions.elfin.pipeline import ExcludedTooMuchError
+
+    lost = {}
+    while True:
+        try:
+            return run(vector, scalar, diagnostics), vector, scalar, lost
+        except ExcludedTooMuchError as err:
+            new = [z for z in err.skipped if z.zone not in lost]
+            if not new:
+                raise
+            vector, scalar = vector.copy(), scalar.copy()
+            for z in new:
+                a, b = z.rows
+                vector[a:b], scalar[a:b] = known[a:b], known[a:b]
+                lost[z.zone] = z.reason
+
+
 def calibrate_detected(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, provenance=None,
                        hold_phase=None, fit_exclude=None, diagnostics: bool = True,
                        detect: DetectSettings | None = None, linear=None, zone_numbers=None):
@@ -108,8 +132,10 @@ def calibrate_detected(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, prov
     ElfinDay
         With ``settings`` as given and ``steps["disturbed_detection"]`` (per zone and
         pass, :func:`locate_disturbed`; ``kept_share``: the share of each zone's used
-        samples left out after the check) and ``steps["disturbed_runs"]``
-        (:func:`bridge_check`).
+        samples left out after the check; ``dropped`` and ``drop_reason``: a zone whose
+        flags were dropped, because more than ``max_share`` of it was flagged or
+        because its linear fit fails without the flagged rows, and is fitted on every
+        sample instead) and ``steps["disturbed_runs"]`` (:func:`bridge_check`).
     """
     from magcal.missions.elfin.pipeline import calibrate_elfin_day
 
@@ -132,7 +158,7 @@ def calibrate_detected(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, prov
                              hold_phase=hold_phase, linear=linear,
                              zone_numbers=zone_numbers)
     vector, scalar = found.vector, found.scalar
-    day = run(vector, scalar, diagnostics)
+    day, vector, scalar, lost = _run_keeping_zones(run, vector, scalar, known, diagnostics)
     left_out = (vector | scalar) & ~known
     runs = bridge_check(day.calibration.field, plain.calibration.field, left_out)
     drop = np.zeros(len(fgs), bool)
@@ -140,8 +166,16 @@ def calibrate_detected(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, prov
         drop[a:b] = not kept
     if drop.any():
         vector, scalar = (vector & ~drop) | known, (scalar & ~drop) | known
-        day = run(vector, scalar, diagnostics)
+        day, vector, scalar, more = _run_keeping_zones(run, vector, scalar, known,
+                                                       diagnostics)
+        lost = {**lost, **more}
     table = found.table.copy()
+    table["drop_reason"] = np.where(table["dropped"], "flagged share above max_share", "")
+    for k, reason in lost.items():
+        mine = table["zone"] == k
+        table.loc[mine, "dropped"] = True
+        table.loc[mine, "drop_reason"] = ("the linear fit fails without the flagged rows ("
+                                          f"{reason}): fitted on every sample")
     used = day.calibration.field["used"].to_numpy() == 1
     zone = day.calibration.field["zone"].to_numpy()
     table["kept_share"] = zone_shares(vector | scalar, used, zone, table["zone"])

@@ -538,6 +538,15 @@ def with_igrf(state: pd.DataFrame, fgs: pd.DataFrame, *, min_gap_s: float = 60.0
 MIN_USABLE = 200
 
 
+class NoZoneError(InputError):
+    """No science zone of the rows given could be calibrated (``skipped``: each zone's
+    :class:`SkippedZone`, with the reason)."""
+
+    def __init__(self, message: str, *, skipped=()):
+        super().__init__(message)
+        self.skipped = list(skipped)
+
+
 @dataclass(frozen=True)
 class SkippedZone:
     """A science zone :func:`calibrate_elfin` could not calibrate, and why.
@@ -831,8 +840,8 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
             skipped.append(skip_zone(label[z["k"]], z["a"], z["b"], str(err)))
     inputs = fitted
     if not inputs:
-        raise InputError("no science zone could be calibrated: " + "; ".join(
-            z.reason for z in skipped))
+        raise NoZoneError("no science zone could be calibrated: " + "; ".join(
+            z.reason for z in skipped), skipped=skipped)
     skipped.sort(key=lambda z: z.zone)
     prior = None
     if axis_prior_weight > 0:

@@ -48,6 +48,21 @@ SIGNAL_TRADE = ("linear_phase_knot_s", "linear_phase_degree", "linear_axis_degre
 ROUNDING = 1e-9
 
 
+class ExcludedTooMuchError(InputError):
+    """A zone the plain linear fit calibrates fails once the rows given to be left out
+    of the fits are left out (``skipped``: its
+    :class:`~magcal.missions.elfin.linear.SkippedZone`, rows among those calibrated).
+
+    The detection of disturbed intervals catches it and fits that zone without its
+    flags (:func:`magcal.missions.elfin.disturbed.calibrate_detected`); rows given by
+    the user (``fit_exclude``) raise it.
+    """
+
+    def __init__(self, message: str, *, skipped=()):
+        super().__init__(message)
+        self.skipped = list(skipped)
+
+
 @dataclass(frozen=True)
 class ElfinSettings:
     """Which steps of the ELFIN calibration run.
@@ -403,13 +418,21 @@ class ElfinDay:
         return pd.concat([table, self.calibration.skipped_rows(cols)]).sort_index()
 
     def data_warnings(self) -> list[str]:
-        """One line per zone not calibrated (with the reason), per zone whose left-out
-        samples reach a zone end (the calibration extrapolated there) and per zone with
-        clipped counts (saturation; left out, so the fit rests on the other spin
-        phases)."""
+        """One line per zone not calibrated (with the reason), per zone whose detected
+        disturbed intervals were not left out because the fit cannot do without them,
+        per zone whose left-out samples reach a zone end (the calibration extrapolated
+        there) and per zone with clipped counts (saturation; left out, so the fit rests
+        on the other spin phases)."""
         lines = [f"zone {z.zone} ({z.start} - {z.end}, {z.n_samples} samples) not "
                  f"calibrated: {z.reason}; its rows are delivered with used = 0"
                  for z in self.calibration.skipped]
+        det = self.steps.get("disturbed_detection")
+        if det is not None and "drop_reason" in det.columns:
+            for row in det.drop_duplicates("zone", keep="last").itertuples():
+                if row.drop_reason.startswith("the linear fit fails"):
+                    lines.append(f"zone {row.zone}: disturbed intervals detected but not "
+                                 f"left out of the fits, {row.drop_reason}; a natural "
+                                 "field there may be absorbed")
         if "bridge" in self.steps:
             for row in self.steps["bridge"].itertuples():
                 if row.at_zone_end:
@@ -892,11 +915,19 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
                                  pulse_templates=pulse_templates,
                                  drift_templates=drift_templates)
     if linear is None:
-        linear = fit_linear(fit_exclude)
+        from magcal.missions.elfin.linear import NoZoneError
+
+        try:
+            linear = fit_linear(fit_exclude)
+        except NoZoneError as err:
+            if fit_exclude is None:
+                raise
+            raise ExcludedTooMuchError(str(err), skipped=err.skipped) from err
         if linear.skipped:
-            raise InputError("with the samples left out of the fit, a zone that the plain "
-                             "fit calibrates has too few: " + "; ".join(
-                                 z.reason for z in linear.skipped))
+            raise ExcludedTooMuchError("with the samples left out of the fit, a zone that "
+                                       "the plain fit calibrates has too few: " + "; ".join(
+                                           z.reason for z in linear.skipped),
+                                       skipped=linear.skipped)
     if pulse_templates is not None or drift_templates is not None:
         from magcal.missions.elfin.pulses import (DRIFT_COLUMNS, NATURAL_COLUMNS,
                                                   with_shape_columns)
