@@ -97,13 +97,13 @@ def _run_keeping_zones(run, vector, scalar, known, diagnostics):
 
     Returns the day, the flags used and ``{zone: reason}`` of the zones so treated.
     """
-    from magcal.missions.elfin.pipeline import ExcludedTooMuchError
+    from magcal.missions.elfin.linear import ZonesNotCalibratedError
 
     lost = {}
     while True:
         try:
             return run(vector, scalar, diagnostics), vector, scalar, lost
-        except ExcludedTooMuchError as err:
+        except ZonesNotCalibratedError as err:
             new = [z for z in err.skipped if z.zone not in lost]
             if not new:
                 raise

@@ -538,9 +538,16 @@ def with_igrf(state: pd.DataFrame, fgs: pd.DataFrame, *, min_gap_s: float = 60.0
 MIN_USABLE = 200
 
 
-class NoZoneError(InputError):
-    """No science zone of the rows given could be calibrated (``skipped``: each zone's
-    :class:`SkippedZone`, with the reason)."""
+class ZonesNotCalibratedError(InputError):
+    """Zones of the rows given could not be calibrated (``skipped``: each zone's
+    :class:`SkippedZone`, with the reason and its rows among those calibrated).
+
+    :func:`calibrate_elfin` raises it when no zone could be;
+    :func:`~magcal.missions.elfin.pipeline.calibrate_elfin_day` when a zone the plain
+    fit calibrates fails once the rows given to be left out of the fits are left out,
+    which the detection of disturbed intervals catches to fit that zone without its
+    flags (:func:`magcal.missions.elfin.disturbed.calibrate_detected`).
+    """
 
     def __init__(self, message: str, *, skipped=()):
         super().__init__(message)
@@ -840,7 +847,7 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
             skipped.append(skip_zone(label[z["k"]], z["a"], z["b"], str(err)))
     inputs = fitted
     if not inputs:
-        raise NoZoneError("no science zone could be calibrated: " + "; ".join(
+        raise ZonesNotCalibratedError("no science zone could be calibrated: " + "; ".join(
             z.reason for z in skipped), skipped=skipped)
     skipped.sort(key=lambda z: z.zone)
     prior = None

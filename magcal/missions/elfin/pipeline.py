@@ -48,21 +48,6 @@ SIGNAL_TRADE = ("linear_phase_knot_s", "linear_phase_degree", "linear_axis_degre
 ROUNDING = 1e-9
 
 
-class ExcludedTooMuchError(InputError):
-    """A zone the plain linear fit calibrates fails once the rows given to be left out
-    of the fits are left out (``skipped``: its
-    :class:`~magcal.missions.elfin.linear.SkippedZone`, rows among those calibrated).
-
-    The detection of disturbed intervals catches it and fits that zone without its
-    flags (:func:`magcal.missions.elfin.disturbed.calibrate_detected`); rows given by
-    the user (``fit_exclude``) raise it.
-    """
-
-    def __init__(self, message: str, *, skipped=()):
-        super().__init__(message)
-        self.skipped = list(skipped)
-
-
 @dataclass(frozen=True)
 class ElfinSettings:
     """Which steps of the ELFIN calibration run.
@@ -841,7 +826,7 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
         Frames without the ELFIN columns, or a zone without orbit and attitude.
     """
     from magcal.missions.elfin.files import ns_index
-    from magcal.missions.elfin.linear import calibrate_elfin, with_igrf
+    from magcal.missions.elfin.linear import ZonesNotCalibratedError, calibrate_elfin, with_igrf
     from magcal.missions.elfin.joint import score_field
     from magcal.missions.elfin.diagnostics.ripple import ripple_crosscheck
 
@@ -915,19 +900,12 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
                                  pulse_templates=pulse_templates,
                                  drift_templates=drift_templates)
     if linear is None:
-        from magcal.missions.elfin.linear import NoZoneError
-
-        try:
-            linear = fit_linear(fit_exclude)
-        except NoZoneError as err:
-            if fit_exclude is None:
-                raise
-            raise ExcludedTooMuchError(str(err), skipped=err.skipped) from err
+        linear = fit_linear(fit_exclude)
         if linear.skipped:
-            raise ExcludedTooMuchError("with the samples left out of the fit, a zone that "
-                                       "the plain fit calibrates has too few: " + "; ".join(
-                                           z.reason for z in linear.skipped),
-                                       skipped=linear.skipped)
+            raise ZonesNotCalibratedError(
+                "with the samples left out of the fit, a zone that the plain fit "
+                "calibrates has too few: " + "; ".join(z.reason for z in linear.skipped),
+                skipped=linear.skipped)
     if pulse_templates is not None or drift_templates is not None:
         from magcal.missions.elfin.pulses import (DRIFT_COLUMNS, NATURAL_COLUMNS,
                                                   with_shape_columns)
