@@ -59,8 +59,9 @@ The README's whole-day sheet numbers (36 placements, with and without level step
     python workflows/elfin_preservation.py --zones all --signals sheet_ew --no-held \
         --centres 0.35,0.5,0.65 --settings level_steps=false
 
-About 10 s per signal and run for the whole day (12 zones) on an idle core; the
-default zones (4) take about a third of that. Reads ``../shared/real-data/elfin/``.
+The whole day (12 zones) with ``--both-signs`` takes about a minute per signal and place
+on one core (two signals at three places: 343 s; with ``--joined`` 545 s); the default
+zones (4) take about a third of that. Reads ``../shared/real-data/elfin/``.
 """
 
 from __future__ import annotations
