@@ -90,6 +90,11 @@ def bridge_check(flagged_field: pd.DataFrame, plain_field: pd.DataFrame, flags
                                        "tone_change_nT", "kept"])
 
 
+#: Start of ``drop_reason`` for a zone fitted with its flags because its linear fit
+#: fails without them (:func:`calibrate_detected`; a warning of the day).
+UNFITTABLE_WITHOUT_FLAGS = "the linear fit fails without the flagged rows"
+
+
 def _run_keeping_zones(run, vector, scalar, known, diagnostics):
     """``run(vector, scalar, diagnostics)``; a zone whose linear fit fails once its
     flagged rows are left out is fitted with them (flags of that zone reset to
@@ -174,8 +179,8 @@ def calibrate_detected(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, prov
     for k, reason in lost.items():
         mine = table["zone"] == k
         table.loc[mine, "dropped"] = True
-        table.loc[mine, "drop_reason"] = ("the linear fit fails without the flagged rows ("
-                                          f"{reason}): fitted on every sample")
+        table.loc[mine, "drop_reason"] = (f"{UNFITTABLE_WITHOUT_FLAGS} ({reason}): fitted "
+                                          "on every sample")
     used = day.calibration.field["used"].to_numpy() == 1
     zone = day.calibration.field["zone"].to_numpy()
     table["kept_share"] = zone_shares(vector | scalar, used, zone, table["zone"])

@@ -348,19 +348,20 @@ def polarity_parts(clean_day, plus_day, minus_day, signals: dict, kind: str) -> 
 
 
 def left_out_rows(field: pd.DataFrame) -> np.ndarray:
-    """Rows of a calibrated field that its fits left out (``fit`` or ``fit_scalar`` 0):
-    the detected or given intervals, and the unused rows.
+    """Rows of a calibrated field that some fit left out: not among the samples of the
+    vector fits or of the ``|B|`` fits (:func:`~magcal.missions.elfin.drift.fit_samples`),
+    i.e. the detected or given intervals and the unused rows.
 
     Examples
     --------
-    >>> f = pd.DataFrame({"fit": [1, 0, 1, 1], "fit_scalar": [1, 1, 0, 1]})
+    >>> f = pd.DataFrame({"used": [1, 1, 1, 0], "fit": [1, 0, 1, 0],
+    ...                   "fit_scalar": [1, 1, 0, 0]})
     >>> left_out_rows(f).tolist()
-    [False, True, True, False]
+    [False, True, True, True]
     """
-    out = field["fit"].to_numpy() == 0
-    if "fit_scalar" in field.columns:
-        out = out | (field["fit_scalar"].to_numpy() == 0)
-    return out
+    from magcal.missions.elfin.drift import fit_samples
+
+    return ~(fit_samples(field) & fit_samples(field, scalar=True))
 
 
 def joined_parts(counts: tuple, state: pd.DataFrame, settings, clean_day, plus_day,

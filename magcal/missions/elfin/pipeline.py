@@ -413,8 +413,10 @@ class ElfinDay:
                  for z in self.calibration.skipped]
         det = self.steps.get("disturbed_detection")
         if det is not None and "drop_reason" in det.columns:
+            from magcal.missions.elfin.disturbed import UNFITTABLE_WITHOUT_FLAGS
+
             for row in det.drop_duplicates("zone", keep="last").itertuples():
-                if row.drop_reason.startswith("the linear fit fails"):
+                if row.drop_reason.startswith(UNFITTABLE_WITHOUT_FLAGS):
                     lines.append(f"zone {row.zone}: disturbed intervals detected but not "
                                  f"left out of the fits, {row.drop_reason}; a natural "
                                  "field there may be absorbed")
