@@ -37,7 +37,13 @@ The runs of the table, so that each step's share can be read:
 * ``--mask-injected-only 0.05``: the same samples left out of the injected run's fits
   only, as a detector would that flags exactly the signal and nothing on the clean
   day; its distortion is the calibration's own change when that interval is left out
-  (the floor of any detect-and-exclude scheme).
+  (the floor of any detect-and-exclude scheme);
+* ``--leave-out 0.05``: no signal injected, the clean day (delivered settings,
+  detection on) calibrated again with each pulse's rows above 5 % of its peak left
+  out (:func:`magcal.missions.elfin.leave_out.leave_out_effect`): the change of the
+  product read against the pulse, per case, next to the delivered run's distortion,
+  and the amplitude at which it would be within 10 % (pulses across B only, the
+  signals the product keeps by leaving them out).
 
 Before the runs, the share of each signal's energy in its projection on polynomials
 in time over the zone (degree 0 the zone mean, up to the gain drift's cubic) is
@@ -51,7 +57,7 @@ Usage::
                                            [--mask-signal FRACTION]
                                            [--mask-injected-only FRACTION]
                                            [--centres 0.5,...] [--sign -1] [--both-signs]
-                                           [--joined]
+                                           [--joined] [--leave-out FRACTION]
                                            [--plot DIR]
 
 The README's whole-day sheet numbers (36 placements, with and without level steps)::
@@ -231,6 +237,13 @@ def main(argv=None) -> int:
                          "left-out rows left out (two more calibrations per signal and "
                          "place): the odd part's distortion without the detector's "
                          "polarity-dependent interval ends")
+    ap.add_argument("--leave-out", type=float, nargs="?", const=0.05, default=0.0,
+                    metavar="FRACTION",
+                    help="also, with no signal injected, the clean day calibrated with "
+                         "each pulse's rows above this fraction of its peak left out "
+                         "(default 0.05): the product's change read against the pulse, "
+                         "what a detector that flagged exactly the signal adds to it "
+                         "(pulses across B)")
     ap.add_argument("--plot", type=Path, default=None, metavar="DIR",
                     help="write recovered_<signal>.png of the delivered run to DIR (of the "
                          "--settings run to DIR/settings): the injected signal and "
@@ -265,6 +278,7 @@ def main(argv=None) -> int:
           f"{' (opposite polarity)' if args.sign < 0 else ''}, at "
           f"{', '.join(map(str, centres))} of each zone\n{CREDIT}")
     _print_shares(kinds)
+    delivered = None
     for label, settings, hold, mask, mask_clean in runs:
         t0 = time.perf_counter()
         tabs = []
@@ -280,7 +294,54 @@ def main(argv=None) -> int:
                         if len(centres) > 1 else tab)
         tab = pd.concat(tabs, ignore_index=True)
         _print(f"{label} ({time.perf_counter() - t0:.0f} s)", tab, clean)
+        if label == "delivered":
+            delivered = tab[(tab["product"] == tab["product"].iloc[-1])
+                            & (tab["sign"] == args.sign)]
+    if args.leave_out > 0:
+        _print_leave_out(fgs, state, kinds, centres, zones, args.leave_out, delivered)
     return 0
+
+
+def _print_leave_out(fgs, state, kinds, centres, zones, fraction, delivered) -> None:
+    """The leave-out effect per pulse and case, next to the delivered distortion."""
+    import numpy as np
+
+    from magcal.missions.elfin.injection import TARGET_DISTORTION
+    from magcal.missions.elfin.leave_out import KEPT_BY_LEAVING_OUT, leave_out_effect
+
+    pulses = [k for k in kinds if k in KEPT_BY_LEAVING_OUT]
+    others = [k for k in kinds if k not in KEPT_BY_LEAVING_OUT]
+    if others:
+        print(f"\nleave-out effect: not for {', '.join(others)} (kept by a level step, a "
+              "fitted pulse shape or by not being flagged, not by leaving their rows out)")
+    if not pulses:
+        return
+    t0 = time.perf_counter()
+    eff = leave_out_effect(fgs, state, kinds=pulses, centres=centres, zones=zones,
+                           fraction=fraction, progress=lambda line: print("  " + line))
+    case = [f"{z}@{c:g}" if len(centres) > 1 else z for z, c in zip(eff["zone"], eff["centre"])]
+    eff = eff.assign(case=case).merge(
+        delivered[["signal", "zone", "distortion"]].rename(
+            columns={"zone": "case", "distortion": "delivered"}), on=["signal", "case"])
+    print(f"\n== leave-out effect ({time.perf_counter() - t0:.0f} s): no signal injected, "
+          f"the clean day calibrated with each pulse's rows above {fraction:g} of its peak "
+          "left out; the product's change read against the pulse is the distortion a "
+          "detector that flagged exactly the pulse adds in the whole-signal reading "
+          "(medians; amplitude_for_10%: where that change would be 10 % of the pulse)")
+    for kind, g in eff.groupby("signal", sort=False):
+        ok, dok = g["distortion"] <= TARGET_DISTORTION, g["delivered"] <= TARGET_DISTORTION
+        corr = np.corrcoef(g["distortion"], g["delivered"])[0, 1] if len(g) > 2 else np.nan
+        print(f"  {kind:12s} {len(g)} cases, left out {g['left_out_s'].median():.0f} s: "
+              f"change {g['distortion'].median():.3f} of the pulse (within 10 % in "
+              f"{int(ok.sum())}), delivered {g['delivered'].median():.3f} ({int(dok.sum())}); "
+              f"RMS {g['inside_rms_nT'].median():.1f} nT inside, "
+              f"{g['outside_rms_nT'].median():.1f} outside, zone shift "
+              f"{g['zone_shift_nT'].median():.1f}; amplitude_for_10% "
+              f"{g['amplitude_for_target_nT'].median():.0f} nT (90 % of the cases: "
+              f"{g['amplitude_for_target_nT'].quantile(0.9):.0f}); per-case correlation "
+              f"with the delivered distortion {corr:.2f}")
+        print("    per case, change (delivered): " + "  ".join(
+            f"{r.case}: {r.distortion:.2f} ({r.delivered:.2f})" for r in g.itertuples()))
 
 
 def _plot_dir(plot, label):

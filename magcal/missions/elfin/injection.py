@@ -544,6 +544,26 @@ def trial_day(fgs: pd.DataFrame, state: pd.DataFrame, settings, day, signals: di
         return None
 
 
+def signal_extent(signals: dict, zone, fraction: float) -> np.ndarray:
+    """Rows where a zone's signal exceeds ``fraction`` of its peak (vector norm).
+
+    ``signals`` maps a zone number to its signal (the zone's rows, in order) and
+    ``zone`` is the zone number of every row of the day.
+
+    Examples
+    --------
+    >>> sig = np.zeros((5, 3)); sig[1:4, 0] = [1.0, 10.0, 0.2]
+    >>> signal_extent({7: sig}, np.array([3, 7, 7, 7, 7, 7]), 0.05).tolist()
+    [False, False, True, True, False, False]
+    """
+    zone = np.asarray(zone)
+    out = np.zeros(zone.size, bool)
+    for k, dg in signals.items():
+        size = np.linalg.norm(np.asarray(dg, float), axis=1)
+        out[np.flatnonzero(zone == k)] = size > fraction * size.max()
+    return out
+
+
 def select_zones(fgs: pd.DataFrame, zones) -> pd.DataFrame:
     """The FGS rows of the zones numbered ``zones`` (0-based, in the day's order;
     zones are split at gaps over 60 s as the pipeline does)."""
@@ -659,11 +679,7 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         injected = inject_counts(fgs, clean.linear, signals)
         base, skip = clean, None
         if mask_signal > 0:
-            skip = np.zeros(len(fgs), bool)
-            zone = f["zone"].to_numpy()
-            for k, dg in signals.items():
-                size = np.linalg.norm(dg, axis=1)
-                skip[np.flatnonzero(zone == k)] = size > mask_signal * size.max()
+            skip = signal_extent(signals, f["zone"].to_numpy(), mask_signal)
             if mask_clean:
                 base = calibrate_elfin_day(fgs, state, replace(s, bridge_trials=0),
                                            hold_phase=hold_phase,
