@@ -25,7 +25,9 @@ The calibration path, in the order the pipeline runs it:
   intervals, measured on quiet trial gaps (``bridge_trials``);
 * :mod:`~magcal.missions.elfin.injection` (and ``injection_plot``) - synthetic natural
   signals injected into the raw counts, to measure what each step keeps;
-  :mod:`~magcal.missions.elfin.noise` - the same on counts with added instrument noise.
+  :mod:`~magcal.missions.elfin.noise` - the same on counts with added instrument noise;
+  :mod:`~magcal.missions.elfin.leave_out` - how much leaving a pulse's rows out of the
+  fits moves the product with no signal injected (the whole-signal reading's floor).
 
 :mod:`magcal.missions.elfin.diagnostics` holds what measures the product without
 changing it: the vector evidence, the Sun-locked test, parameter stability, the
