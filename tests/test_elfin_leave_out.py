@@ -6,6 +6,8 @@ returns on top of the injected signal (the truth). Real day, skipped with a reas
 import pytest
 from conftest import real_data_path
 
+from magcal.errors import InputError
+
 FGS = "ela_l1_fgs_20220112_v01.cdf"
 STATE = "ela_l1_state_defn_20220112_v01.cdf"
 
@@ -43,6 +45,32 @@ def test_the_leave_out_effect_is_what_a_detector_flagging_exactly_the_signal_lea
     assert 60.0 < effect["left_out_s"] < 100.0          # 5 % of a 40 s FWHM Gaussian: 83 s
     assert effect["amplitude_for_target_nT"] == pytest.approx(
         200.0 * effect["distortion"] / 0.1)
+
+
+def test_the_leave_out_effect_falls_as_one_over_the_amplitude(elfin_day):
+    """The rows left out do not depend on the pulse's amplitude, so the change they
+    make is the same and its share of a 2.5 times larger pulse (500 nT) is the share
+    of the 200 nT one over 2.5 (closed form). An injected 500 nT pulse with those rows
+    left out (the truth) comes back with that distortion within 0.01 (zone 4, no
+    detection: 0.196 / 2.5 = 0.078)."""
+    from magcal.missions.elfin.injection import run_injections
+    from magcal.missions.elfin.leave_out import leave_out_effect
+    from magcal.missions.elfin.pipeline import ElfinSettings
+
+    fgs, state = elfin_day
+    s = ElfinSettings(detect_disturbed=False)
+    one, big = (leave_out_effect(fgs, state, s, kinds=("gauss_ew",), zones=[4],
+                                 scale=k).iloc[0] for k in (1.0, 2.5))
+    assert big["distortion"] == pytest.approx(one["distortion"] / 2.5, rel=1e-9)
+    assert big["gain"] - 1.0 == pytest.approx((one["gain"] - 1.0) / 2.5, rel=1e-9)
+    assert big["left_out_s"] == one["left_out_s"]
+    assert big["amplitude_for_target_nT"] == pytest.approx(one["amplitude_for_target_nT"])
+    tab = run_injections(fgs, state, s, kinds=("gauss_ew",), zones=[4], mask_signal=0.05,
+                         mask_clean=False, scale=2.5)[0]
+    injected = tab[tab["product"] == big["product"]].iloc[0]
+    assert abs(injected["distortion"] - big["distortion"]) < 0.01
+    with pytest.raises(InputError, match="scale"):
+        run_injections(fgs, state, s, kinds=("gauss_ew",), zones=[4], scale=-1.0)
 
 
 def test_nothing_left_out_changes_nothing(elfin_day):

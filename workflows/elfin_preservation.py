@@ -56,7 +56,8 @@ Usage::
                                            [--no-held] [--settings KEY=VALUE ...]
                                            [--mask-signal FRACTION]
                                            [--mask-injected-only FRACTION]
-                                           [--centres 0.5,...] [--sign -1] [--both-signs]
+                                           [--centres 0.5,...] [--sign -1] [--scale 1]
+                                           [--both-signs]
                                            [--joined] [--leave-out FRACTION]
                                            [--plot DIR]
 
@@ -228,6 +229,9 @@ def main(argv=None) -> int:
     ap.add_argument("--sign", type=float, default=1.0, choices=(1.0, -1.0),
                     help="polarity of every signal (-1: the opposite field; what is kept "
                          "is not odd in the signal)")
+    ap.add_argument("--scale", type=float, default=1.0,
+                    help="amplitude of every signal in units of its defined one (e.g. 2.5: "
+                         "500 nT pulses across B); the polarity is --sign")
     ap.add_argument("--both-signs", action="store_true",
                     help="also inject every signal with the opposite polarity and print "
                          "the part of what came back that follows the signal (odd) and "
@@ -276,7 +280,8 @@ def main(argv=None) -> int:
         runs.append((label, given, False, args.mask_injected_only, False))
     print(f"ELFIN-A 2022-01-12, zones {args.zones}, signals {', '.join(kinds)}"
           f"{' (opposite polarity)' if args.sign < 0 else ''}, at "
-          f"{', '.join(map(str, centres))} of each zone\n{CREDIT}")
+          f"{', '.join(map(str, centres))} of each zone"
+          f"{f', amplitudes x {args.scale:g}' if args.scale != 1 else ''}\n{CREDIT}")
     _print_shares(kinds)
     delivered = None
     for label, settings, hold, mask, mask_clean in runs:
@@ -288,7 +293,8 @@ def main(argv=None) -> int:
                                         progress=lambda line: print("  " + line),
                                         plot_dir=_plot_dir(args.plot, label)
                                         if centre == centres[0] else None, centre=centre,
-                                        sign=args.sign, both_signs=args.both_signs,
+                                        sign=args.sign, scale=args.scale,
+                                        both_signs=args.both_signs,
                                         joined=args.joined and args.both_signs and not hold)
             tabs.append(tab.assign(zone=[f"{z}@{centre:g}" for z in tab["zone"]])
                         if len(centres) > 1 else tab)
@@ -298,11 +304,12 @@ def main(argv=None) -> int:
             delivered = tab[(tab["product"] == tab["product"].iloc[-1])
                             & (tab["sign"] == args.sign)]
     if args.leave_out > 0:
-        _print_leave_out(fgs, state, kinds, centres, zones, args.leave_out, delivered)
+        _print_leave_out(fgs, state, kinds, centres, zones, args.leave_out, delivered,
+                         args.scale)
     return 0
 
 
-def _print_leave_out(fgs, state, kinds, centres, zones, fraction, delivered) -> None:
+def _print_leave_out(fgs, state, kinds, centres, zones, fraction, delivered, scale) -> None:
     """The leave-out effect per pulse and case, next to the delivered distortion."""
     import numpy as np
 
@@ -318,7 +325,8 @@ def _print_leave_out(fgs, state, kinds, centres, zones, fraction, delivered) -> 
         return
     t0 = time.perf_counter()
     eff = leave_out_effect(fgs, state, kinds=pulses, centres=centres, zones=zones,
-                           fraction=fraction, progress=lambda line: print("  " + line))
+                           fraction=fraction, scale=scale,
+                           progress=lambda line: print("  " + line))
     case = [f"{z}@{c:g}" if len(centres) > 1 else z for z, c in zip(eff["zone"], eff["centre"])]
     eff = eff.assign(case=case).merge(
         delivered[["signal", "zone", "distortion"]].rename(

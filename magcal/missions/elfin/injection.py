@@ -584,7 +584,7 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
                    mask_signal: float = 0.0, mask_clean: bool = True,
                    progress=None, plot_dir=None, centre: float = 0.5,
                    sign: float = 1.0, both_signs: bool = False,
-                   joined: bool = False) -> tuple[pd.DataFrame, object]:
+                   joined: bool = False, scale: float = 1.0) -> tuple[pd.DataFrame, object]:
     """Inject each signal kind into each chosen zone and measure what every product keeps.
 
     Parameters
@@ -644,6 +644,11 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         union of their left-out rows out (:func:`joined_parts`; columns ending in
         ``_joined``; two more calibrations per signal): how much of the odd part's
         distortion is where the detector drew the intervals' ends.
+    scale : float
+        Amplitude of every signal in units of its :data:`SIGNALS` amplitude (positive;
+        polarity is ``sign``). What leaving a pulse's rows out does to the calibration
+        does not grow with the pulse (:mod:`magcal.missions.elfin.leave_out`), so its
+        share of the signal falls as one over ``scale``.
 
     Returns
     -------
@@ -658,6 +663,8 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
     from magcal.missions.elfin.files import ns_index
     from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
 
+    if not scale > 0:
+        raise InputError(f"scale must be positive (the polarity is sign), got {scale}")
     fgs, state = ns_index(fgs, "FGS frame"), ns_index(state, "state frame")
     # the kept fractions do not depend on the pulses' stated height errors
     s = replace(settings or ElfinSettings(), pulse_trials=0, level_trials=0)
@@ -674,7 +681,8 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
     f = clean.linear.field
     tables = []
     for kind in kinds:
-        signals = {k: sign * signal_gei(kind, f[f["zone"] == k], state, centre=centre)
+        signals = {k: sign * scale * signal_gei(kind, f[f["zone"] == k], state,
+                                                centre=centre)
                    for k in dict.fromkeys(f["zone"].to_numpy())}
         injected = inject_counts(fgs, clean.linear, signals)
         base, skip = clean, None

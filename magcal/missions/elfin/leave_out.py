@@ -56,15 +56,15 @@ _COLS = ["bx_gei", "by_gei", "bz_gei"]
 KEPT_BY_LEAVING_OUT = ("gauss_ew", "gauss_along")
 
 
-def effect_rows(clean_day, left_day, signals: dict, extent, kind: str) -> list[dict]:
-    """Per zone of ``signals``: the delivered product's change between ``clean_day`` and
-    ``left_day`` (the same counts with the rows ``extent`` left out), read against the
-    signal (:func:`leave_out_effect`'s columns but ``centre``)."""
+def effect_rows(clean_day, left_day, signals: dict, extent, kind: str,
+                amplitude: float) -> list[dict]:
+    """Per zone of ``signals`` (of peak ``amplitude``, nT): the delivered product's change
+    between ``clean_day`` and ``left_day`` (the same counts with the rows ``extent`` left
+    out), read against the signal (:func:`leave_out_effect`'s columns but ``centre``)."""
     name = list(clean_day.products)[-1]
     fc, fl = clean_day.products[name].field, left_day.products[name].field
     zone = fc["zone"].to_numpy()
     t = (fc.index.asi8 - fc.index.asi8[0]) / 1e9
-    amplitude = SIGNALS[kind][0]
     rows = []
     for k, dg in signals.items():
         sel = zone == k
@@ -95,7 +95,8 @@ def _rms(v) -> float:
 
 def leave_out_effect(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
                      kinds=("gauss_ew",), centres=(0.5,), zones=None,
-                     fraction: float = 0.05, progress=None) -> pd.DataFrame:
+                     fraction: float = 0.05, scale: float = 1.0,
+                     progress=None) -> pd.DataFrame:
     """The product's change when a signal's rows are left out of the fits, no signal added.
 
     The clean day is calibrated once; then, per place, again with the rows where each
@@ -124,6 +125,9 @@ def leave_out_effect(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
     fraction : float
         Share of the signal's peak above which its rows are left out (as
         ``--mask-injected-only`` of ``workflows/elfin_preservation.py``).
+    scale : float
+        The signals' amplitude in units of their defined one: the rows left out do not
+        change, the change is read against the larger signal.
     progress : callable, optional
         Called with one line per calibration.
 
@@ -155,7 +159,7 @@ def leave_out_effect(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
     for centre in centres:
         done: dict[bytes, object] = {}
         for kind in kinds:
-            signals = {k: signal_gei(kind, f[zone == k], state, centre=centre)
+            signals = {k: scale * signal_gei(kind, f[zone == k], state, centre=centre)
                        for k in dict.fromkeys(zone)}
             extent = signal_extent(signals, zone, fraction)
             key = np.packbits(extent).tobytes()
@@ -164,7 +168,8 @@ def leave_out_effect(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
                                                 diagnostics=False)
                 if progress is not None:
                     progress(f"{kind} at {centre:g}: calibrated with its rows left out")
-            for row in effect_rows(clean, done[key], signals, extent, kind):
+            for row in effect_rows(clean, done[key], signals, extent, kind,
+                                   scale * SIGNALS[kind][0]):
                 row["centre"] = float(centre)
                 if zones is not None:
                     row["zone"] = list(zones)[row["zone"]]
