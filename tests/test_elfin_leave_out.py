@@ -10,6 +10,8 @@ from magcal.errors import InputError
 
 FGS = "ela_l1_fgs_20220112_v01.cdf"
 STATE = "ela_l1_state_defn_20220112_v01.cdf"
+# one process computes the module's fixtures once
+pytestmark = pytest.mark.xdist_group("elfin_leave_out")
 
 
 @pytest.fixture(scope="module")
@@ -20,7 +22,20 @@ def elfin_day():
             read_elfin_state(real_data_path("elfin", STATE)))
 
 
-def test_the_leave_out_effect_is_what_a_detector_flagging_exactly_the_signal_leaves(elfin_day):
+@pytest.fixture(scope="module")
+def zone4_effect(elfin_day):
+    """Zone 4, no detection: the leave-out effect of an east-west 40 s pulse at
+    mid-zone, and the settings it was measured with."""
+    from magcal.missions.elfin.leave_out import leave_out_effect
+    from magcal.missions.elfin.pipeline import ElfinSettings
+
+    fgs, state = elfin_day
+    s = ElfinSettings(detect_disturbed=False)
+    return s, leave_out_effect(fgs, state, s, kinds=("gauss_ew",), zones=[4]).iloc[0]
+
+
+def test_the_leave_out_effect_is_what_a_detector_flagging_exactly_the_signal_leaves(
+        elfin_day, zone4_effect):
     """Zone 4 of 2022-01-12, no detection: an east-west 200 nT, 40 s pulse injected with
     its rows above 5 % of its peak left out of the injected run's fits comes back with
     gain g and distortion d against the injected pulse. Leaving the same rows out of
@@ -29,12 +44,9 @@ def test_the_leave_out_effect_is_what_a_detector_flagging_exactly_the_signal_lea
     there; nothing else differs; measured d 0.196 and 0.192, g 1.040 and 1.034). The
     premise: that change is not small (d > 0.1)."""
     from magcal.missions.elfin.injection import run_injections
-    from magcal.missions.elfin.leave_out import leave_out_effect
-    from magcal.missions.elfin.pipeline import ElfinSettings
 
     fgs, state = elfin_day
-    s = ElfinSettings(detect_disturbed=False)
-    effect = leave_out_effect(fgs, state, s, kinds=("gauss_ew",), zones=[4]).iloc[0]
+    s, effect = zone4_effect
     tab = run_injections(fgs, state, s, kinds=("gauss_ew",), zones=[4], mask_signal=0.05,
                          mask_clean=False)[0]
     injected = tab[tab["product"] == effect["product"]].iloc[0]
@@ -47,7 +59,7 @@ def test_the_leave_out_effect_is_what_a_detector_flagging_exactly_the_signal_lea
         200.0 * effect["distortion"] / 0.1)
 
 
-def test_the_leave_out_effect_falls_as_one_over_the_amplitude(elfin_day):
+def test_the_leave_out_effect_falls_as_one_over_the_amplitude(elfin_day, zone4_effect):
     """The rows left out do not depend on the pulse's amplitude, so the change they
     make is the same and its share of a 2.5 times larger pulse (500 nT) is the share
     of the 200 nT one over 2.5 (closed form). An injected 500 nT pulse with those rows
@@ -55,12 +67,10 @@ def test_the_leave_out_effect_falls_as_one_over_the_amplitude(elfin_day):
     detection: 0.196 / 2.5 = 0.078)."""
     from magcal.missions.elfin.injection import run_injections
     from magcal.missions.elfin.leave_out import leave_out_effect
-    from magcal.missions.elfin.pipeline import ElfinSettings
 
     fgs, state = elfin_day
-    s = ElfinSettings(detect_disturbed=False)
-    one, big = (leave_out_effect(fgs, state, s, kinds=("gauss_ew",), zones=[4],
-                                 scale=k).iloc[0] for k in (1.0, 2.5))
+    s, one = zone4_effect
+    big = leave_out_effect(fgs, state, s, kinds=("gauss_ew",), zones=[4], scale=2.5).iloc[0]
     assert big["distortion"] == pytest.approx(one["distortion"] / 2.5, rel=1e-9)
     assert big["gain"] - 1.0 == pytest.approx((one["gain"] - 1.0) / 2.5, rel=1e-9)
     assert big["left_out_s"] == one["left_out_s"]
