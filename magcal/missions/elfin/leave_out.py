@@ -140,7 +140,7 @@ def leave_out_effect(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         and ``outside_rms_nT`` (RMS of the change's norm over the left-out rows and
         over the zone's other used rows), ``zone_shift_nT`` (norm of the change's mean
         over those other rows), ``amplitude_for_target_nT`` (the amplitude at which the
-        distortion would be the issue's 10 %: it falls as one over the amplitude).
+        distortion, which falls as one over the amplitude, would be the issue's 10 %).
     """
     from dataclasses import replace
 
