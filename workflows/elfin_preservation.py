@@ -283,7 +283,7 @@ def main(argv=None) -> int:
           f"{', '.join(map(str, centres))} of each zone"
           f"{f', amplitudes x {args.scale:g}' if args.scale != 1 else ''}\n{CREDIT}")
     _print_shares(kinds)
-    delivered = None
+    delivered = delivered_clean = None
     for label, settings, hold, mask, mask_clean in runs:
         t0 = time.perf_counter()
         tabs = []
@@ -303,14 +303,17 @@ def main(argv=None) -> int:
         if label == "delivered":
             delivered = tab[(tab["product"] == tab["product"].iloc[-1])
                             & (tab["sign"] == args.sign)]
+            delivered_clean = clean
     if args.leave_out > 0:
         _print_leave_out(fgs, state, kinds, centres, zones, args.leave_out, delivered,
-                         args.scale)
+                         delivered_clean, args.scale)
     return 0
 
 
-def _print_leave_out(fgs, state, kinds, centres, zones, fraction, delivered, scale) -> None:
-    """The leave-out effect per pulse and case, next to the delivered distortion."""
+def _print_leave_out(fgs, state, kinds, centres, zones, fraction, delivered, clean,
+                     scale) -> None:
+    """The leave-out effect per pulse and case, next to the delivered distortion (the
+    delivered run's clean day reused)."""
     import numpy as np
 
     from magcal.missions.elfin.injection import TARGET_DISTORTION
@@ -325,7 +328,7 @@ def _print_leave_out(fgs, state, kinds, centres, zones, fraction, delivered, sca
         return
     t0 = time.perf_counter()
     eff = leave_out_effect(fgs, state, kinds=pulses, centres=centres, zones=zones,
-                           fraction=fraction, scale=scale,
+                           fraction=fraction, scale=scale, clean=clean,
                            progress=lambda line: print("  " + line))
     case = [f"{z}@{c:g}" if len(centres) > 1 else z for z, c in zip(eff["zone"], eff["centre"])]
     eff = eff.assign(case=case).merge(

@@ -39,6 +39,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from magcal.errors import InputError
 from magcal.missions.elfin.injection import (
     SIGNALS,
     TARGET_DISTORTION,
@@ -47,6 +48,7 @@ from magcal.missions.elfin.injection import (
     signal_extent,
     signal_gei,
 )
+from magcal.missions.elfin.scalar import rms
 
 _COLS = ["bx_gei", "by_gei", "bz_gei"]
 
@@ -79,7 +81,8 @@ def effect_rows(clean_day, left_day, signals: dict, extent, kind: str,
             "signal": kind, "product": name, "zone": int(k),
             "left_out_s": float(ts[-1] - ts[0]) if ts.size else 0.0,
             "gain": k_.gain, "distortion": k_.distortion,
-            "inside_rms_nT": _rms(delta[inside]), "outside_rms_nT": _rms(delta[outside]),
+            "inside_rms_nT": rms(np.linalg.norm(delta[inside], axis=1)),
+            "outside_rms_nT": rms(np.linalg.norm(delta[outside], axis=1)),
             "zone_shift_nT": float(np.linalg.norm(delta[outside].mean(axis=0)))
             if outside.any() else np.nan,
             "amplitude_for_target_nT": amplitude * k_.distortion / TARGET_DISTORTION,
@@ -87,15 +90,9 @@ def effect_rows(clean_day, left_day, signals: dict, extent, kind: str,
     return rows
 
 
-def _rms(v) -> float:
-    """RMS of the vector norm (nT); NaN for no rows."""
-    v = np.asarray(v, float)
-    return float(np.sqrt(np.mean(np.sum(v * v, axis=1)))) if len(v) else np.nan
-
-
 def leave_out_effect(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
                      kinds=("gauss_ew",), centres=(0.5,), zones=None,
-                     fraction: float = 0.05, scale: float = 1.0,
+                     fraction: float = 0.05, scale: float = 1.0, clean=None,
                      progress=None) -> pd.DataFrame:
     """The product's change when a signal's rows are left out of the fits, no signal added.
 
@@ -128,6 +125,10 @@ def leave_out_effect(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
     scale : float
         The signals' amplitude in units of their defined one: the rows left out do not
         change, the change is read against the larger signal.
+    clean : ElfinDay, optional
+        The clean day already calibrated with these settings (trials off) and zones,
+        e.g. the one :func:`~magcal.missions.elfin.injection.run_injections` returns;
+        calibrated here when not given.
     progress : callable, optional
         Called with one line per calibration.
 
@@ -152,7 +153,11 @@ def leave_out_effect(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
                 level_trials=0)
     if zones is not None:
         fgs = select_zones(fgs, zones)
-    clean = calibrate_elfin_day(fgs, state, s, diagnostics=False)
+    if clean is None:
+        clean = calibrate_elfin_day(fgs, state, s, diagnostics=False)
+    elif len(clean.linear.field) != len(fgs):
+        raise InputError(f"the clean day has {len(clean.linear.field)} rows for "
+                         f"{len(fgs)} FGS rows of the zones asked for")
     f = clean.linear.field
     zone = f["zone"].to_numpy()
     rows = []
