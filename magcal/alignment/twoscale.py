@@ -220,16 +220,19 @@ class WhittleData:
     def expected(self, tau_s, share) -> np.ndarray:
         """Expected periodogram (unit total variance) of the two-scale model under the
         sampling mask, at the periodogram's frequencies."""
-        n = self.lag.size
-        c = (share[0] * decay(self.dt, tau_s[0], n)
-             + share[1] * decay(self.dt, tau_s[1], n))
+        if self.lag.size <= _DIRECT:
+            c = share[0] * np.exp(-self.lag / tau_s[0]) + share[1] * np.exp(-self.lag / tau_s[1])
+        else:
+            n = self.lag.size
+            c = share[0] * decay(self.dt, tau_s[0], n) + share[1] * decay(self.dt, tau_s[1], n)
         c[0] += share[2]
         cg = c * self.mask_acf
         spec = 2.0 * scipy.fft.rfft(cg).real - cg[0]
         return spec[1:self.periodogram.size + 1]
 
 
-#: Below this many lags :func:`decay` takes the exponentials directly (no faster there).
+#: Up to this many lags the expected periodogram takes the exponentials directly
+#: (:func:`decay` is no faster there).
 _DIRECT = 4096
 
 
@@ -245,9 +248,7 @@ def decay(dt: float, tau: float, n: int) -> np.ndarray:
     ...             rtol=1e-12, atol=0)
     True
     """
-    if n <= _DIRECT:
-        return np.exp(-np.arange(n) * (dt / tau))
-    block = int(np.ceil(np.sqrt(n)))
+    block = max(int(np.ceil(np.sqrt(n))), 1)
     within = np.exp(-np.arange(block) * (dt / tau))
     across = np.exp(-np.arange(-(-n // block)) * (block * dt / tau))
     return np.multiply.outer(across, within).ravel()[:n]
