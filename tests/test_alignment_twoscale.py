@@ -99,6 +99,24 @@ def test_expected_periodogram_is_the_exact_expectation_under_gaps(segment):
     np.testing.assert_allclose(data.expected(TAU, SHARE), exact, rtol=1e-9)
 
 
+
+def test_long_record_expectation_equals_the_direct_exponentials():
+    """Above 4096 lags the autocovariances come from :func:`decay`'s outer products of
+    short exponential series: the expectation equals the direct formula (the one the
+    exact test above checks on a short record) to 1e-10, gaps included."""
+    rng = np.random.default_rng(2)
+    t = np.arange(6000.0) * 60.0
+    keep = rng.random(t.size) > 0.1
+    keep[0] = keep[-1] = True
+    data = WhittleData.from_residual(np.zeros(int(keep.sum())), t[keep])
+    assert data.lag.size == 6000 > 4096
+    c = SHARE[0] * np.exp(-data.lag / TAU[0]) + SHARE[1] * np.exp(-data.lag / TAU[1])
+    c[0] += SHARE[2]
+    cg = c * data.mask_acf
+    direct = (2.0 * np.fft.rfft(cg).real - cg[0])[1:data.periodogram.size + 1]
+    got = data.expected(TAU, SHARE)
+    np.testing.assert_allclose(got, direct, rtol=1e-10, atol=1e-12 * direct.max())
+
 def test_whittle_recovers_the_simulated_parameters():
     """30 days of 1-min samples of fast 1 nT / 10 min, slow 2 nT / 6 h, white 0.2 nT:
     each part's std within 15 % and the times within 30 % (five seeds; the slow time's
