@@ -99,7 +99,6 @@ def test_expected_periodogram_is_the_exact_expectation_under_gaps(segment):
     np.testing.assert_allclose(data.expected(TAU, SHARE), exact, rtol=1e-9)
 
 
-
 def test_long_record_expectation_equals_the_direct_exponentials():
     """Above 4096 lags the autocovariances come from :func:`decay`'s outer products of
     short exponential series: the expectation equals the direct formula (the one the
@@ -116,6 +115,7 @@ def test_long_record_expectation_equals_the_direct_exponentials():
     direct = (2.0 * np.fft.rfft(cg).real - cg[0])[1:data.periodogram.size + 1]
     got = data.expected(TAU, SHARE)
     np.testing.assert_allclose(got, direct, rtol=1e-10, atol=1e-12 * direct.max())
+
 
 def test_whittle_recovers_the_simulated_parameters():
     """30 days of 1-min samples of fast 1 nT / 10 min, slow 2 nT / 6 h, white 0.2 nT:

@@ -220,15 +220,17 @@ class WhittleData:
     def expected(self, tau_s, share) -> np.ndarray:
         """Expected periodogram (unit total variance) of the two-scale model under the
         sampling mask, at the periodogram's frequencies."""
-        if self.lag.size <= _DIRECT:
-            c = share[0] * np.exp(-self.lag / tau_s[0]) + share[1] * np.exp(-self.lag / tau_s[1])
-        else:
-            n = self.lag.size
-            c = share[0] * decay(self.dt, tau_s[0], n) + share[1] * decay(self.dt, tau_s[1], n)
+        c = share[0] * self._decay(tau_s[0]) + share[1] * self._decay(tau_s[1])
         c[0] += share[2]
         cg = c * self.mask_acf
         spec = 2.0 * scipy.fft.rfft(cg).real - cg[0]
         return spec[1:self.periodogram.size + 1]
+
+    def _decay(self, tau_s: float) -> np.ndarray:
+        """``exp(-lag / tau_s)``: directly up to :data:`_DIRECT` lags, else by :func:`decay`."""
+        if self.lag.size <= _DIRECT:
+            return np.exp(-self.lag / tau_s)
+        return decay(self.dt, tau_s, self.lag.size)
 
 
 #: Up to this many lags the expected periodogram takes the exponentials directly
