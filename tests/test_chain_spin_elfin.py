@@ -11,6 +11,7 @@ the library computes. Configuration errors are one line and exit status 2; the
 from __future__ import annotations
 
 import contextlib
+import copy
 import io
 import json
 from dataclasses import asdict, replace
@@ -25,8 +26,8 @@ from magcal.cli import main
 from magcal.errors import InputError
 from magcal.missions.elfin.pipeline import SIGNAL_TRADE, ElfinDay, ElfinSettings
 
-# one test process for the whole module: its module fixtures (the CLI run, the library
-# call, 25 s each) are then computed once instead of once per process (pyproject runs
+# one test process for the whole module: its module fixture (the CLI run, 60 s on a
+# slow machine) is then computed once instead of once per process (pyproject runs
 # pytest with --dist loadgroup)
 pytestmark = pytest.mark.xdist_group("elfin_chain")
 
@@ -47,29 +48,50 @@ def _cli(args) -> tuple[int, str, str]:
 
 @pytest.fixture(scope="module")
 def chain(tmp_path_factory):
-    """``magcal run ELFIN.toml`` once: exit status, stdout, stderr, output folder."""
+    """``magcal run ELFIN.toml`` once: exit status, stdout, stderr, output folder, and
+    what the run passed to and got back from the library's
+    :func:`~magcal.missions.elfin.pipeline.calibrate_elfin_day` (a copy taken at the
+    return, so the chain cannot change it unseen before writing)."""
+    from magcal.missions.elfin import pipeline
+
     real_data_path("elfin", FGS)
     real_data_path("elfin", STATE)
     out = tmp_path_factory.mktemp("elfin-run")
-    code, stdout, stderr = _cli(["run", CONFIG, "-o", out, "--quiet"])
-    return code, stdout, stderr, out
+    calls = []
+    real = pipeline.calibrate_elfin_day
+
+    def spy(fgs, state, settings, **kwargs):
+        day = real(fgs, state, settings, **kwargs)
+        calls.append(((fgs.copy(), state.copy(), settings, kwargs), copy.deepcopy(day)))
+        return day
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(pipeline, "calibrate_elfin_day", spy)
+        code, stdout, stderr = _cli(["run", CONFIG, "-o", out, "--quiet"])
+    return code, stdout, stderr, out, calls
 
 
 @pytest.fixture(scope="module")
 def library(chain):
-    """The library call on the same files with the same (default) settings."""
+    """The library's result for the same files with the same (default) settings: the
+    chain's own call, once its inputs are shown to be exactly those (read here
+    independently); the day is deterministic, so calling again (60 s) would repeat it."""
     from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
-    from magcal.missions.elfin.pipeline import calibrate_elfin_day
 
-    fgs = read_elfin_fgs(real_data_path("elfin", FGS))
-    state = read_elfin_state(real_data_path("elfin", STATE))
-    return calibrate_elfin_day(fgs, state, ElfinSettings())
+    calls = chain[4]
+    assert len(calls) == 1, f"the chain called the library {len(calls)} times"
+    (fgs, state, settings, kwargs), day = calls[0]
+    pd.testing.assert_frame_equal(fgs, read_elfin_fgs(real_data_path("elfin", FGS)))
+    pd.testing.assert_frame_equal(state, read_elfin_state(real_data_path("elfin", STATE)))
+    assert settings == ElfinSettings()
+    assert kwargs.get("fit_exclude") is None and set(kwargs) <= {"provenance", "fit_exclude"}
+    return day
 
 
 @pytest.mark.realdata
 @pytest.mark.slow
 def test_run_writes_every_product_in_the_manifest(chain):
-    code, _, stderr, out = chain
+    code, _, stderr, out, _ = chain
     assert code == 0, stderr
     manifest = json.loads((out / "MANIFEST.json").read_text())
     assert manifest["failed"] == []
@@ -129,7 +151,7 @@ def test_chain_writes_what_the_library_computes(chain, library, tmp_path):
 @pytest.mark.realdata
 @pytest.mark.slow
 def test_a_step_that_makes_a_median_worse_is_a_warning(chain, library):
-    code, stdout, stderr, out = chain
+    code, stdout, stderr, out, _ = chain
     # the library's own verdict (on 2022-01-12 the vector step costs |B| accuracy,
     # 7.9 -> 8.1 nT, for vector accuracy); the rule itself is tested on constructed scores
     expected = library.worse_steps()
