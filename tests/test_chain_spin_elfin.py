@@ -57,12 +57,18 @@ def chain(tmp_path_factory):
     real_data_path("elfin", FGS)
     real_data_path("elfin", STATE)
     out = tmp_path_factory.mktemp("elfin-run")
-    calls = []
+    calls, depth = [], [0]
     real = pipeline.calibrate_elfin_day
 
     def spy(fgs, state, settings, **kwargs):
-        day = real(fgs, state, settings, **kwargs)
-        calls.append(((fgs.copy(), state.copy(), settings, kwargs), copy.deepcopy(day)))
+        # the library calls itself for its quiet trials: record the outermost call only
+        depth[0] += 1
+        try:
+            day = real(fgs, state, settings, **kwargs)
+        finally:
+            depth[0] -= 1
+        if depth[0] == 0:
+            calls.append(((fgs.copy(), state.copy(), settings, kwargs), copy.deepcopy(day)))
         return day
 
     with pytest.MonkeyPatch.context() as mp:
