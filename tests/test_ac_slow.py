@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from magcal.ac.bands import deliver
-from magcal.ac.slow import MIN_RECORD_S, bridge_intervals, offset_intervals, slow_part
+from magcal.ac.slow import (MIN_RECORD_S, bridge_intervals, offset_intervals,
+                            running_nanmedian, slow_part)
 
 STEP_TIMES = (3000.0, 9000.0, 15500.0, 22000.0, 27300.0, 33000.0, 39000.0)
 
@@ -145,3 +146,23 @@ def test_auto_shadow_day_removes_1000x(tmp_path):
     # the shadow (05 LT at 128.2 E: 20.45 h UT) was left out of the fit, nothing else
     left = doc["slow_offsets_left_out"]["intervals_s"]
     assert left and all(69000 < a and b < 84000 for a, b in left), left
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_running_median_is_numpys_nanmedian_of_every_window(seed):
+    """The step statistic's running median equals ``numpy.nanmedian`` over every window,
+    exactly: gaps, all-NaN windows, ties (rounded values) and, on odd seeds, an
+    infinite value (which takes numpy's own way)."""
+    import warnings
+
+    rng = np.random.default_rng(seed)
+    n, w = int(rng.integers(50, 400)), int(rng.integers(2, 40))
+    r = np.round(rng.normal(size=(n, 3)), int(rng.integers(0, 3)))
+    r[rng.random(n) < 0.3] = np.nan
+    r[10:10 + 2 * w] = np.nan
+    if seed % 2:
+        r[int(rng.integers(0, n)), 1] = np.inf
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        truth = np.nanmedian(np.lib.stride_tricks.sliding_window_view(r, w, axis=0), axis=2)
+    np.testing.assert_array_equal(running_nanmedian(r, w), truth)
