@@ -117,6 +117,31 @@ def test_long_record_expectation_equals_the_direct_exponentials():
     np.testing.assert_allclose(got, direct, rtol=1e-10, atol=1e-12 * direct.max())
 
 
+@pytest.mark.parametrize("segment", [2 ** 15, 1000])
+def test_tabulated_expectation_equals_the_exact_one_over_the_whole_search_box(segment):
+    """The fit's tabulated OU spectra, interpolated in log tau, equal
+    :meth:`WhittleData.expected` (checked against the exact covariance above) to 2e-7
+    (relative) for times from a tenth of the spacing to past the record's span and any
+    shares, on a record with 10 % of its samples and a 300-sample gap missing, whole
+    and cut into Bartlett segments."""
+    from magcal.alignment.twoscale import _OUSpectra
+
+    rng = np.random.default_rng(3)
+    t = np.arange(5000.0) * 60.0
+    keep = rng.random(t.size) > 0.1
+    keep[2000:2300] = False
+    keep[0] = keep[-1] = True
+    data = WhittleData.from_residual(np.zeros(int(keep.sum())), t[keep], segment=segment)
+    spectra = _OUSpectra(data)
+    for _ in range(200):
+        tau = np.exp(np.sort(rng.uniform(np.log(6.0), np.log(1.5 * 3e5), 2)))
+        share = rng.dirichlet(np.ones(3) * 0.5)
+        exact = data.expected(tau, share)
+        np.testing.assert_allclose(spectra.expected(tau, share), exact, rtol=2e-7,
+                                   atol=1e-12 * exact.max())
+    assert 0 < len(spectra.rows) < 1000
+
+
 def test_whittle_recovers_the_simulated_parameters():
     """30 days of 1-min samples of fast 1 nT / 10 min, slow 2 nT / 6 h, white 0.2 nT:
     each part's std within 15 % and the times within 30 % (five seeds; the slow time's
