@@ -33,8 +33,8 @@ from typing import ClassVar
 
 import numpy as np
 import scipy.fft
-from scipy.optimize import minimize
 
+from magcal.alignment.neldermead import nelder_mead
 from magcal.alignment.noise import COMPONENTS, effective_count, noise_warning
 from magcal.alignment.ouwhite import as_columns, kalman_innovations
 
@@ -425,14 +425,12 @@ def _fit_whittle(data: WhittleData, spectra: _OUSpectra, start=None):
         # instead of scipy's 5 % of it (3x fewer evaluations)
         p0 = _pack(*start)
         simplex = np.vstack([p0, p0 + 0.1 * np.eye(p0.size)])
-        fits = [minimize(obj, p0, method="Nelder-Mead",
-                         options=dict(opts, initial_simplex=simplex, maxfev=300))]
+        fits = [nelder_mead(obj, p0, simplex=simplex, maxfev=300, **opts)]
     else:
         starts = [_pack((m1 * data.dt, t2), (0.3, 0.6, 0.1))
                   for m1 in (2.0, 10.0) for t2 in (50 * data.dt, 500 * data.dt, span / 5)
                   if t2 > MIN_RATIO * m1 * data.dt]
-        fits = [minimize(obj, p0, method="Nelder-Mead", options=opts)
-                for p0 in sorted(starts, key=obj)[:2]]
+        fits = [nelder_mead(obj, p0, **opts) for p0 in sorted(starts, key=obj)[:2]]
     res = min(fits, key=lambda f: f.fun)
     tau, share = _unpack(res.x, lo, hi)
     v = likelihood(res.x)[1]
