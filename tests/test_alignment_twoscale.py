@@ -118,27 +118,37 @@ def test_long_record_expectation_equals_the_direct_exponentials():
 
 
 @pytest.mark.parametrize("segment", [2 ** 15, 1000])
-def test_tabulated_expectation_equals_the_exact_one_over_the_whole_search_box(segment):
-    """The fit's tabulated OU spectra, interpolated in log tau, equal
-    :meth:`WhittleData.expected` (checked against the exact covariance above) to 2e-7
-    (relative) for times from a tenth of the spacing to past the record's span and any
-    shares, on a record with 10 % of its samples and a 300-sample gap missing, whole
-    and cut into Bartlett segments."""
-    from magcal.alignment.twoscale import _OUSpectra
+def test_tabulated_likelihood_equals_the_exact_one_over_the_whole_search_box(segment):
+    """The fit's likelihood from the tabulated OU spectra (interpolated in log tau)
+    equals the one from :meth:`WhittleData.expected` (checked against the exact
+    covariance above): the negative log-likelihood to 1e-4 and the total variance to
+    1e-7 (relative), for times from a tenth of the spacing to past the record's span
+    and any shares. The record misses 10 % of its samples and a 300-sample gap, is
+    taken whole and cut into Bartlett segments, and has a fitted offset, trend and
+    harmonic (their leverage selects and scales the frequencies)."""
+    from magcal.alignment.twoscale import LOGIT, _OUSpectra, _Whittle
 
     rng = np.random.default_rng(3)
     t = np.arange(5000.0) * 60.0
     keep = rng.random(t.size) > 0.1
     keep[2000:2300] = False
     keep[0] = keep[-1] = True
-    data = WhittleData.from_residual(np.zeros(int(keep.sum())), t[keep], segment=segment)
+    t = t[keep]
+    x = simulate(rng, t, TAU, (1.0, 2.0, 0.2))
+    wave = 2 * np.pi * t / 60000.0      # a Fourier frequency of the record and segments
+    design = np.column_stack([np.ones(t.size), t / t[-1], np.cos(wave), np.sin(wave)])
+    data = WhittleData.from_residual(x, t, design, segment=segment)
+    assert np.any((data.kept > 0.5) & (data.kept < 0.9))
+    assert np.any(data.kept <= 0.5) == (segment > t.size)   # a frequency left out
+    lo, hi = np.log(0.1 * data.dt), np.log(data.lag[-1])
     spectra = _OUSpectra(data)
-    for _ in range(200):
-        tau = np.exp(np.sort(rng.uniform(np.log(6.0), np.log(1.5 * 3e5), 2)))
-        share = rng.dirichlet(np.ones(3) * 0.5)
-        exact = data.expected(tau, share)
-        np.testing.assert_allclose(spectra.expected(tau, share), exact, rtol=2e-7,
-                                   atol=1e-12 * exact.max())
+    tabulated, exact = _Whittle(data, lo, hi, spectra), _Whittle(data, lo, hi)
+    box = np.array([[lo, hi]] + [[-LOGIT, LOGIT]] * 3)
+    for _ in range(300):
+        p = rng.uniform(box[:, 0] - 0.5, box[:, 1] + 0.5)
+        (got, got_v), (want, want_v) = tabulated(p), exact(p)
+        assert got == pytest.approx(want, abs=1e-4)
+        assert got_v == pytest.approx(want_v, rel=1e-7)
     assert 0 < len(spectra.rows) < 1000
 
 

@@ -313,6 +313,12 @@ def _pack(tau_s, share) -> np.ndarray:
 LOG_TAU_STEP = 0.025
 
 
+def _weights(s: float) -> tuple:
+    """Cubic Lagrange weights of the grid points -1, 0, 1, 2 at ``0 <= s < 1``."""
+    return (-s * (s - 1) * (s - 2) / 6, (s + 1) * (s - 1) * (s - 2) / 2,
+            -(s + 1) * s * (s - 2) / 2, (s + 1) * s * (s - 1) / 6)
+
+
 class _OUSpectra:
     """Expected periodograms of a unit-variance OU part under one sampling mask,
     tabulated on the grid ``log tau = j * LOG_TAU_STEP`` (rows computed when first
@@ -320,10 +326,10 @@ class _OUSpectra:
 
     The exact expectation costs two exponentials and an FFT over every lag per
     likelihood evaluation; a search visits a few dozen grid rows, after which each
-    evaluation is a weighted sum of eight rows. The rows depend on the sampling only,
-    so the three components of one record share them. Within 5e-8 (relative) of
-    :meth:`WhittleData.expected` (about 1e-4 in the negative log-likelihood of a day of
-    1-min data, below the search's tolerance of 0.05).
+    evaluation is a weighted sum of eight rows (:class:`_Whittle`). The rows depend on
+    the sampling only, so the three components of one record share them. Within 5e-8
+    (relative) of :meth:`WhittleData.expected` (about 1e-4 in the negative
+    log-likelihood of a day of 1-min data, below the search's tolerance of 0.05).
     """
 
     def __init__(self, data: WhittleData):
@@ -331,7 +337,8 @@ class _OUSpectra:
         self.rows: dict[int, np.ndarray] = {}
         self.white = float(data.mask_acf[0])
 
-    def _row(self, j: int) -> np.ndarray:
+    def row(self, j: int) -> np.ndarray:
+        """Grid row ``j``: the expected periodogram at ``tau = exp(j * LOG_TAU_STEP)``."""
         row = self.rows.get(j)
         if row is None:
             d = self.data
@@ -340,47 +347,67 @@ class _OUSpectra:
             row = self.rows[j] = spec[1:d.periodogram.size + 1]
         return row
 
-    def stencil(self, tau_s: float):
-        """The four grid rows around ``tau_s`` and their interpolation weights."""
-        f = math.log(tau_s) / LOG_TAU_STEP
-        i = math.floor(f)
-        s = f - i
-        weights = (-s * (s - 1) * (s - 2) / 6, (s + 1) * (s - 1) * (s - 2) / 2,
-                   -(s + 1) * s * (s - 2) / 2, (s + 1) * s * (s - 1) / 6)
-        return [self._row(j) for j in range(i - 1, i + 3)], weights
-
-    def expected(self, tau_s, share) -> np.ndarray:
-        """:meth:`WhittleData.expected`, from the table."""
-        rows1, w1 = self.stencil(tau_s[0])
-        rows2, w2 = self.stencil(tau_s[1])
-        a, b = float(share[0]), float(share[1])
-        weights = np.array([a * w for w in w1] + [b * w for w in w2])
-        return weights @ np.array(rows1 + rows2) + float(share[2]) * self.white
-
 
 class _Whittle:
     """The profile Whittle likelihood of one :class:`WhittleData`, with what every
     evaluation shares (the frequencies kept, their periodogram and leverage) selected
-    once: Nelder-Mead calls it a few hundred times per fit. ``spectra`` (the tabulated
-    OU spectra of the same sampling) makes each evaluation a table look-up; without it
-    the expectation is computed exactly (:meth:`WhittleData.expected`)."""
+    once: Nelder-Mead calls it a few hundred times per fit.
+
+    ``spectra`` (the tabulated OU spectra of the same sampling) makes each evaluation a
+    table look-up: this component's copy of a grid row, its frequencies selected and
+    scaled by their leverage, is made when first needed, and an evaluation is two
+    four-row products. Without it the expectation is computed exactly
+    (:meth:`WhittleData.expected`).
+    """
 
     def __init__(self, data: WhittleData, lo: float, hi: float,
                  spectra: _OUSpectra | None = None):
         self.data, self.lo, self.hi = data, lo, hi
-        self.expected = data.expected if spectra is None else spectra.expected
         use = data.kept > 0.5
         self.use = None if use.all() else use
         self.periodogram = data.periodogram[use]
         self.kept = data.kept[use]
         self.n_use = int(use.sum())
+        self.spectra = spectra
+        if spectra is not None:
+            # grid rows of every time the search box allows (and the stencils' margins)
+            self.j0 = math.floor(lo / LOG_TAU_STEP) - 3
+            size = math.floor((hi + _LOG_RATIO) / LOG_TAU_STEP) + 6 - self.j0
+            self.table = np.empty((size, self.n_use))
+            self.filled = bytearray(size)
+            self.white = spectra.white * self.kept
+
+    def _stencil(self, tau_s: float):
+        """Interpolation weights and this component's four grid rows around ``tau_s``."""
+        f = math.log(tau_s) / LOG_TAU_STEP
+        i = math.floor(f)
+        s = f - i
+        k = i - 1 - self.j0
+        if k < 0 or k + 4 > len(self.filled):
+            raise ValueError(f"tau = {tau_s:g} s is outside the search box's table")
+        for r in range(k, k + 4):
+            if not self.filled[r]:
+                row = self.spectra.row(r + self.j0)
+                self.table[r] = (row if self.use is None else row[self.use]) * self.kept
+                self.filled[r] = 1
+        return _weights(s), self.table[k:k + 4]
 
     def __call__(self, p) -> tuple[float, float]:
         """Negative log-likelihood and the fitted total variance at ``p``."""
-        spec = self.expected(*_unpack(p, self.lo, self.hi))
-        if self.use is not None:
-            spec = spec[self.use]
-        s = np.maximum(spec * self.kept, 1e-300)
+        tau, share = _unpack(p, self.lo, self.hi)
+        if self.spectra is None:
+            spec = self.data.expected(tau, share)
+            if self.use is not None:
+                spec = spec[self.use]
+            s = spec * self.kept
+        else:
+            w1, rows1 = self._stencil(tau[0])
+            w2, rows2 = self._stencil(tau[1])
+            a, b = float(share[0]), float(share[1])
+            s = np.dot([a * w for w in w1], rows1)
+            s += np.dot([b * w for w in w2], rows2)
+            s += float(share[2]) * self.white
+        s = np.maximum(s, 1e-300)
         v = float((self.periodogram / s).mean())
         return float(self.n_use * np.log(max(v, 1e-300)) + np.log(s).sum()), v
 
