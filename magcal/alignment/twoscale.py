@@ -19,10 +19,12 @@ blocks side by side (:func:`magcal.alignment.ouwhite.kalman_innovations`).
 The noise parameters are fitted by the debiased Whittle likelihood (Sykulski et al.
 2019, JRSS B 81, 251): the residual's periodogram on its sampling grid, gaps zero
 filled, against the expected periodogram of the model under the same gaps (the
-autocovariance times the sampling mask's autocorrelation, one FFT per evaluation).
-That costs milliseconds where the exact likelihood's transients cost seconds, and the
-fit only has to be good enough for efficient whitening: the stated covariance is the
-spectral sandwich (:mod:`magcal.alignment.sandwich`), which does not rest on it.
+autocovariance times the sampling mask's autocorrelation, Fourier transformed; each
+OU part's expectation is tabulated over its correlation time once per sampling and
+interpolated, :class:`_OUSpectra`). That costs milliseconds where the exact
+likelihood's transients cost seconds, and the fit only has to be good enough for
+efficient whitening: the stated covariance is the spectral sandwich
+(:mod:`magcal.alignment.sandwich`), which does not rest on it.
 """
 
 from __future__ import annotations
@@ -370,7 +372,8 @@ class _Whittle:
         self.n_use = int(use.sum())
         self.spectra = spectra
         if spectra is not None:
-            # grid rows of every time the search box allows (and the stencils' margins)
+            # grid rows of every time the search box allows (and the stencils' margins);
+            # only the rows a search visits are written, so only their pages are used
             self.j0 = math.floor(lo / LOG_TAU_STEP) - 3
             size = math.floor((hi + _LOG_RATIO) / LOG_TAU_STEP) + 6 - self.j0
             self.table = np.empty((size, self.n_use))
