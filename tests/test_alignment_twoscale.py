@@ -126,7 +126,7 @@ def test_tabulated_likelihood_equals_the_exact_one_over_the_whole_search_box(seg
     and any shares. The record misses 10 % of its samples and a 300-sample gap, is
     taken whole and cut into Bartlett segments, and has a fitted offset, trend and
     harmonic (their leverage selects and scales the frequencies)."""
-    from magcal.alignment.twoscale import LOGIT, _OUSpectra, _Whittle
+    from magcal.alignment.twoscale import LOGIT, _OUSpectra, _Whittle, search_box
 
     rng = np.random.default_rng(3)
     t = np.arange(5000.0) * 60.0
@@ -140,7 +140,7 @@ def test_tabulated_likelihood_equals_the_exact_one_over_the_whole_search_box(seg
     data = WhittleData.from_residual(x, t, design, segment=segment)
     assert np.any((data.kept > 0.5) & (data.kept < 0.9))
     assert np.any(data.kept <= 0.5) == (segment > t.size)   # a frequency left out
-    lo, hi = np.log(0.1 * data.dt), np.log(data.lag[-1])
+    lo, hi = search_box(data)
     spectra = _OUSpectra(data)
     tabulated, exact = _Whittle(data, lo, hi, spectra), _Whittle(data, lo, hi)
     box = np.array([[lo, hi]] + [[-LOGIT, LOGIT]] * 3)
@@ -171,9 +171,9 @@ def _thorough_minimum(data: WhittleData):
     likelihood on the fit's box, to score the fit with."""
     from scipy.optimize import minimize
 
-    from magcal.alignment.twoscale import LOGIT, _Whittle
+    from magcal.alignment.twoscale import LOGIT, _Whittle, search_box
 
-    lo, hi = np.log(0.1 * data.dt), np.log(max(float(data.lag[-1]), 10 * data.dt))
+    lo, hi = search_box(data)
     likelihood = _Whittle(data, lo, hi)
     box = [(lo, hi)] + [(-LOGIT, LOGIT)] * 3
     best = np.inf
