@@ -66,6 +66,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pandas as pd
 
+from magcal.lstsq import lstsq
 from magcal.missions.elfin.levels import step_columns
 from magcal.missions.elfin.timing import true_runs
 from magcal.stats import normal_mad
@@ -238,7 +239,7 @@ def robust_baseline(t_s, values, use, *, degree: int = 3, c: float = 4.685,
 
     def solve(w):
         sw = np.sqrt(w)
-        coef = np.linalg.lstsq(au * sw[:, None], vu * sw, rcond=None)[0]
+        coef = lstsq(au * sw[:, None], vu * sw)
         return coef, vu - au @ coef
 
     coef, r = solve(np.ones(vu.size))

@@ -43,6 +43,7 @@ from dataclasses import replace
 import numpy as np
 import pandas as pd
 
+from magcal.lstsq import lstsq
 from magcal.missions.elfin.scalar import fast_part, fit_spin_harmonics, rms
 from magcal.stats import normal_mad
 
@@ -197,7 +198,7 @@ def fit_gain_drift(t_s, b_body, ref_magnitude_nT, *, degree: int = 3, fit_mask=N
         weight = first
         for _ in range(max(1, robust_iter)):
             sw = np.sqrt(weight[use])[:, None]
-            w = np.linalg.lstsq(design[use] * sw, (mag - ref)[use] * sw[:, 0], rcond=None)[0]
+            w = lstsq(design[use] * sw, (mag - ref)[use] * sw[:, 0])
             # what the start weighted out stays out: the cubic cannot take it back
             weight = np.minimum(first, tukey_weights(t, mag - ref - design @ w, use, robust_c))
     sw = np.sqrt(weight[use])
@@ -206,15 +207,13 @@ def fit_gain_drift(t_s, b_body, ref_magnitude_nT, *, degree: int = 3, fit_mask=N
         design = powers * ((b[:, 0] ** 2 + b[:, 1] ** 2) / mag)[:, None]
         if shape is None:
             full = np.column_stack([design, nat])
-            w = np.linalg.lstsq(full[use] * sw[:, None], (mag - ref)[use] * sw,
-                                rcond=None)[0]
+            w = lstsq(full[use] * sw[:, None], (mag - ref)[use] * sw)
             w, a_nat = w[:powers.shape[1]], w[powers.shape[1]:]
             amplitude = a_nat          # left in the data: each pass sees all of it
             g = powers @ w
         else:
             fixed = powers[:, 1] if not coef.any() else 0.0 * powers[:, 1]
-            g0 = np.linalg.lstsq(design[use, :1], (mag - ref - fixed * design[:, 0])[use],
-                                 rcond=None)[0]
+            g0 = lstsq(design[use, :1], (mag - ref - fixed * design[:, 0])[use])
             w = np.r_[g0, 0.0 if coef.any() else 1.0]
             g = g0[0] + fixed
         b[:, :2] /= (1.0 + g)[:, None]
@@ -284,7 +283,7 @@ def drift_shape_agreement(t_s, b_body, ref_magnitude_nT, *, fit_mask=None,
     absorb = np.column_stack([np.ones_like(t), ref - ref.mean()])
 
     def project(v):
-        return v - absorb @ np.linalg.lstsq(absorb, v, rcond=None)[0]
+        return v - absorb @ lstsq(absorb, v)
 
     s_p, a_p = project(slow), project(amp)
     ratio = float(a_p @ s_p / max(a_p @ a_p, 1e-30))
@@ -349,7 +348,7 @@ def drift_pair(t_s, b_body, ref_body, *, fit_mask=None, degree: int = 3) -> dict
     powers = np.column_stack([unit_time(t, use)[use] ** d for d in range(degree + 1)])
     ks = (-3, -1, 0, 1, 3, 5)
     design = np.column_stack([np.exp(1j * k * psi)[:, None] * powers for k in ks])
-    w = np.linalg.lstsq(design, e, rcond=None)[0].reshape(len(ks), -1)
+    w = lstsq(design, e).reshape(len(ks), -1)
     drift = {k: rms(np.abs(powers @ wk - np.mean(powers @ wk))) for k, wk in zip(ks, w)}
     return {"drift_k1_nT": drift[1], "drift_km1_nT": drift[-1]}
 

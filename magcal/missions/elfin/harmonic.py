@@ -27,6 +27,7 @@ from dataclasses import replace
 import numpy as np
 import pandas as pd
 
+from magcal.lstsq import lstsq
 from magcal.missions.elfin.phase import despun_basis
 from magcal.missions.elfin.scalar import fast_part, fit_spin_harmonics, rms
 from magcal.spin.despin import despin, spin
@@ -221,7 +222,7 @@ def drifting_harmonic_correction(t_s, b_body, ref_magnitude_nT, *, harmonics=(1,
         psi = np.angle(beta)
         mag = np.linalg.norm(b, axis=1)
         cols = [slow] + [f(k * psi)[:, None] * basis for k in harmonics for f in (np.cos, np.sin)]
-        w = np.linalg.lstsq(np.column_stack(cols)[use], (mag - ref)[use], rcond=None)[0]
+        w = lstsq(np.column_stack(cols)[use], (mag - ref)[use])
         w = w[slow.shape[1]:].reshape(len(harmonics), 2, -1)
         delta = np.zeros(t.size, complex)
         removed = {}

@@ -31,8 +31,10 @@ import pandas as pd
 
 from magcal.errors import InputError
 from magcal.io.jsonio import product_dict
+from magcal.lstsq import lstsq
 from magcal.missions.elfin.clipping import clipped_samples
 from magcal.missions.elfin.files import ns_index
+from magcal.missions.elfin.levels import step_columns
 from magcal.missions.elfin.phase import (
     TWO_PI,
     despun_basis,
@@ -42,7 +44,6 @@ from magcal.missions.elfin.phase import (
     split_zones,
     wrap,
 )
-from magcal.missions.elfin.levels import step_columns
 from magcal.missions.elfin.timing import check_timing
 from magcal.spin.despin import despin, spin
 
@@ -196,8 +197,7 @@ def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, 
 
     def calibrate(phase):
         tgt = spin(target, phase)
-        wx = np.linalg.lstsq(xy[used], tgt[used, 0], rcond=None)[0]
-        wy = np.linalg.lstsq(xy[used], tgt[used, 1], rcond=None)[0]
+        wx, wy = lstsq(xy[used], tgt[used, :2]).T
         bx, by = xy @ wx, xy @ wy
         tilt = _powers(T, axis_degree, first=1)
         att = -target[:, :2] if fit_attitude else np.zeros((T.size, 2))
@@ -209,7 +209,7 @@ def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, 
             ridge[:, :3] = np.sqrt(axis_prior_weight) * np.eye(3)
             a_z = np.vstack([a_z, ridge])
             y_z = np.r_[y_z, np.sqrt(axis_prior_weight) * np.asarray(axis_prior) * _SCALE]
-        wz = np.linalg.lstsq(a_z, y_z, rcond=None)[0]
+        wz = lstsq(a_z, y_z)
         if not fit_attitude:
             wz[-2:] = 0.0
         # the level steps and the attitude correction (the last two) are not part of the

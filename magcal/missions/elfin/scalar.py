@@ -30,6 +30,7 @@ import numpy as np
 import pandas as pd
 
 from magcal.errors import InputError
+from magcal.lstsq import lstsq
 from magcal.missions.elfin.phase import repair_timestamps, split_zones
 
 _TRIU = np.triu_indices(3)
@@ -93,7 +94,7 @@ def _ellipsoid_start(counts, magnitude):
     design = np.column_stack([x[:, 0] ** 2, x[:, 1] ** 2, x[:, 2] ** 2, 2 * x[:, 0] * x[:, 1],
                               2 * x[:, 0] * x[:, 2], 2 * x[:, 1] * x[:, 2], 2 * x,
                               np.ones(len(x))])
-    w = np.linalg.lstsq(design, magnitude ** 2, rcond=None)[0]
+    w = lstsq(design, magnitude ** 2)
     quad = np.array([[w[0], w[3], w[4]], [w[3], w[1], w[5]], [w[4], w[5], w[2]]])
     centre = -np.linalg.solve(quad, w[6:9])
     val, vec = np.linalg.eigh(quad)
@@ -229,7 +230,7 @@ def harmonic_amplitudes(t_s, residual, psi, harmonics=(1, 2, 3, 4), *,
     """
     x = _unit_time(t_s)
     design = np.column_stack([np.vander(x, poly_degree + 1), _harmonics(psi, harmonics)])
-    w = np.linalg.lstsq(design, np.asarray(residual, dtype=float), rcond=None)[0]
+    w = lstsq(design, np.asarray(residual, dtype=float))
     h = w[poly_degree + 1:]
     return {int(k): float(np.hypot(h[2 * i], h[2 * i + 1])) for i, k in enumerate(harmonics)}
 
@@ -285,7 +286,7 @@ def fit_spin_harmonics(t_s, residual, psi, *, fixed=(4,), drifting=(1, 2),
     drift_cols = [_harmonics(psi, [k])[:, :, None] * powers for k in drifting]
     blocks += [d.reshape(len(x), -1) for d in drift_cols]
     design = np.column_stack(blocks)
-    w = np.linalg.lstsq(design, r, rcond=None)[0]
+    w = lstsq(design, r)
     n0 = poly_degree + 1
     var = np.sum((r - design @ w) ** 2) / max(len(r) - design.shape[1], 1)
     cov_fixed = var * np.linalg.pinv(design.T @ design)[n0:n0 + 2 * len(fixed), n0:n0 + 2 * len(fixed)]

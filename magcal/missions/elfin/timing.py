@@ -28,20 +28,46 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from magcal.lstsq import lstsq
 from magcal.missions.elfin.phase import phase_from_counts
 
 
 def _design(tau, w, harmonics):
-    """Harmonics of ``w tau`` with coefficients linear in ``tau`` (constant quadratic)."""
+    """Harmonics of ``w tau`` with coefficients linear in ``tau`` (constant quadratic);
+    ``tau`` of any shape, the columns last."""
     cols, dcols = [np.ones_like(tau)], [np.zeros_like(tau)]
     for k in range(1, harmonics + 1):
         c, s = np.cos(k * w * tau), np.sin(k * w * tau)
         cols += [c, s]
         dcols += [-k * w * s, k * w * c]
-    a0, d0 = np.column_stack(cols), np.column_stack(dcols)
-    a = np.column_stack([a0, a0 * tau[:, None], tau ** 2])
-    d = np.column_stack([d0, d0 * tau[:, None] + a0, 2 * tau])
+    a0, d0 = np.stack(cols, axis=-1), np.stack(dcols, axis=-1)
+    t = tau[..., None]
+    a = np.concatenate([a0, a0 * t, t ** 2], axis=-1)
+    d = np.concatenate([d0, d0 * t + a0, 2 * t], axis=-1)
     return a, d
+
+
+def _solve_windows(a, b, max_cond: float = 1e8):
+    """Least squares of each window (``a`` (w, m, p), ``b`` (w, m, k)) by its normal
+    equations scaled to a unit diagonal, with one refinement step
+    (:func:`magcal.lstsq.lstsq` per window); a window whose scaled Gram matrix is
+    ill-conditioned or singular is solved by :func:`magcal.lstsq.lstsq` alone."""
+    gram = np.matmul(np.swapaxes(a, 1, 2), a)
+    scale = np.sqrt(np.diagonal(gram, axis1=1, axis2=2))
+    ok = np.all(scale > 0, axis=1)
+    scale = np.where(scale > 0, scale, 1.0)
+    unit = gram / (scale[:, :, None] * scale[:, None, :])
+    eig = np.linalg.eigvalsh(unit)                      # ascending, per window
+    ok &= eig[:, 0] * max_cond > eig[:, -1]
+    coef = np.empty((a.shape[0], a.shape[2], b.shape[2]))
+    if ok.any():
+        au, bu, su, gu = a[ok], b[ok], scale[ok][:, :, None], unit[ok]
+        x = np.linalg.solve(gu, np.matmul(np.swapaxes(au, 1, 2), bu) / su) / su
+        r = bu - np.matmul(au, x)
+        coef[ok] = x + np.linalg.solve(gu, np.matmul(np.swapaxes(au, 1, 2), r) / su) / su
+    for j in np.flatnonzero(~ok):
+        coef[j] = lstsq(a[j], b[j])
+    return coef
 
 
 def spin_model_residuals(t_s, counts, *, mask=None, harmonics: int = 4,
@@ -106,32 +132,41 @@ def spin_model_residuals(t_s, counts, *, mask=None, harmonics: int = 4,
     period = 2.0 * np.pi / w
     idx = np.flatnonzero(ok)
     tt = t[idx]
-    windows = []
-    for tc in np.arange(tt[0], tt[-1] + period, period):
-        lo, hi = np.searchsorted(tt, [tc - window_spins * period / 2,
-                                      tc + window_spins * period / 2], side="left")
-        clo, chi = np.searchsorted(tt, [tc - period / 2, tc + period / 2], side="left")
-        if chi > clo and hi - lo >= 4 * harmonics + 8:
-            windows.append((tc, idx[lo:hi], idx[clo:chi]))
-    plain = []
-    for tc, sel, core in windows:
-        a, d = _design(t[sel] - tc, w, harmonics)
-        coef = np.linalg.lstsq(a, c[sel], rcond=None)[0]
-        plain.append((a, d, coef, np.linalg.norm(c[sel] - a @ coef, axis=1)))
-    scale = np.median(np.concatenate([p[3] for p in plain])) if plain else 0.0
-    for (tc, sel, core), (a, d, coef, s) in zip(windows, plain):
-        if s.max() > 10.0 * scale:
-            keep = np.ones(sel.size, bool)
-            for it in range(12):
-                new = s <= np.quantile(s, trim) if it < 3 else s < 6.0 * np.median(s[keep])
-                if it >= 3 and np.array_equal(new, keep):
-                    break
-                keep = new
-                coef = np.linalg.lstsq(a[keep], c[sel][keep], rcond=None)[0]
-                s = np.linalg.norm(c[sel] - a @ coef, axis=1)
-        pos = np.searchsorted(sel, core)
-        res[core] = (c[sel] - a @ coef)[pos]
-        der[core] = (d @ coef)[pos]
+    centres = np.arange(tt[0], tt[-1] + period, period)
+    lo, hi = (np.searchsorted(tt, centres + h * window_spins * period / 2, side="left")
+              for h in (-1, 1))
+    clo, chi = (np.searchsorted(tt, centres + h * period / 2, side="left") for h in (-1, 1))
+    take = (chi > clo) & (hi - lo >= 4 * harmonics + 8)
+    if not take.any():
+        return res, der
+    centres, lo, hi, clo, chi = (v[take] for v in (centres, lo, hi, clo, chi))
+    # every window's plain fit at once: rows padded with zeros to the longest window
+    # (a zero row changes no least-squares answer), normal equations per window
+    rows = lo[:, None] + np.arange(int(np.max(hi - lo)))
+    valid = rows < hi[:, None]
+    rows = idx[np.minimum(rows, idx.size - 1)]
+    a, d = _design(np.where(valid, t[rows] - centres[:, None], 0.0), w, harmonics)
+    a *= valid[..., None]
+    cw = c[rows] * valid[..., None]
+    coef = _solve_windows(a, cw)
+    size = np.linalg.norm(cw - a @ coef, axis=2)
+    scale = np.median(size[valid])
+    for j in np.flatnonzero(np.max(np.where(valid, size, 0.0), axis=1) > 10.0 * scale):
+        m = int(hi[j] - lo[j])
+        aj, cj, s = a[j, :m], cw[j, :m], size[j, :m]
+        keep = np.ones(m, bool)
+        for it in range(12):
+            new = s <= np.quantile(s, trim) if it < 3 else s < 6.0 * np.median(s[keep])
+            if it >= 3 and np.array_equal(new, keep):
+                break
+            keep = new
+            coef[j] = lstsq(aj[keep], cj[keep])
+            s = np.linalg.norm(cj - aj @ coef[j], axis=1)
+    fit_res, slope = cw - a @ coef, d @ coef
+    for j in range(centres.size):
+        core = slice(clo[j] - lo[j], chi[j] - lo[j])
+        res[idx[clo[j]:chi[j]]] = fit_res[j, core]
+        der[idx[clo[j]:chi[j]]] = slope[j, core]
     return res, der
 
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from magcal.lstsq import lstsq
 from magcal.missions.elfin.drift import map_zones, unit_time
 from magcal.missions.elfin.scalar import fast_part, rms
 
@@ -138,8 +139,8 @@ def vector_harmonic_correction(t_s, b_body, ref_body, *, plane=(-1, 3), axial=(1
     if plane:
         cols = [np.exp(1j * k * psi)[:, None] * powers for k in plane]
         nuisance = np.exp(1j * psi)[:, None] * powers
-        w = np.linalg.lstsq(np.column_stack(cols + [nuisance])[use],
-                            (e[:, 0] + 1j * e[:, 1])[use], rcond=None)[0]
+        w = lstsq(np.column_stack(cols + [nuisance])[use],
+                            (e[:, 0] + 1j * e[:, 1])[use])
         w = w[:len(plane) * powers.shape[1]].reshape(len(plane), -1)
         model = sum(c @ wk for c, wk in zip(cols, w))
         b[:, 0] -= model.real
@@ -149,7 +150,7 @@ def vector_harmonic_correction(t_s, b_body, ref_body, *, plane=(-1, 3), axial=(1
     if axial:
         cols = [np.column_stack([np.cos(k * psi)[:, None] * powers,
                                  np.sin(k * psi)[:, None] * powers]) for k in axial]
-        w = np.linalg.lstsq(np.column_stack(cols + [powers])[use], e[use, 2], rcond=None)[0]
+        w = lstsq(np.column_stack(cols + [powers])[use], e[use, 2])
         w = w[:-powers.shape[1]].reshape(len(axial), -1)
         b[:, 2] -= sum(c @ wk for c, wk in zip(cols, w))
         info["axial_rms_nT"] = {int(k): rms((c @ wk)[use]) for k, c, wk in zip(axial, cols, w)}
@@ -349,7 +350,7 @@ def refine_phase(t_s, b_despun, ref_despun, *, knot_s: float = 60.0,
     use = np.ones(t.size, bool) if fit_mask is None else np.asarray(fit_mask, bool)
     basis = drift_basis(t, use, knot_s=knot_s)
     angle = wrap(np.arctan2(ref[:, 1], ref[:, 0]) - np.arctan2(b[:, 1], b[:, 0]))
-    corr = basis @ np.linalg.lstsq(basis[use], angle[use], rcond=None)[0]
+    corr = basis @ lstsq(basis[use], angle[use])
     c, s = np.cos(corr), np.sin(corr)
     out = b.copy()
     out[:, 0] = c * b[:, 0] - s * b[:, 1]
