@@ -188,6 +188,7 @@ def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, 
     from scipy.interpolate import make_lsq_spline
 
     xy = np.column_stack([x, _powers(T, offset_degree)])
+    xy_used = xy[used]                     # the spin-plane rows' design: the same each step
     corr = np.zeros_like(t)
     knot_vector = None if knots is None else spline_knots(t[used], knots, origin=t[0],
                                                           trim_end=False)
@@ -197,7 +198,7 @@ def _iterate(t, x, T, target, base, used, *, offset_degree, axis_degree, knots, 
 
     def calibrate(phase):
         tgt = spin(target, phase)
-        wx, wy = lstsq(xy[used], tgt[used, :2]).T
+        wx, wy = lstsq(xy_used, tgt[used, :2]).T
         bx, by = xy @ wx, xy @ wy
         tilt = _powers(T, axis_degree, first=1)
         att = -target[:, :2] if fit_attitude else np.zeros((T.size, 2))
