@@ -404,6 +404,10 @@ def map_zones(cal, step, note: str, params: dict, *, scalar: bool = False):
     from magcal.missions.elfin.phase import despun_basis
 
     f = cal.field.copy()
+    # the new columns gathered per zone and set once (a .loc write per zone and column
+    # group cost as much as the step's own fits)
+    despun = f[["bx_despun", "by_despun", "bz_despun"]].to_numpy(float, copy=True)
+    gei = f[["bx_gei", "by_gei", "bz_gei"]].to_numpy(float, copy=True)
     rows = []
     for k in sorted(f["zone"].unique()):
         sel = (f["zone"] == k).to_numpy()
@@ -412,9 +416,11 @@ def map_zones(cal, step, note: str, params: dict, *, scalar: bool = False):
         new_d, info = step(t, z, fit_samples(z, scalar))
         basis = despun_basis(z[["spin_axis_gei_x", "spin_axis_gei_y",
                                 "spin_axis_gei_z"]].to_numpy(float))
-        f.loc[sel, ["bx_despun", "by_despun", "bz_despun"]] = new_d
-        f.loc[sel, ["bx_gei", "by_gei", "bz_gei"]] = np.einsum("nji,nj->ni", basis, new_d)
+        despun[sel] = new_d
+        gei[sel] = np.einsum("nji,nj->ni", basis, new_d)
         rows.append({"zone": int(k), **info})
+    f[["bx_despun", "by_despun", "bz_despun"]] = despun
+    f[["bx_gei", "by_gei", "bz_gei"]] = gei
     out = {**cal.parameters, note: {k: str(v) for k, v in params.items()} or "defaults"}
     return replace(cal, field=f, parameters=out), pd.DataFrame(rows)
 
