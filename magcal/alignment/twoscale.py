@@ -374,6 +374,7 @@ class _Whittle:
         self.periodogram = data.periodogram[use]
         self.kept = data.kept[use]
         self.n_use = int(use.sum())
+        self._buf = np.empty(self.n_use)
         self.spectra = spectra
         if spectra is not None:
             # grid rows of every time the search box allows (and the stencils' margins);
@@ -414,9 +415,11 @@ class _Whittle:
             s = np.dot([a * w for w in w1], rows1)
             s += np.dot([b * w for w in w2], rows2)
             s += float(share[2]) * self.white
-        s = np.maximum(s, 1e-300)
-        v = float((self.periodogram / s).mean())
-        return float(self.n_use * np.log(max(v, 1e-300)) + np.log(s).sum()), v
+        # in place and reduced by np.add.reduce: the same pairwise sums as .mean() and
+        # .sum(), without their temporaries and wrappers (a fifth of an evaluation)
+        np.maximum(s, 1e-300, out=s)
+        v = float(np.add.reduce(np.divide(self.periodogram, s, out=self._buf)) / self.n_use)
+        return float(self.n_use * np.log(max(v, 1e-300)) + np.add.reduce(np.log(s, out=s))), v
 
 
 def whittle_objective(p, data: WhittleData, lo: float, hi: float) -> tuple[float, float]:
