@@ -2,8 +2,9 @@
 
 :func:`numpy.linalg.lstsq` solves by a singular value decomposition of the whole
 design (LAPACK ``gelsd``): robust to any rank, but on the tall designs the ELFIN
-calibration fits thousands of times (3700 samples by 4 to 66 columns) it is 5 to 14
-times slower than forming the normal equations. :func:`lstsq` solves the normal
+calibration fits thousands of times (3700 samples by 4 to 66 columns) it is 1.6 to 6.6
+times slower than the normal equations (``benchmarks/bench_lstsq.py``, one BLAS
+thread; more on a loaded machine). :func:`lstsq` solves the normal
 equations, scaled to a unit diagonal, by a Cholesky factorisation and then takes one
 step of iterative refinement on the residual (Björck's corrected semi-normal
 equations): the error is then that of an orthogonal factorisation while
@@ -63,7 +64,7 @@ def lstsq(a, b, *, max_cond: float = MAX_COND) -> np.ndarray:
     m, n = a.shape
     if n == 0 or m < n or not np.all(np.isfinite(b)):
         return np.linalg.lstsq(a, b, rcond=None)[0]
-    ah = a.conj().T
+    ah = a.conj().T if np.iscomplexobj(a) else a.T
     gram = ah @ a
     scale = np.sqrt(np.real(np.diagonal(gram)))
     if not np.all(np.isfinite(gram)):
