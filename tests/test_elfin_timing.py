@@ -106,3 +106,31 @@ def test_elfin_zone4_unpaired_jump_repaired_from_the_counts():
     res, _ = spin_model_residuals(out.t_s, counts, mask=(t >= t[0] + 2.0) & ~out.bad)
     size = np.linalg.norm(res, axis=1)
     assert np.nanmax(size[1950:1956]) < 10 * np.nanmedian(size)
+
+
+def test_spin_windows_solved_together_equal_one_numpy_fit_each():
+    """The spin model's windows are fitted at once (zero rows pad the shorter ones, a
+    zero row changes no least-squares answer); each must equal numpy's fit of the
+    window alone, a singular window (too few distinct samples) included, which goes to
+    numpy's minimum-norm solver."""
+    from magcal.missions.elfin.timing import _design, _solve_windows
+
+    rng = np.random.default_rng(31)
+    w = 2 * np.pi / PERIOD_S
+    lengths = [86, 80, 60, 86]
+    a = np.zeros((4, 86, 19))
+    b = np.zeros((4, 86, 3))
+    want = []
+    for j, m in enumerate(lengths):
+        tau = np.sort(rng.uniform(-4.3, 4.3, m))
+        if j == 3:
+            tau = np.repeat(tau[:6], m // 6 + 1)[:m]   # six distinct times: rank < 19
+        aj = _design(tau, w, 4)[0]
+        bj = rng.normal(size=(m, 3)) * 1e6
+        a[j, :m], b[j, :m] = aj, bj
+        want.append(np.linalg.lstsq(aj, bj, rcond=None)[0])
+    got = _solve_windows(a, b)
+    for j in range(3):
+        assert_allclose(got[j], want[j], rtol=1e-9, atol=1e-9 * np.abs(want[j]).max())
+    # the singular window: numpy's own answer (padded rows included), exactly
+    assert np.array_equal(got[3], np.linalg.lstsq(a[3], b[3], rcond=None)[0])
