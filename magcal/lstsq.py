@@ -88,7 +88,7 @@ def lstsq(a, b, *, max_cond: float = MAX_COND) -> np.ndarray:
         return np.linalg.lstsq(a, b, rcond=None)[0]
 
     def solve(rhs):                    # (a^H a) x = rhs, through the scaled factor
-        y, info_ = potrs(chol, rhs / (scale[:, None] if rhs.ndim == 2 else scale))
+        y, _ = potrs(chol, rhs / (scale[:, None] if rhs.ndim == 2 else scale))
         return y / (scale[:, None] if rhs.ndim == 2 else scale)
 
     x = solve(ah @ b)
