@@ -8,7 +8,7 @@ the linear fit's spin-plane rows (6 columns, two right-hand sides), the robust
 baseline of the detection (7 columns), the drifting spin-harmonic correction
 (spline drift times harmonics, 66 columns) and the vector step (complex, 45 columns);
 and a zone's 120 spin windows of the timing check (86 x 19, three right-hand sides),
-solved together (:func:`magcal.missions.elfin.timing._solve_windows`) against one
+solved together (:func:`magcal.lstsq.lstsq_stack`) against one
 numpy call per window.
 
 Target: every case at least 1.3x faster than the baseline (the small designs gain
@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from magcal.lstsq import lstsq
-from magcal.missions.elfin.timing import _design, _solve_windows
+from magcal.lstsq import lstsq, lstsq_stack
+from magcal.missions.elfin.timing import _design
 from timing import best
 
 
@@ -63,7 +63,7 @@ def main() -> None:
                   rng.normal(size=(120, 86, 3))))
     for name, a, b in cases:
         calls = 5 if a.ndim == 3 else 50
-        numpy_way, magcal_way = ((_per_window, _solve_windows) if a.ndim == 3 else
+        numpy_way, magcal_way = ((_per_window, lstsq_stack) if a.ndim == 3 else
                                  (lambda a_, b_: np.linalg.lstsq(a_, b_, rcond=None)[0], lstsq))
 
         def loop(func):

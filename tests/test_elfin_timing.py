@@ -113,7 +113,8 @@ def test_spin_windows_solved_together_equal_one_numpy_fit_each():
     zero row changes no least-squares answer); each must equal numpy's fit of the
     window alone, a singular window (too few distinct samples) included, which goes to
     numpy's minimum-norm solver."""
-    from magcal.missions.elfin.timing import _design, _solve_windows
+    from magcal.lstsq import lstsq_stack
+    from magcal.missions.elfin.timing import _design
 
     rng = np.random.default_rng(31)
     w = 2 * np.pi / PERIOD_S
@@ -129,7 +130,7 @@ def test_spin_windows_solved_together_equal_one_numpy_fit_each():
         bj = rng.normal(size=(m, 3)) * 1e6
         a[j, :m], b[j, :m] = aj, bj
         want.append(np.linalg.lstsq(aj, bj, rcond=None)[0])
-    got = _solve_windows(a, b)
+    got = lstsq_stack(a, b)
     for j in range(3):
         assert_allclose(got[j], want[j], rtol=1e-9, atol=1e-9 * np.abs(want[j]).max())
     # the singular window: numpy's own answer (padded rows included), exactly

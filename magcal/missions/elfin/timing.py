@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from magcal.lstsq import lstsq
+from magcal.lstsq import lstsq, lstsq_stack
 from magcal.missions.elfin.phase import phase_from_counts
 
 
@@ -45,29 +45,6 @@ def _design(tau, w, harmonics):
     a = np.concatenate([a0, a0 * t, t ** 2], axis=-1)
     d = np.concatenate([d0, d0 * t + a0, 2 * t], axis=-1)
     return a, d
-
-
-def _solve_windows(a, b, max_cond: float = 1e8):
-    """Least squares of each window (``a`` (w, m, p), ``b`` (w, m, k)) by its normal
-    equations scaled to a unit diagonal, with one refinement step
-    (:func:`magcal.lstsq.lstsq` per window); a window whose scaled Gram matrix is
-    ill-conditioned or singular is solved by :func:`magcal.lstsq.lstsq` alone."""
-    gram = np.matmul(np.swapaxes(a, 1, 2), a)
-    scale = np.sqrt(np.diagonal(gram, axis1=1, axis2=2))
-    ok = np.all(scale > 0, axis=1)
-    scale = np.where(scale > 0, scale, 1.0)
-    unit = gram / (scale[:, :, None] * scale[:, None, :])
-    eig = np.linalg.eigvalsh(unit)                      # ascending, per window
-    ok &= eig[:, 0] * max_cond > eig[:, -1]
-    coef = np.empty((a.shape[0], a.shape[2], b.shape[2]))
-    if ok.any():
-        au, bu, su, gu = a[ok], b[ok], scale[ok][:, :, None], unit[ok]
-        x = np.linalg.solve(gu, np.matmul(np.swapaxes(au, 1, 2), bu) / su) / su
-        r = bu - np.matmul(au, x)
-        coef[ok] = x + np.linalg.solve(gu, np.matmul(np.swapaxes(au, 1, 2), r) / su) / su
-    for j in np.flatnonzero(~ok):
-        coef[j] = lstsq(a[j], b[j])
-    return coef
 
 
 def spin_model_residuals(t_s, counts, *, mask=None, harmonics: int = 4,
@@ -148,7 +125,7 @@ def spin_model_residuals(t_s, counts, *, mask=None, harmonics: int = 4,
     a, d = _design(np.where(valid, t[rows] - centres[:, None], 0.0), w, harmonics)
     a *= valid[..., None]
     cw = c[rows] * valid[..., None]
-    coef = _solve_windows(a, cw)
+    coef = lstsq_stack(a, cw)
     size = np.linalg.norm(cw - a @ coef, axis=2)
     scale = np.median(size[valid])
     for j in np.flatnonzero(np.max(np.where(valid, size, 0.0), axis=1) > 10.0 * scale):
