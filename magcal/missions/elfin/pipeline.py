@@ -1079,16 +1079,16 @@ def _with_level_steps(fgs, state, settings, *, linear, level_step_rows=None,
         return replace(first, steps={**first.steps, **searched})
     # a kept level change found on fitted samples is left out of the fits from now on
     given = kw.pop("fit_exclude", None)
-    none_given = np.zeros(len(fgs), bool) if given is None else np.asarray(given, bool)
+    given_rows = np.zeros(len(fgs), bool) if given is None else np.asarray(given, bool)
     first_steps = np.zeros(len(fgs), bool) if level_step_rows is None \
         else np.asarray(level_step_rows, bool)
 
     def again(steps):
-        exclude = none_given | steps
+        exclude = given_rows | steps
         fit_exclude = exclude if exclude.any() else given
         # with the rows left out and the step rows of the first calibration, its linear
         # fit is this one's (the shapes along B come after it): not fitted again
-        same = np.array_equal(exclude, none_given) and np.array_equal(steps, first_steps)
+        same = np.array_equal(exclude, given_rows) and np.array_equal(steps, first_steps)
         return calibrate_elfin_day(fgs, state, settings, level_step_rows=steps,
                                    fit_exclude=fit_exclude,
                                    linear=first.linear if same else None,
