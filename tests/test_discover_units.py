@@ -135,3 +135,127 @@ def test_cumsum_costs_equal_ruptures_own_costs():
         a = rpt.Binseg(model=model, min_size=10, jump=1).fit(y).predict(pen=20.0)
         b = rpt.Binseg(custom_cost=cost, min_size=10, jump=1).fit(y).predict(pen=20.0)
         assert a == b
+
+
+def _direct_acf(x):
+    """Autocovariance sums at every lag by np.correlate (NaN as zero after centring)."""
+    ok = np.isfinite(x)
+    v = np.where(ok, x - x[ok].mean(), 0.0)
+    return np.correlate(v, v, "full")[v.size - 1:]
+
+
+def test_autocorrelation_equals_the_direct_sums_at_every_lag_asked(rng):
+    from magcal.discover.selection import autocorrelation
+
+    n = 3000
+    x = np.convolve(rng.normal(size=n + 40), np.ones(40), "valid")[:n]
+    x[rng.random(n) < 0.1] = np.nan
+    direct = _direct_acf(x)
+    direct = direct / direct[0]
+    assert_allclose(autocorrelation(x), direct, atol=1e-12)
+    for lag in (0, 1, 37, 999, n - 2, n - 1, 5 * n):
+        assert_allclose(autocorrelation(x, lag), direct[:lag + 1], atol=1e-12)
+    cols = np.column_stack([x, rng.normal(size=n), np.zeros(n)])
+    got = autocorrelation(cols, 200)
+    assert_allclose(got[:, 0], direct[:201], atol=1e-12)
+    assert_allclose(got[:, 1], _direct_acf(cols[:, 1])[:201] / _direct_acf(cols[:, 1])[0],
+                    atol=1e-12)
+    assert not got[:, 2].any()  # a constant has no autocorrelation: zero, not NaN
+
+
+def test_integrated_autocorr_time_is_sokals_definition_within_and_beyond_the_first_lags(rng):
+    """Sokal's tau summed to the first lag M >= 5 tau, from all lags by np.correlate:
+    the same whether M lies within the lags computed first (white, a short correlation)
+    or beyond them (a 0.9995 AR(1), tau ~ 4000; a random walk)."""
+    from magcal.discover.selection import _FIRST_LAGS, integrated_autocorr_time
+
+    def sokal(x):
+        v = x[np.isfinite(x)]
+        acf = _direct_acf(v)
+        taus = 2.0 * np.cumsum(acf / acf[0]) - 1.0
+        window = np.arange(v.size) >= 5.0 * taus
+        m = int(np.argmax(window)) if window.any() else v.size - 1
+        return max(float(taus[m]), 1.0), m
+
+    n = 30000
+    e = rng.normal(size=n)
+    ar = np.zeros(n)
+    for i in range(1, n):
+        ar[i] = 0.9995 * ar[i - 1] + e[i]
+    short = np.convolve(e, np.ones(20) / 20, "same")
+    short[rng.random(n) < 0.05] = np.nan
+    windows = []
+    for x in (e, short, ar, np.cumsum(e)):
+        tau, m = sokal(x)
+        windows.append(m)
+        assert integrated_autocorr_time(x) == pytest.approx(tau, rel=1e-10)
+    # the cases reach both branches: a window within the first lags and beyond them
+    assert windows[0] < _FIRST_LAGS and windows[1] < _FIRST_LAGS
+    assert windows[2] > _FIRST_LAGS and windows[3] > _FIRST_LAGS
+    # white noise: one sample per sample, to the estimate's own scatter
+    assert integrated_autocorr_time(e) == pytest.approx(1.0, abs=0.1)
+
+
+def test_model_covariance_of_a_trend_in_white_noise_is_the_ols_variance(rng):
+    """A slope fitted with a level in white noise of std 2: variance
+    sigma^2 / sum((t - mean t)^2), the closed form. Tolerance 15 %: the Bartlett factor
+    sums the noise's sample autocorrelation over the first 10 lags, which scatters by
+    2 sqrt(10 / n) = 4.5 % around 1 for white noise."""
+    from magcal.discover.selection import model_covariance
+
+    n = 20000
+    t = np.arange(n) * 60.0
+    x = (t - t.mean()) / t.std()
+    y = 0.3 * x + rng.normal(0, 2.0, n)
+    g = BlockedGram(y[:, None], time_blocks(t))
+    cols = g.add(np.stack([np.ones(n), x])[:, :, None])
+    cov = model_covariance(g, g.score(cols), [0, 1], time_blocks(t))
+    closed = 4.0 / np.sum((x - x.mean()) ** 2)
+    assert cov[1, 1] == pytest.approx(closed, rel=0.15)
+    assert cov[0, 0] == pytest.approx(4.0 / n, rel=0.15)  # the level: sigma^2 / n
+    assert abs(cov[0, 1]) < 0.05 * np.sqrt(cov[0, 0] * cov[1, 1])  # centred: uncorrelated
+
+
+def test_model_covariance_equals_its_block_sums_written_out(rng):
+    """The covariance as its docstring writes it, by explicit loops over components,
+    coefficient pairs and blocks, on three components with gaps, correlated noise and
+    block-to-block changes of the noise level."""
+    from magcal.discover.selection import (TAU_FLOOR, autocorrelation,
+                                           integrated_autocorr_time, model_covariance)
+
+    inp = _inputs(n=3000)
+    blocks = time_blocks(inp.times_s)
+    cols = np.concatenate([np.ones((1, inp.n, 3)), Diurnal(("Hp", "He"), harmonics=1).columns(inp),
+                           Scale(("Hn",)).columns(inp)])
+    level = 1.0 + blocks[:, None] / 5.0
+    noise = np.stack([np.convolve(rng.normal(size=inp.n + 9), np.ones(10) / 3, "valid")
+                      for _ in range(3)], axis=1)
+    y = np.tensordot(rng.normal(size=cols.shape[0]), cols, 1) + level * noise
+    y[rng.random(y.shape) < 0.05] = np.nan
+    g = BlockedGram(y, blocks)
+    idx = g.add(cols)
+    score = g.score(idx)
+    params = [1, 2, 4, 5]
+    got = model_covariance(g, score, params, blocks)
+
+    G = sum(g.G[b] for b in range(g.n_blocks))
+    Minv = np.linalg.inv(G)
+    resid = g.residual(idx, score.beta)
+    X = g.column_matrix(idx).reshape(len(idx), inp.n, 3)
+    want = np.zeros((len(params), len(params)))
+    for c in range(3):
+        ok = np.isfinite(resid[:, c])
+        s2 = [np.mean(resid[(blocks == b) & ok, c] ** 2) for b in range(g.n_blocks)]
+        tau_e = integrated_autocorr_time(resid[:, c])
+        rho_e = autocorrelation(resid[:, c], int(min(max(5 * tau_e, 10), 1440)))
+        k = rho_e.size
+        a = [np.tensordot(Minv[:, j], X[:, :, c], 1) for j in params]
+        tau = [max(TAU_FLOOR, 1 + 2 * rho_e[1:k] @ autocorrelation(ai, k - 1)[1:k])
+               if ai.any() else 0.0 for ai in a]
+        for i in range(len(params)):
+            for j in range(len(params)):
+                if a[i].any() and a[j].any():
+                    want[i, j] += np.sqrt(tau[i] * tau[j]) * sum(
+                        s2[b] * np.sum(a[i][blocks == b] * a[j][blocks == b])
+                        for b in range(g.n_blocks))
+    assert_allclose(got, want, rtol=1e-8, atol=1e-12 * np.abs(want).max())
