@@ -64,9 +64,9 @@ def time_blocks(times_s, block_s: float = DAY_S, min_blocks: int = 8) -> np.ndar
 _FIRST_LAGS = 2048
 
 
-def _centred_acf(v: np.ndarray, lags: int) -> np.ndarray:
-    """Unnormalised autocovariance sums of the columns of ``v`` (n, m) at lags
-    ``0 .. lags - 1``, by one FFT of at least ``n + lags`` points: that much zero padding
+def _lag_sums(v: np.ndarray, lags: int) -> np.ndarray:
+    """Lagged product sums ``sum_t v[t] v[t + k]`` of the columns of ``v`` (n, m) at lags
+    ``k = 0 .. lags - 1`` (no centring), by one FFT of at least ``n + lags`` points: that much zero padding
     keeps the circular correlation free of wrap-around at these lags, so a few lags of a
     long series cost half the transform of all of them."""
     from scipy.fft import irfft, next_fast_len, rfft
@@ -99,7 +99,7 @@ def integrated_autocorr_time(x, c: float = 5.0) -> float:
     # (an FFT of n + bound points instead of 2n), all of them only when M lies beyond
     lags = min(n, _FIRST_LAGS)
     while True:
-        acf = _centred_acf(v[:, None], lags)[:, 0]
+        acf = _lag_sums(v[:, None], lags)[:, 0]
         if acf[0] <= 0:
             return 1.0
         taus = 2.0 * np.cumsum(acf / acf[0]) - 1.0
@@ -111,11 +111,13 @@ def integrated_autocorr_time(x, c: float = 5.0) -> float:
         lags = n
 
 
-def autocorrelation(x, max_lag: int | None = None) -> np.ndarray:
+def autocorrelation(x, max_lag: int | None = None, *, centre: bool = True) -> np.ndarray:
     """Normalised autocorrelation of a series (NaN treated as zero after centring).
 
     A 2-D ``x`` gives the autocorrelation of each column (lags along axis 0), in one
-    batched FFT.
+    batched FFT. ``centre=False`` keeps the mean: the lagged sums of a regression
+    coefficient's weights, whose mean is part of its variance in correlated noise
+    (Bartlett's formula; a level's weights are all mean).
 
     Examples
     --------
@@ -128,9 +130,9 @@ def autocorrelation(x, max_lag: int | None = None) -> np.ndarray:
     ok = np.isfinite(v)
     cnt = ok.sum(axis=0)
     mean = np.where(cnt > 0, np.where(ok, v, 0.0).sum(axis=0) / np.maximum(cnt, 1), 0.0)
-    v = np.where(ok, v - mean, 0.0)
+    v = np.where(ok, v - mean if centre else v, 0.0)
     n = v.shape[0]
-    acf = _centred_acf(v, n if max_lag is None else min(n, max_lag + 1))
+    acf = _lag_sums(v, n if max_lag is None else min(n, max_lag + 1))
     zero = acf[0] <= 0
     acf = acf / np.where(zero, 1.0, acf[0])
     acf[:, zero] = 0.0
@@ -288,7 +290,8 @@ def model_covariance(gram: "BlockedGram", score: CVScore, params, blocks,
     residual of the fit having mean square ``s2[b, c]`` in block ``b`` and component
     ``c`` and autocorrelation ``rho_c``, its variance is
     ``sum_c tau_jc sum_b s2[b, c] |a_j|^2_(b, c)`` with Bartlett's
-    ``tau_jc = 1 + 2 sum_k rho_c(k) rho_(a_j, c)(k)`` (covariances alike, with
+    ``tau_jc = 1 + 2 sum_k rho_c(k) rho_(a_j, c)(k)`` (``rho_(a_j, c)`` the lagged sums of
+    the weights themselves, not centred: a level's are all mean; covariances alike, with
     ``sqrt(tau_jc tau_kc)``; components independent). Unlike the block jackknife it
     uses the scatter within blocks, so it stays precise when a few blocks (storm days)
     carry the coefficient; it assumes the noise is stationary within each block.
@@ -326,7 +329,10 @@ def model_covariance(gram: "BlockedGram", score: CVScore, params, blocks,
         rho_e = autocorrelation(resid[:, c], int(min(max(5 * tau_e, 10), max_lag)))
         k = rho_e.size
         a_c = A[active, :, c].T  # (n, active)
-        rho_a = autocorrelation(a_c, k - 1)
+        # the weights' own lagged sums, mean included: centred, a level's weights (a
+        # constant, or one with gaps) lost their correlation and the variance its
+        # factor tau (a level in red noise of 60 samples' time: 8x too small an error)
+        rho_a = autocorrelation(a_c, k - 1, centre=False)
         # below 1 for a regressor that varies faster than the noise (a spin tone in
         # red noise sees only the noise's fast part); floored against a noisy sum
         tau = np.maximum(TAU_FLOOR, 1.0 + 2.0 * (rho_e[1:k] @ rho_a[1:k]))
