@@ -66,9 +66,9 @@ _FIRST_LAGS = 2048
 
 def _lag_sums(v: np.ndarray, lags: int) -> np.ndarray:
     """Lagged product sums ``sum_t v[t] v[t + k]`` of the columns of ``v`` (n, m) at lags
-    ``k = 0 .. lags - 1`` (no centring), by one FFT of at least ``n + lags`` points: that much zero padding
-    keeps the circular correlation free of wrap-around at these lags, so a few lags of a
-    long series cost half the transform of all of them."""
+    ``k = 0 .. lags - 1`` (no centring), by one FFT of at least ``n + lags`` points: that
+    much zero padding keeps the circular correlation free of wrap-around at these lags,
+    so a few lags of a long series cost half the transform of all of them."""
     from scipy.fft import irfft, next_fast_len, rfft
 
     n = v.shape[0]
