@@ -51,7 +51,7 @@ def _iat_baseline(x, c=5.0):
     return float(max(taus[m], 1.0))
 
 
-def _acf_baseline(x, max_lag):
+def _acf_baseline(x, max_lag, centre=True):
     from scipy.fft import irfft, next_fast_len, rfft
 
     v = np.asarray(x, dtype=float)
@@ -60,7 +60,7 @@ def _acf_baseline(x, max_lag):
     ok = np.isfinite(v)
     cnt = ok.sum(axis=0)
     mean = np.where(cnt > 0, np.where(ok, v, 0.0).sum(axis=0) / np.maximum(cnt, 1), 0.0)
-    v = np.where(ok, v - mean, 0.0)
+    v = np.where(ok, v - mean if centre else v, 0.0)
     n = v.shape[0]
     nfft = next_fast_len(2 * max(n, 1), real=True)
     f = rfft(v, nfft, axis=0)
@@ -92,7 +92,8 @@ def covariance_baseline(gram, score, params, blocks, max_lag=1440):
         tau_e = _iat_baseline(resid[:, c])
         rho_e = _acf_baseline(resid[:, c], int(min(max(5 * tau_e, 10), max_lag)))
         k = rho_e.size
-        rho_a = _acf_baseline(np.column_stack([a[i][:, c] for i in active]), k - 1)
+        rho_a = _acf_baseline(np.column_stack([a[i][:, c] for i in active]), k - 1,
+                              centre=False)
         tau = {i: max(selection.TAU_FLOOR, 1.0 + 2.0 * float(rho_e[1:k] @ rho_a[1:k, q]))
                for q, i in enumerate(active)}
         for ii, i in enumerate(active):
