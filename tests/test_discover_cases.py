@@ -120,6 +120,9 @@ def test_no_hidden_effect_adds_only_offset():
     assert res.names == ["offset"], res.account()
     assert_allclose([res.effects[0].parameters["values"][c]["offset_nT"] for c in COMPONENTS],
                     case.offset_nT, atol=0.6)
+    # the level in red noise: far fewer independent samples than the 129,600 values
+    # (the residual's correlation time is hours at 1-min cadence)
+    assert res.effects[0].evidence["n_eff"] < 0.02 * case.truth.size
     _check_floor(res, case)
 
 

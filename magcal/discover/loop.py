@@ -515,10 +515,12 @@ class _Loop:
                 out.append(cand)
         return out
 
-    def _signal(self, cand: _Candidate) -> np.ndarray:
+    def _signal(self, cand: _Candidate, centred: bool = True) -> np.ndarray:
         k = len(self.base_cols)
         f = self.gram.fitted(cand.columns, cand.score.beta[k:])
         mask = self.gram.mask
+        if not centred:
+            return np.where(mask, f, 0.0)
         mean = np.where(mask, f, 0).sum(axis=0) / np.maximum(mask.sum(axis=0), 1)
         return np.where(mask, f - mean, 0.0)  # centred: offsets do not make signals alike
 
@@ -570,8 +572,11 @@ class _Loop:
             if not self.added:
                 # the level comes first: every other term is judged with the offset free
                 win = next((c for c in passing if c.name == "offset"), win)
-            # reported beside the criterion: the BIC with the effective sample size
-            win.n_eff = regression_n_eff(residual, self._signal(win))
+            # reported beside the criterion: the BIC with the effective sample size (the
+            # level's signal is all mean: centred, nothing of it was left)
+            level = win.family == "offset"
+            win.n_eff = regression_n_eff(residual, self._signal(win, centred=not level),
+                                         centre_signal=not level)
             win.delta_bic = delta_bic_eff(base.sse_in, win.score.sse_in, len(win.columns),
                                           win.n_eff)
             evidence = self._evidence(win, cands, base, residual, n_valid)

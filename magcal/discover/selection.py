@@ -139,14 +139,15 @@ def autocorrelation(x, max_lag: int | None = None, *, centre: bool = True) -> np
     return acf[:, 0] if one else acf
 
 
-def regression_n_eff(residual, signal, window=None) -> float:
+def regression_n_eff(residual, signal, window=None, *, centre_signal: bool = True) -> float:
     """Effective sample size for estimating ``signal`` in correlated ``residual``.
 
     Bartlett's formula: the variance of a regression coefficient grows by
     ``tau = 1 + 2 sum_k rho_e(k) rho_x(k)`` (noise and regressor autocorrelations), so
     a white regressor (a spin tone) keeps nearly all ``n`` samples while a slow one
     (a diurnal term) in red noise keeps ``n / tau_e``. Components are weighted by the
-    signal energy.
+    signal energy. ``centre_signal=False`` for a level, whose signal is all mean (and
+    keeps ``n / tau_e``): a term fitted beside the level varies about it, and is centred.
 
     Examples
     --------
@@ -169,7 +170,7 @@ def regression_n_eff(residual, signal, window=None) -> float:
         tau_e = integrated_autocorr_time(r[:, c])
         m = int(min(r.shape[0] - 1, max(5 * tau_e, 10))) if window is None else int(window)
         rho_e = autocorrelation(r[:, c], m)
-        rho_f = autocorrelation(f[:, c], m)
+        rho_f = autocorrelation(f[:, c], m, centre=centre_signal)
         k = min(rho_e.size, rho_f.size)
         tau = 1.0 + 2.0 * float(np.sum(rho_e[1:k] * rho_f[1:k]))
         acc += w * max(tau, 1.0)
