@@ -283,6 +283,19 @@ def _block_mean_square(r: np.ndarray, blocks: np.ndarray, n_blocks: int) -> np.n
     return out
 
 
+def _covariance_inputs(gram: BlockedGram, score: CVScore, blocks: np.ndarray):
+    """What :func:`model_covariance` starts from: the inverse normal matrix of the
+    score's columns (inverted scaled to unit diagonal), the fit's residual (NaN where
+    missing) and its mean square per block and component."""
+    cols = list(score.columns)
+    G = gram.G[:, cols][:, :, cols].sum(axis=0)
+    d = np.sqrt(np.diag(G))
+    d[d == 0] = 1.0
+    Minv = np.linalg.inv(G / np.outer(d, d) + 1e-10 * np.eye(len(cols))) / np.outer(d, d)
+    resid = gram.residual(cols, score.beta)
+    return Minv, resid, _block_mean_square(resid, blocks, gram.n_blocks)
+
+
 def model_covariance(gram: "BlockedGram", score: CVScore, params, blocks,
                      max_lag: int = 1440) -> np.ndarray:
     """Model-based covariance of the coefficients ``params`` (positions in ``score``).
@@ -310,13 +323,7 @@ def model_covariance(gram: "BlockedGram", score: CVScore, params, blocks,
     """
     cols = list(score.columns)
     blocks = np.asarray(blocks)
-    G = gram.G[:, cols][:, :, cols].sum(axis=0)
-    d = np.sqrt(np.diag(G))
-    d[d == 0] = 1.0
-    Minv = np.linalg.inv(G / np.outer(d, d) + 1e-10 * np.eye(len(cols))) / np.outer(d, d)
-    resid = gram.residual(cols, score.beta)
-    B = gram.n_blocks
-    s2 = _block_mean_square(resid, blocks, B)
+    Minv, resid, s2 = _covariance_inputs(gram, score, blocks)
     params = list(params)
     # a_j for every coefficient at once: (p, q) weights on the (q, n*m) columns
     A = (Minv[:, params].T @ gram.column_matrix(cols)).reshape(len(params), gram.n, gram.m)
