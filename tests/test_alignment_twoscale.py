@@ -69,6 +69,51 @@ def test_gains_that_never_settle_whiten_to_the_cholesky_innovation(model):
     assert log_det == pytest.approx(2 * np.sum(np.log(np.diag(chol))), rel=1e-10)
 
 
+def test_scattered_gaps_whiten_to_the_cholesky_innovation():
+    """OU plus white noise with 8 % of the samples missing at random (runs of about ten
+    equal spacings, where the gains never settle): the gains come from the block-stepped
+    Riccati variances of the whole record, and the standardised innovations and log
+    determinant are those of the exact covariance's Cholesky factor."""
+    from unittest import mock
+
+    from magcal.alignment import ouwhite
+
+    rng = np.random.default_rng(8)
+    t = np.arange(1500.0) * 60.0
+    t = t[rng.random(t.size) >= 0.08]
+    tau, share = (60.0, 3600.0), np.array([0.0, 0.7, 0.3])
+    with mock.patch.object(ouwhite, "riccati_variances_varying",
+                           wraps=ouwhite.riccati_variances_varying) as spy:
+        g = ouwhite.kalman_gains(t, tau[1], share[2])
+    assert spy.call_count == 1  # the record went the block-stepped way
+    x = rng.standard_normal((t.size, 3))
+    chol = np.linalg.cholesky(_exact(t, tau, share))
+    np.testing.assert_allclose(ouwhite.whiten(x, g), np.linalg.solve(chol, x), atol=1e-8)
+    assert g.log_det == pytest.approx(2 * np.sum(np.log(np.diag(chol))), rel=1e-10)
+
+
+def test_block_stepped_riccati_variances_equal_the_sequential_recursion():
+    """Lag correlations changing at every sample (0, near 1, anything between), from a
+    non-zero start, over a length that is not a multiple of the block: each variance
+    before a sample and the one after the last equal the one-sample recursion
+    ``p <- w2 m / (m + w2)``, ``m = phi^2 p + s2 (1 - phi^2)``, to rounding."""
+    from magcal.alignment.ouwhite import riccati_variances_varying
+
+    rng = np.random.default_rng(3)
+    phi = rng.random(1001)
+    phi[::7] = 0.0
+    phi[::11] = 1.0 - 1e-12
+    s2, w2, p = 2.0, 0.3, 0.7
+    want = np.empty(phi.size)
+    for i, ph in enumerate(phi):
+        want[i] = p
+        m = ph * ph * p + s2 * (1.0 - ph * ph)
+        p = w2 * m / (m + w2)
+    before, after = riccati_variances_varying(phi, s2, w2, 0.7)
+    np.testing.assert_allclose(before, want, rtol=1e-12)
+    assert after == pytest.approx(p, rel=1e-12)
+
+
 def test_one_scale_reduces_to_the_ou_filter():
     """With the slow and white parts absent the innovation variance is the OU one,
     ``1 - exp(-2 dt / tau)``."""
