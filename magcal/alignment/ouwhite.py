@@ -86,8 +86,6 @@ def kalman_gains(times_s, tau_s: float, rho: float, tol: float = 1e-14) -> Gains
     phi = lag_correlation(times_s, tau_s)
     n = phi.size
     s2, w2 = 1.0 - rho, rho
-    k = np.empty(n)
-    f = np.empty(n)
     change = np.flatnonzero(np.diff(phi) != 0) + 1
     if w2 > 0 and change.size > max(n // SHORT_RUNS, 64):
         # scattered gaps: runs too short for the gains to settle, stepped in blocks
@@ -95,6 +93,8 @@ def kalman_gains(times_s, tau_s: float, rho: float, tol: float = 1e-14) -> Gains
         pm = phi * phi * before + s2 * (1.0 - phi * phi)
         f = pm + w2
         return Gains(phi=phi, k=pm / f, f=np.maximum(f, 1e-300))
+    k = np.empty(n)
+    f = np.empty(n)
     bounds = np.concatenate([[0], change, [n]])
     p = 0.0
     for j in range(bounds.size - 1):

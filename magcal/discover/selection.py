@@ -128,9 +128,10 @@ def autocorrelation(x, max_lag: int | None = None, *, centre: bool = True) -> np
     one = v.ndim == 1
     v = v[:, None] if one else v
     ok = np.isfinite(v)
-    cnt = ok.sum(axis=0)
-    mean = np.where(cnt > 0, np.where(ok, v, 0.0).sum(axis=0) / np.maximum(cnt, 1), 0.0)
-    v = np.where(ok, v - mean if centre else v, 0.0)
+    if centre:
+        cnt = ok.sum(axis=0)
+        v = v - np.where(cnt > 0, np.where(ok, v, 0.0).sum(axis=0) / np.maximum(cnt, 1), 0.0)
+    v = np.where(ok, v, 0.0)
     n = v.shape[0]
     acf = _lag_sums(v, n if max_lag is None else min(n, max_lag + 1))
     zero = acf[0] <= 0

@@ -139,8 +139,7 @@ def vector_harmonic_correction(t_s, b_body, ref_body, *, plane=(-1, 3), axial=(1
     if plane:
         cols = [np.exp(1j * k * psi)[:, None] * powers for k in plane]
         nuisance = np.exp(1j * psi)[:, None] * powers
-        w = lstsq(np.column_stack(cols + [nuisance])[use],
-                            (e[:, 0] + 1j * e[:, 1])[use])
+        w = lstsq(np.column_stack(cols + [nuisance])[use], (e[:, 0] + 1j * e[:, 1])[use])
         w = w[:len(plane) * powers.shape[1]].reshape(len(plane), -1)
         model = sum(c @ wk for c, wk in zip(cols, w))
         b[:, 0] -= model.real
