@@ -14,8 +14,10 @@ UDP socket may be connected anywhere there (that sends nothing) but not send.
 
 from __future__ import annotations
 
+import atexit
 import ipaddress
 import os
+import shutil
 import socket
 import tempfile
 from pathlib import Path
@@ -27,6 +29,10 @@ from threadpoolctl import threadpool_limits
 # (once per session, even if this file is imported a second time as tests.conftest)
 _SPACEPY_DIR = Path(os.environ.get("MAGCAL_TEST_SPACEPY")
                     or tempfile.mkdtemp(prefix="magcal-test-spacepy-"))
+if "MAGCAL_TEST_SPACEPY" not in os.environ:
+    # made here, by the process that outlives the xdist workers and CLI subprocesses
+    # that inherit it: removed at its exit (each session had left one behind)
+    atexit.register(shutil.rmtree, _SPACEPY_DIR, ignore_errors=True)
 os.environ["MAGCAL_TEST_SPACEPY"] = os.environ["SPACEPY"] = str(_SPACEPY_DIR)
 os.environ.setdefault("MPLBACKEND", "Agg")
 # One BLAS thread, here and in the CLI subprocesses tests start: the suite's matrices
