@@ -123,6 +123,17 @@ def test_no_hidden_effect_adds_only_offset():
     # the level in red noise: far fewer independent samples than the 129,600 values
     # (the residual's correlation time is hours at 1-min cadence)
     assert res.effects[0].evidence["n_eff"] < 0.02 * case.truth.size
+    # the report's interval: value -+ t_0.975(dof) * std; a level in 30 full days has
+    # the jackknife's n_blocks - 1 degrees of freedom exactly
+    from scipy.stats import t as student_t
+
+    par = res.effects[0].parameters
+    n_blocks = res.effects[0].evidence["n_blocks"]
+    for c in COMPONENTS:
+        v, s, dof = (par[k][c]["offset_nT"] for k in ("values", "std", "dof"))
+        assert dof == pytest.approx(n_blocks - 1, rel=1e-6)
+        q = student_t.ppf(0.975, dof)
+        assert_allclose(par["ci95"][c]["offset_nT"], [v - q * s, v + q * s], rtol=1e-12)
     _check_floor(res, case)
 
 

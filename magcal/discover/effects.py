@@ -34,6 +34,7 @@ from typing import ClassVar, Mapping
 import numpy as np
 
 from magcal.frames.localtime import harmonic_basis, local_time_hours
+from magcal.stats import student_interval
 
 DAY_S = 86400.0
 
@@ -156,8 +157,12 @@ class Effect:
         cols = self.columns(inputs)
         return np.tensordot(np.asarray(beta, dtype=float), cols, axes=(0, 0))
 
-    def describe(self, beta, std) -> dict:
-        """Parameters as a JSON-ready dict: hyper-parameters, ``values``, ``std``."""
+    def describe(self, beta, std, dof=None) -> dict:
+        """Parameters as a JSON-ready dict: hyper-parameters, ``values``, ``std``.
+
+        With ``dof`` (the degrees of freedom of each standard error) also ``dof`` and
+        ``ci95``: ``[lo, hi]`` per parameter, ``value -/+ t_0.975(dof) * std``.
+        """
         values: dict = {}
         stds: dict = {}
         for (comp, lab), b, s in zip(self.labels(), beta, std):
@@ -166,6 +171,15 @@ class Effect:
         out = dict(self.hyper())
         out["values"] = values
         out["std"] = stds
+        if dof is not None:
+            lo, hi = student_interval(beta, std, dof)
+            dofs: dict = {}
+            ci: dict = {}
+            for (comp, lab), v, a, b in zip(self.labels(), dof, lo, hi):
+                dofs.setdefault(comp, {})[lab] = float(v)
+                ci.setdefault(comp, {})[lab] = [float(a), float(b)]
+            out["dof"] = dofs
+            out["ci95"] = ci
         return out
 
     def n_params(self) -> int:
@@ -258,8 +272,8 @@ class Diurnal(Effect):
             out += beta_component[2 * k - 2] * np.cos(k * x) + beta_component[2 * k - 1] * np.sin(k * x)
         return out
 
-    def describe(self, beta, std):
-        out = super().describe(beta, std)
+    def describe(self, beta, std, dof=None):
+        out = super().describe(beta, std, dof)
         lt = np.arange(0, 24, 0.05)
         k2 = 2 * self.harmonics
         derived = {}
@@ -336,13 +350,18 @@ class Rotation(Effect):
     def hyper(self):
         return {"axes": list(self.fitted_axes())}
 
-    def describe(self, beta, std):
+    def describe(self, beta, std, dof=None):
         axes = self.fitted_axes()
-        return {"axes": list(axes),
-                "angles_deg": {c: float(np.rad2deg(b)) for c, b in zip(axes, beta)},
-                "std_deg": {c: float(np.rad2deg(s)) for c, s in zip(axes, std)},
-                "values": {c: float(b) for c, b in zip(axes, beta)},
-                "convention": "measured ~= R(w) @ model, w about the component axes"}
+        out = {"axes": list(axes),
+               "angles_deg": {c: float(np.rad2deg(b)) for c, b in zip(axes, beta)},
+               "std_deg": {c: float(np.rad2deg(s)) for c, s in zip(axes, std)},
+               "values": {c: float(b) for c, b in zip(axes, beta)},
+               "convention": "measured ~= R(w) @ model, w about the component axes"}
+        if dof is not None:
+            lo, hi = student_interval(np.rad2deg(beta), np.rad2deg(std), dof)
+            out["dof"] = {c: float(v) for c, v in zip(axes, dof)}
+            out["ci95_deg"] = {c: [float(a), float(b)] for c, a, b in zip(axes, lo, hi)}
+        return out
 
 
 @dataclass(frozen=True)
@@ -386,8 +405,8 @@ class SpinTone(Effect):
     def hyper(self):
         return {"harmonics": self.harmonics}
 
-    def describe(self, beta, std):
-        out = super().describe(beta, std)
+    def describe(self, beta, std, dof=None):
+        out = super().describe(beta, std, dof)
         k2 = 2 * self.harmonics
         out["derived"] = {
             comp: {f"amplitude{k}_nT": float(np.hypot(beta[ci * k2 + 2 * k - 2],
@@ -434,8 +453,8 @@ class Periodic(Effect):
     def hyper(self):
         return {"period_s": self.period_s, "period_h": self.period_s / 3600.0}
 
-    def describe(self, beta, std):
-        out = super().describe(beta, std)
+    def describe(self, beta, std, dof=None):
+        out = super().describe(beta, std, dof)
         out["derived"] = {comp: {"amplitude_nT": float(np.hypot(beta[2 * ci], beta[2 * ci + 1]))}
                           for ci, comp in enumerate(self.components)}
         return out

@@ -120,6 +120,11 @@ class FittedEffect:
         ``amplitude_nT`` and ``amplitude_se_nT`` per component
         (:func:`magcal.discover.amplitude.effect_amplitudes`: rms of the contribution
         over the record, standard error under the OU + white noise model).
+    beta_dof : ndarray or None
+        Degrees of freedom of each ``beta_std`` (:meth:`BlockedGram.jackknife_dof`): the report's
+        ``parameters.ci95`` uses Student's t with them, because a jackknife over few
+        effective blocks gives a scattered standard error and the normal 1.96 covers
+        less often than 95 %.
     """
 
     effect: Effect
@@ -130,6 +135,7 @@ class FittedEffect:
     evidence: dict
     gap_before: dict = field(default_factory=dict, repr=False, compare=False)
     amplitude: dict = field(default_factory=dict, compare=False)
+    beta_dof: np.ndarray | None = field(default=None, compare=False)
 
     @property
     def name(self) -> str:
@@ -141,7 +147,7 @@ class FittedEffect:
 
     @property
     def parameters(self) -> dict:
-        return self.effect.describe(self.beta, self.beta_std)
+        return self.effect.describe(self.beta, self.beta_std, self.beta_dof)
 
     def to_dict(self) -> dict:
         comps = list(self.effect.components)
@@ -614,10 +620,11 @@ class _Loop:
             stopped = "stopped"
         fitted = []
         k = 0
+        dof = gram.jackknife_dof(self.base_cols)
         for eff, cols, rb, ra, ev, gb in effects_log:
             q = len(cols)
             fitted.append(FittedEffect(eff, base.beta[k:k + q], base.beta_std[k:k + q],
-                                       rb, ra, ev, gb))
+                                       rb, ra, ev, gb, beta_dof=dof[k:k + q]))
             k += q
         return fitted, residual, stopped, rounds
 

@@ -582,6 +582,62 @@ class BlockedGram:
         r = self.y.reshape(self.n, self.m) - self.fitted(columns, beta)
         return np.where(self.mask, r, np.nan)
 
+    def jackknife_dof(self, columns) -> np.ndarray:
+        """Degrees of freedom of each coefficient's block-jackknife standard error.
+
+        Bell and McCaffrey's (2002) Satterthwaite approximation for a cluster-robust
+        variance (Imbens and Kolesar 2016, Rev. Econ. Stat. 98, 701): under a working
+        model of independent, equal-variance samples the leverage-adjusted variance
+        estimate of coefficient ``j`` is a sum of squares ``sum_b (g_b' y)^2`` whose
+        B x B matrix ``W' (I - H) W`` (``w_b = (I - H_bb)^-1/2 X_b M e_j``, H the hat
+        matrix, M the inverse normal matrix) has eigenvalues ``l``; the degrees of
+        freedom are ``(sum l)^2 / sum l^2``. ``B - 1`` for a level in equal blocks; near
+        1 when one block carries the coefficient (a storm-time term), where the normal
+        quantile's shortfall would otherwise go unstated. Everything follows from the
+        per-block Gram matrices (``X_b' f(X_b M X_b') = f(X_b' X_b M) X_b'``), in
+        ``O(B p^3 + p B^3)``.
+
+        Examples
+        --------
+        >>> g = BlockedGram(np.sin(np.arange(800.0))[:, None], np.repeat(np.arange(8), 100))
+        >>> cols = g.add(np.ones((1, 800, 1)))
+        >>> np.round(g.jackknife_dof(cols), 6)  # a level in 8 equal blocks: B - 1
+        array([7.])
+        """
+        idx = list(columns)
+        p, nb = len(idx), self.n_blocks
+        if p == 0:
+            return np.zeros(0)
+        G = self.G[:, idx][:, :, idx]
+        Gt = G.sum(axis=0)
+        d = np.sqrt(np.diag(Gt))
+        d[d == 0] = 1.0
+        Gs = G / np.outer(d, d)[None]          # scaled to a unit-diagonal total
+        ev, U = np.linalg.eigh(Gs.sum(axis=0) + 1e-10 * np.eye(p))
+        ev = np.maximum(ev, 1e-300)
+        m_half = (U / np.sqrt(ev)) @ U.T        # M^1/2 of the scaled problem
+        m_inv_half = (U * np.sqrt(ev)) @ U.T
+        M = m_half @ m_half
+        S = m_half[None] @ Gs @ m_half[None]
+        lam, V = np.linalg.eigh((S + S.transpose(0, 2, 1)) / 2)
+        lam = np.clip(lam, 0.0, 1.0 - 1e-12)
+        # f(G_b M) = M^-1/2 f(S_b) M^1/2 with f = (1 - x)^-1/2; and the symmetric
+        # (I - G_b M)^-1 G_b = M^-1/2 [S_b / (1 - S_b)] M^-1/2
+        F = m_inv_half[None] @ ((V / np.sqrt(1.0 - lam)[:, None, :]) @ V.transpose(0, 2, 1)) \
+            @ m_half[None]
+        FG = m_inv_half[None] @ ((V * (lam / (1.0 - lam))[:, None, :]) @ V.transpose(0, 2, 1)) \
+            @ m_inv_half[None]
+        out = np.empty(p)
+        for j in range(p):
+            ml = M[:, j]
+            ww = np.einsum("i,bij,j->b", ml, FG, ml)
+            xw = np.einsum("bij,bjk,k->bi", F, Gs, ml)
+            K = np.diag(ww) - xw @ M @ xw.T
+            ev_k = np.linalg.eigvalsh((K + K.T) / 2.0)
+            den = float(np.sum(ev_k ** 2))
+            out[j] = float(np.sum(ev_k) ** 2 / den) if den > 0 else float(nb - 1)
+        return np.minimum(out, nb - 1.0)
+
     def score(self, columns) -> CVScore:
         """Leave-one-block-out CV score and full fit of a set of columns."""
         idx = list(columns)
