@@ -121,10 +121,10 @@ class FittedEffect:
         (:func:`magcal.discover.amplitude.effect_amplitudes`: rms of the contribution
         over the record, standard error under the OU + white noise model).
     beta_dof : ndarray or None
-        Degrees of freedom of each ``beta_std`` (:meth:`BlockedGram.jackknife_dof`): the report's
-        ``parameters.ci95`` uses Student's t with them, because a jackknife over few
-        effective blocks gives a scattered standard error and the normal 1.96 covers
-        less often than 95 %.
+        Degrees of freedom of each ``beta_std``
+        (:meth:`~magcal.discover.selection.BlockedGram.jackknife_dof`): the report's
+        ``parameters.ci95`` takes Student's t with them, because a jackknife over few
+        blocks is itself scattered and the normal 1.96 covers less often than 95 %.
     """
 
     effect: Effect
