@@ -16,7 +16,6 @@ import functools
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-from scipy.stats import t as student_t
 
 from magcal.alignment.noise import (OUNoise, as_seconds, component_basis, fit_noise,
                                     fit_ou_stats, lag_correlation, lag_stats, noise_from_fits,
@@ -27,7 +26,7 @@ from magcal.alignment.result import AlignmentResult
 from magcal.alignment.sandwich import spectral_sandwich
 from magcal.alignment.wahba import wahba_rotation
 from magcal.errors import InputError
-from magcal.stats import MAD_TO_SIGMA
+from magcal.stats import MAD_TO_SIGMA, student_interval
 
 Z95 = 1.959963984540054
 
@@ -630,8 +629,10 @@ def summarize(theta, cov, names, noise, residual, method, **extra) -> AlignmentR
     if dof is not None and "w_Hp" in idx:
         angle_dof = np.asarray(dof, dtype=float)[[idx["w_Hp"], idx["w_He"], idx["w_Hn"]]]
     if ci is None:
-        q = Z95 if angle_dof is None else student_t.ppf(0.975, np.minimum(angle_dof, 1e7))
-        ci = np.stack([angles - q * std, angles + q * std], axis=1)
+        if angle_dof is None:
+            ci = np.stack([angles - Z95 * std, angles + Z95 * std], axis=1)
+        else:
+            ci = np.stack(student_interval(angles, std, angle_dof), axis=1)
     offset = offset_std = None
     if "o_Hp" in idx:
         sl = [idx["o_Hp"], idx["o_He"], idx["o_Hn"]]
