@@ -378,12 +378,15 @@ def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bo
 
 def noise_fitter(noise_model: str):
     """``fit(residuals, times_s, jacobian=None)`` of the noise model ``noise_model``
-    (the Kalman models' also take ``start``, a previous fit)."""
+    (the Kalman models' also take ``start``, a previous fit). The two-scale fitter is a
+    new :class:`~magcal.alignment.twoscale.TwoScaleFitter` per call: the fits it makes
+    on one sampling share their tabulated spectra."""
     from magcal.alignment.ouwhite import fit_noise_ouw
-    from magcal.alignment.twoscale import fit_noise_two_scale
+    from magcal.alignment.twoscale import TwoScaleFitter
 
-    return {"ou": fit_noise, "ou+white": fit_noise_ouw,
-            "ou+ou+white": fit_noise_two_scale}[noise_model]
+    if noise_model == "ou+ou+white":
+        return TwoScaleFitter()
+    return {"ou": fit_noise, "ou+white": fit_noise_ouw}[noise_model]
 
 
 def _core_for(noise_model: str, noise):

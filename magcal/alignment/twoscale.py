@@ -559,13 +559,40 @@ def fit_noise_two_scale(residuals, times_s, jacobian=None, start=None) -> TwoSca
 
     ``jacobian`` (n, 3, p): the fitted model's derivatives, whose frequencies the
     residual lacks (their leverage corrects the expected periodogram); ``start`` (a
-    previous :class:`TwoScaleNoise`) seeds the search.
+    previous :class:`TwoScaleNoise`) seeds the search. :class:`TwoScaleFitter` does the
+    same and keeps the tabulated spectra for the next fit of the same sampling.
     """
+    return _fit_noise(residuals, times_s, jacobian, start, None)[0]
+
+
+class TwoScaleFitter:
+    """:func:`fit_noise_two_scale` that keeps the tabulated OU spectra
+    (:class:`_OUSpectra`) of the last sampling it fitted: the noise fits of one
+    alignment (three per Gauss-Newton fit, on the same times) then compute each grid
+    row once instead of once per fit. The results are those of separate calls, to the
+    bit; a call on other times starts a new table.
+    """
+
+    def __init__(self):
+        self._times: np.ndarray | None = None
+        self._spectra: _OUSpectra | None = None
+
+    def __call__(self, residuals, times_s, jacobian=None, start=None) -> TwoScaleNoise:
+        t = np.asarray(times_s, dtype=float)
+        if self._times is None or not np.array_equal(t, self._times):
+            self._times, self._spectra = t.copy(), None
+        noise, self._spectra = _fit_noise(residuals, t, jacobian, start, self._spectra)
+        return noise
+
+
+def _fit_noise(residuals, times_s, jacobian, start, spectra):
+    """:func:`fit_noise_two_scale` with the tabulated spectra ``spectra`` of the same
+    sampling (None: made from the first component): ``(noise, spectra)``."""
     from magcal.alignment.noise import component_basis
 
     r = np.asarray(residuals, dtype=float)
     t = np.asarray(times_s, dtype=float)
-    fits, spectra = [], None
+    fits = []
     for c in range(r.shape[1]):
         basis = None if jacobian is None else component_basis(jacobian, c)
         data = WhittleData.from_residual(r[:, c], t, basis)
@@ -577,4 +604,4 @@ def fit_noise_two_scale(residuals, times_s, jacobian=None, start=None) -> TwoSca
     n_eff = effective_count(std[:, :2], tau, std[:, 2], t)
     return TwoScaleNoise(fast_std_nT=std[:, 0], slow_std_nT=std[:, 1], white_std_nT=std[:, 2],
                          fast_tau_s=tau[:, 0], slow_tau_s=tau[:, 1], effective_n=n_eff,
-                         tau_at_bound=tuple(f[2] for f in fits))
+                         tau_at_bound=tuple(f[2] for f in fits)), spectra
