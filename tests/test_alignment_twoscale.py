@@ -317,3 +317,42 @@ def test_posterior_samples_the_chosen_noise_model():
     assert np.all(np.abs(res.angles_deg - closed.angles_deg) < 0.1 * closed.std_deg)
     np.testing.assert_allclose(res.std_deg, closed.std_deg, rtol=0.1)
     assert np.all(np.abs(res.angles_deg - dr["truth_deg"]) < 4 * res.std_deg)
+
+
+def test_fitter_shares_its_spectra_across_fits_of_one_sampling_to_the_bit():
+    """:class:`TwoScaleFitter` (an alignment's noise fits) gives, fit after fit, what
+    separate :func:`fit_noise_two_scale` calls give, to the bit, while computing each
+    grid row of the tabulated spectra once per sampling; other times start a new
+    table."""
+    from unittest import mock
+
+    from magcal.alignment import twoscale
+
+    rng = np.random.default_rng(4)
+    t = np.arange(2000.0) * 60.0
+    t = t[rng.random(t.size) > 0.05]
+    r = np.column_stack([simulate(rng, t, TAU, (1.0, 2.0, 0.2)) for _ in range(3)])
+    computed = []
+    original = twoscale._OUSpectra.row
+
+    def row(self, j):
+        if j not in self.rows:
+            computed.append(j)
+        return original(self, j)
+
+    with mock.patch.object(twoscale._OUSpectra, "row", row):
+        first = fit_noise_two_scale(r, t)
+        again = fit_noise_two_scale(r * 1.1, t, start=first)
+        separate = len(computed)
+        computed.clear()
+        fitter = twoscale.TwoScaleFitter()
+        shared = [fitter(r, t), fitter(r * 1.1, t, start=first)]
+        assert len(computed) < separate and len(set(computed)) == len(computed)
+        n_shared = len(computed)
+        other = fitter(r[:-7], t[:-7])  # other times: a table of their own
+        assert len(computed) > n_shared
+    alone = fit_noise_two_scale(r[:-7], t[:-7])
+    for mine, theirs in zip(shared + [other], [first, again, alone]):
+        for name in ("fast_std_nT", "slow_std_nT", "white_std_nT", "fast_tau_s",
+                     "slow_tau_s", "effective_n"):
+            assert np.array_equal(getattr(mine, name), getattr(theirs, name)), name
