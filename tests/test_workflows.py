@@ -68,9 +68,11 @@ def test_elfin_runs_with_defaults_from_a_temporary_cwd(tmp_path):
     real_data_path("elfin", "ela_l1_fgs_20220112_v01.cdf")
     # what is tested here is the run from another folder; the joint fit across zones
     # (20-25 s more) has its own tests in tests/test_elfin_joint.py, the detection of
-    # disturbed intervals (3.5 times the calibration) the chain's and the injection tests
+    # disturbed intervals (3.5 times the calibration) the chain's and the injection
+    # tests, the trials of the stated errors (half the run) the chain's and
+    # tests/test_elfin_bridge.py, tests/test_elfin_pulses.py, tests/test_elfin_levels.py
     res = _run([REPO_ROOT / "workflows" / "elfin_calibration.py", "--no-scan", "--no-joint",
-                "--no-detect"], cwd=tmp_path)
+                "--no-detect", "--no-trials"], cwd=tmp_path)
     assert res.returncode == 0, res.stderr
     out = tmp_path / "elfin-calibration-out"
     doc = json.loads((out / "elfin_calibration.json").read_text())

@@ -103,6 +103,11 @@ def _run(argv=None) -> int:
                     help="fit every step on every sample instead of leaving the disturbed "
                          "intervals located from the counts out (about 2.5 times faster; "
                          "localized natural fields across B are then absorbed)")
+    ap.add_argument("--no-trials", action="store_true",
+                    help="skip the trials that measure the product's stated errors (the "
+                         "bridge error over left-out intervals, the heights of kept pulses "
+                         "along B and the kept level steps: bridge_trials, pulse_trials and "
+                         "level_trials 0; about half the time); the calibration is the same")
     ap.add_argument("--joint", action="store_true",
                     help="also run the joint fit across zones (shared sensor, per-zone "
                          "offsets and attitude; about 60 s, never delivered on 2022-01-12)")
@@ -128,7 +133,9 @@ def _run(argv=None) -> int:
                              fast_drift=not args.no_fast_drift,
                              phase_refit=not args.no_phase_refit,
                              joint=args.joint and not args.no_joint, scan=not args.no_scan,
-                             detect_disturbed=not args.no_detect)
+                             detect_disturbed=not args.no_detect,
+                             **(dict(bridge_trials=0, pulse_trials=0, level_trials=0)
+                                if args.no_trials else {}))
     day = calibrate_elfin_day(fgs, state, settings, provenance=prov)
     cal, tab, ripple, joint, scan = (day.calibration, day.linear.table(), day.ripple,
                                      day.joint, day.scan)
