@@ -12,7 +12,10 @@ added. The offset, when beyond chance, comes first and is free in every componen
 that every other term is judged with the level free. Per-component terms are restricted
 to the components (rotations to the axes) where they pass ``z_component``. Steps and
 changes of drift rate are searched in every component with ``ruptures``
-(:func:`magcal.discover.scan.change_points`); rotations and scale errors are tested
+(:func:`magcal.discover.scan.change_points`); a step time is then tried in every
+component (the ones it was found in establish it, the others are tested at it), and a
+step several components share is also tried at the time they place together
+(:func:`magcal.discover.scan.joint_step_time`); rotations and scale errors are tested
 against the field's own variation (their columns are ``e_j x B_model`` and
 ``B_model,i``). Candidates whose fitted signals are strongly correlated with the winner
 (``|corr| >= confound_corr``) are reported as ``ambiguous_with`` when the data cannot
@@ -31,7 +34,8 @@ from magcal.discover.effects import (
     DAY_S, EFFECT_NAMES, Activity, Diurnal, Drift, Effect, EffectInputs, Offset, Periodic,
     Rotation, Scale, SpinTone, Step, Temperature, available, make_activity)
 from magcal.discover.gap import profile_gap
-from magcal.discover.scan import change_points, n_period_trials, n_step_trials, scan_periods
+from magcal.discover.scan import (change_points, joint_step_time, n_period_trials, n_step_trials,
+                                  scan_periods)
 from magcal.discover.selection import (
     BlockedGram, Comparison, CVScore, compare, delta_bic_eff, wald_test,
     model_covariance, paired_z, regression_n_eff, time_blocks)
@@ -472,20 +476,32 @@ class _Loop:
         """Step and periodic candidates whose hyper-parameters are scanned now."""
         inputs = self.inputs
         out = []
-        base_cols = self.base_cols
         span = float(inputs.times_s[-1] - inputs.times_s[0])
         vocab = self.settings.vocabulary
         fams = []
         comps = inputs.components
         if "step" in vocab:
             # change points of level searched in every component (ruptures); each time
-            # is tried in the components it was found in (a step in several components
-            # at once is found in each of them)
-            for t_step, found in _distinct_times(change_points(inputs.times_s, residual,
-                                                               kind="step")):
-                fams.append(("step", [Step(components=(c,), t_step_s=t_step)
-                                      for i, c in enumerate(comps) if i in found],
-                             n_step_trials(span)))
+            # is tried in every component: the ones it was found in establish it against
+            # the look-elsewhere threshold, the others are tested at that fixed time
+            # (:meth:`_variant`)
+            steps = [self._scanned("step", [Step(components=(c,), t_step_s=t_step)
+                                            for c in comps], base, n_step_trials(span))
+                     for t_step, _ in _distinct_times(change_points(inputs.times_s, residual,
+                                                                    kind="step"))]
+            out += [c for c in steps if c is not None]
+            shared = max((c for c in out if len(c.effect.components) > 1),
+                         key=lambda c: c.comparison.gain, default=None)
+            if shared is not None:
+                # a step several components share is placed by all of them together: tried
+                # at that time too, the held-out gain chooses
+                cols = [comps.index(c) for c in shared.effect.components]
+                t_joint = joint_step_time(inputs.times_s, residual[:, cols])
+                if t_joint is not None and t_joint != shared.effect.t_step_s:
+                    cand = self._scanned("step", [Step(components=(c,), t_step_s=t_joint)
+                                                  for c in comps], base, n_step_trials(span))
+                    if cand is not None:
+                        out.append(cand)
         if "drift" in vocab:
             t_ref = float(0.5 * (inputs.times_s[0] + inputs.times_s[-1]))
             drifting = self.covered.get("drift", set())
@@ -509,17 +525,22 @@ class _Loop:
                 fams.append(("periodic", [Periodic(components=(c,), period_s=period_s)
                                           for c in inputs.components], n_period_trials(span)))
         for family, effects, trials in fams:
-            # one chunk per family so that its components are crossed with each other
-            blocks = [eff.columns(inputs) for eff in effects]
-            idx = self.gram.add(np.concatenate(blocks, axis=0), against=base_cols)
-            start = 0
-            for eff, blk in zip(effects, blocks):
-                self.cols[eff] = idx[start:start + len(blk)]
-                start += len(blk)
-            cand = self._variant(family, effects, base, trials)
+            cand = self._scanned(family, effects, base, trials)
             if cand is not None:
                 out.append(cand)
         return out
+
+    def _scanned(self, family: str, effects: list[Effect], base: CVScore, trials: float):
+        """:meth:`_variant` of per-component effects at a scanned hyper-parameter value,
+        their columns added to the Gram matrix in one chunk (crossed with each other and
+        with the base only)."""
+        blocks = [eff.columns(self.inputs) for eff in effects]
+        idx = self.gram.add(np.concatenate(blocks, axis=0), against=self.base_cols)
+        start = 0
+        for eff, blk in zip(effects, blocks):
+            self.cols[eff] = idx[start:start + len(blk)]
+            start += len(blk)
+        return self._variant(family, effects, base, trials)
 
     def _signal(self, cand: _Candidate, centred: bool = True) -> np.ndarray:
         k = len(self.base_cols)
@@ -676,8 +697,11 @@ class _Loop:
               "ambiguous": False, "ambiguous_with": [], "preferred_over": {}}
         others = sorted((c for c in cands if c is not win),
                         key=lambda c: -c.comparison.gain)
-        if others:
-            ru = others[0]
+        # the best candidate of another effect: the same effect at another step time or
+        # period (the scans try several) says nothing about what else could explain it
+        rival = next((c for c in others if c.name != win.name), None)
+        if rival is not None:
+            ru = rival
             ev["runner_up"] = {"name": ru.name, "components": list(ru.effect.components),
                                **ru.comparison.as_dict()}
         f_win = self._signal(win)
