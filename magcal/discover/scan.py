@@ -187,12 +187,14 @@ def joint_step_time(times_s, residual, *, bin_s: float = 3600.0,
                     margin_s: float = 0.25 * DAY_S) -> float | None:
     """Time of one step shared by every column of ``residual``: the split that explains
     the most of the columns' variance together, each weighted by its long-run noise
-    variance (:func:`scan_step` of the standardised columns).
+    variance.
 
     Each component's own change point (:func:`change_points`) places a step that several
     components share only as well as that component's signal allows; in red noise a
     2 nT step alone is placed up to days off. Scanned together, the components' signals
-    add up.
+    add up. As in :func:`change_points`, the split is found on the ``bin_s`` means of
+    the bins that hold data (joined across gaps: a step across a gap sits at its end)
+    and then refined to the sample within two bins (:func:`scan_step`).
 
     Returns
     -------
@@ -206,18 +208,34 @@ def joint_step_time(times_s, residual, *, bin_s: float = 3600.0,
     >>> r = np.outer(t >= 4.2 * 86400, [1.5, -1.5]) + rng.normal(0, 1, (t.size, 2))
     >>> round(joint_step_time(t, r) / 86400, 2)
     4.2
+    >>> gap = (t < 4 * 86400) | (t >= 5 * 86400)          # the step inside a day's gap
+    >>> round(joint_step_time(t[gap], r[gap]) / 86400, 2)  # at the gap's end
+    5.0
     """
     t = np.asarray(times_s, dtype=float)
     r = np.asarray(residual, dtype=float)
     if r.ndim == 1:
         r = r[:, None]
-    _, means = _hourly_bins(t, r, bin_s)
-    weight = np.ones(r.shape[1])
-    for c in range(r.shape[1]):
-        x = means[np.isfinite(means[:, c]), c]
-        if x.size > 3:
-            weight[c] = 1.0 / np.sqrt(_long_run_variance(x, max(int(DAY_S / bin_s), 3)))
-    return scan_step(t, r * weight, margin_s=margin_s)[0]
+    starts, means = _hourly_bins(t, r, bin_s)
+    nb = means.shape[0]
+    ok = np.all(np.isfinite(means), axis=1)
+    bins = np.flatnonzero(ok)
+    margin = max(int(np.ceil(margin_s / bin_s)), 2)
+    if bins.size < 2 * margin + 2:
+        return None
+    weight = np.array([1.0 / np.sqrt(_long_run_variance(means[ok, c], max(int(DAY_S / bin_s), 3)))
+                       for c in range(r.shape[1])])
+    after, _, _ = scan_step(np.arange(bins.size, dtype=float), means[ok] * weight,
+                            margin_s=margin)
+    if after is None:
+        return None
+    k = int(bins[int(after)])
+    if not ok[k - 1]:  # the change is across a gap: at its end
+        return float(t[np.searchsorted(t, starts[k])])
+    lo, hi = max(k - 2, 1), min(k + 2, nb - 1)
+    sel = (t >= starts[lo - 1]) & (t < starts[hi] + bin_s)
+    ts, _, _ = scan_step(t[sel], r[sel] * weight, margin_s=bin_s)
+    return float(ts) if ts is not None else float(t[np.searchsorted(t, starts[k])])
 
 
 def _hourly_bins(times_s, residual, bin_s: float):
