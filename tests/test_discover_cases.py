@@ -330,11 +330,11 @@ def test_step():
 @pytest.mark.slow
 def test_a_step_shared_by_components_is_one_step_with_all_of_them():
     """A 2 nT step in every component (6 seeded months, red noise of 2 nT; in three of
-    them a week is missing around the step). Each month names one step holding all three components, near the true time
-    (for the week's gap: near the gap, where the data place it), and the sizes' 95 %
-    intervals hold the truth. Tried only in the components whose own change point fell
-    within 3 h of it, such a step was named whole in one of these six months and a drift
-    was named instead in the other five."""
+    them a week is missing around the step). Each month names one step holding all three
+    components, near the true time (for the week's gap: near the gap, where the data
+    place it), and the sizes' 95 % intervals hold the truth. Tried only in the
+    components whose own change point fell within 3 h of it, such a step was named whole
+    in one of these six months and a drift was named instead in the other five."""
     m, t_s, day, phi = _axes()
     t0 = pd.Timestamp("2019-11-01T00:00:00Z")
     off_h, inside = [], []
