@@ -12,8 +12,9 @@ added. The offset, when beyond chance, comes first and is free in every componen
 that every other term is judged with the level free. Per-component terms are restricted
 to the components (rotations to the axes) where they pass ``z_component``. Steps and
 changes of drift rate are searched in every component with ``ruptures``
-(:func:`magcal.discover.scan.change_points`); a step time is then tried in every
-component (the ones it was found in establish it, the others are tested at it), and a
+(:func:`magcal.discover.scan.change_points`); a step time or drift break is then tried
+in every component (the ones it was found in establish it, the others are tested at
+it), and a
 step several components share is also tried at the time they place together
 (:func:`magcal.discover.scan.joint_step_time`); rotations and scale errors are tested
 against the field's own variation (their columns are ``e_j x B_model`` and
@@ -505,14 +506,13 @@ class _Loop:
         if "drift" in vocab:
             t_ref = float(0.5 * (inputs.times_s[0] + inputs.times_s[-1]))
             drifting = self.covered.get("drift", set())
-            for t_break, found in _distinct_times(change_points(inputs.times_s, residual,
-                                                                kind="slope"), most=2):
-                # tried in the components it was found in; those with a drift already
+            for t_break, _ in _distinct_times(change_points(inputs.times_s, residual,
+                                                            kind="slope"), most=2):
+                # tried in every component, as a step time is; those with a drift already
                 # get the hinge alone, the others the hinge beside a rate (one family
                 # each: a family's columns are uniform)
                 for with_rate in (True, False):
-                    group = [c for i, c in enumerate(comps) if i in found
-                             and (c not in drifting) == with_rate]
+                    group = [c for c in comps if (c not in drifting) == with_rate]
                     if group:
                         fams.append(("drift_break", [
                             Drift(components=(c,), t_ref_s=t_ref, t_break_s=t_break,
