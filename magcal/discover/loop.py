@@ -13,9 +13,9 @@ that every other term is judged with the level free. Per-component terms are res
 to the components (rotations to the axes) where they pass ``z_component``. Steps and
 changes of drift rate are searched in every component with ``ruptures``
 (:func:`magcal.discover.scan.change_points`); a step time or drift break is then tried
-in every component (the ones it was found in establish it, the others are tested at
-it), and a
-step several components share is also tried at the time they place together
+in every component (the components that pass the look-elsewhere threshold at it
+establish it, the others are tested at that fixed time), and a step several components
+share is also tried at the time they place together
 (:func:`magcal.discover.scan.joint_step_time`); rotations and scale errors are tested
 against the field's own variation (their columns are ``e_j x B_model`` and
 ``B_model,i``). Candidates whose fitted signals are strongly correlated with the winner
@@ -483,9 +483,8 @@ class _Loop:
         comps = inputs.components
         if "step" in vocab:
             # change points of level searched in every component (ruptures); each time
-            # is tried in every component: the ones it was found in establish it against
-            # the look-elsewhere threshold, the others are tested at that fixed time
-            # (:meth:`_variant`)
+            # is tried in every component: those that pass the look-elsewhere threshold
+            # at it establish it, the others are tested at that fixed time (:meth:`_variant`)
             steps = [self._scanned("step", [Step(components=(c,), t_step_s=t_step)
                                             for c in comps], base, n_step_trials(span))
                      for t_step, _ in _distinct_times(change_points(inputs.times_s, residual,
