@@ -212,15 +212,9 @@ def joint_step_time(times_s, residual, *, bin_s: float = 3600.0,
     >>> round(joint_step_time(t[gap], r[gap]) / 86400, 2)  # at the gap's end
     5.0
     """
-    t = np.asarray(times_s, dtype=float)
-    r = np.asarray(residual, dtype=float)
-    if r.ndim == 1:
-        r = r[:, None]
-    starts, means = _hourly_bins(t, r, bin_s)
-    nb = means.shape[0]
+    t, r, starts, means, margin = _binned(times_s, residual, bin_s, margin_s)
     ok = np.all(np.isfinite(means), axis=1)
     bins = np.flatnonzero(ok)
-    margin = max(int(np.ceil(margin_s / bin_s)), 2)
     if bins.size < 2 * margin + 2:
         return None
     weight = np.array([1.0 / np.sqrt(_long_run_variance(means[ok, c], max(int(DAY_S / bin_s), 3)))
@@ -229,13 +223,30 @@ def joint_step_time(times_s, residual, *, bin_s: float = 3600.0,
                             margin_s=margin)
     if after is None:
         return None
-    k = int(bins[int(after)])
+    return _step_sample(t, r * weight, starts, ok, int(bins[int(after)]), bin_s)
+
+
+def _binned(times_s, residual, bin_s: float, margin_s: float):
+    """``(t, r, bin starts, (k, m) bin means, margin in bins)`` of a residual, for the
+    change-point scans."""
+    t = np.asarray(times_s, dtype=float)
+    r = np.asarray(residual, dtype=float)
+    if r.ndim == 1:
+        r = r[:, None]
+    starts, means = _hourly_bins(t, r, bin_s)
+    return t, r, starts, means, max(int(np.ceil(margin_s / bin_s)), 2)
+
+
+def _step_sample(t, r, starts, ok, k: int, bin_s: float) -> float:
+    """Time of the first sample after a step placed before bin ``k`` (of the bins
+    ``ok`` that hold data): at the end of a gap the change is across, else refined to
+    the sample within two bins (:func:`scan_step` of the columns of ``r``)."""
     if not ok[k - 1]:  # the change is across a gap: at its end
         return float(t[np.searchsorted(t, starts[k])])
-    lo, hi = max(k - 2, 1), min(k + 2, nb - 1)
+    lo, hi = max(k - 2, 1), min(k + 2, len(ok) - 1)
     sel = (t >= starts[lo - 1]) & (t < starts[hi] + bin_s)
-    ts, _, _ = scan_step(t[sel], r[sel] * weight, margin_s=bin_s)
-    return float(ts) if ts is not None else float(t[np.searchsorted(t, starts[k])])
+    ts, _, _ = scan_step(t[sel], r[sel], margin_s=bin_s)
+    return float(ts) if ts is not None else float(starts[k])
 
 
 def _hourly_bins(times_s, residual, bin_s: float):
@@ -304,13 +315,8 @@ def change_points(times_s, residual, *, kind: str = "step", bin_s: float = 3600.
 
     from magcal.discover.costs import CumsumCLinear, CumsumL2
 
-    t = np.asarray(times_s, dtype=float)
-    r = np.asarray(residual, dtype=float)
-    if r.ndim == 1:
-        r = r[:, None]
-    starts, means = _hourly_bins(t, r, bin_s)
+    t, r, starts, means, margin = _binned(times_s, residual, bin_s, margin_s)
     nb = means.shape[0]
-    margin = max(int(np.ceil(margin_s / bin_s)), 2)
     if nb < 2 * margin + 2:
         return []
     out = []
@@ -336,14 +342,7 @@ def change_points(times_s, residual, *, kind: str = "step", bin_s: float = 3600.
         for k in found:
             if kind == "step":
                 h = (np.arange(x.size) >= k).astype(float)
-                k = int(bins[k])
-                lo = max(k - 2, 1)
-                hi = min(k + 2, nb - 1)
-                sel = (t >= starts[lo - 1]) & (t < starts[hi] + bin_s)
-                ts, _, _ = scan_step(t[sel], r[sel, c:c + 1], margin_s=bin_s)
-                if not ok[k - 1]:  # the change is across a gap: at its end
-                    ts = t[np.searchsorted(t, starts[k])]
-                t_c = float(ts) if ts is not None else float(starts[k])
+                t_c = _step_sample(t, r[:, c:c + 1], starts, ok, int(bins[k]), bin_s)
             else:
                 t_c, j = _refine_hinge(starts, x, k, margin)
                 h = np.maximum(np.arange(nb) - j, 0.0)
