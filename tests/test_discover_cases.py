@@ -82,8 +82,11 @@ def _axes():
     return m, t_s, t_s / 86400.0, 2 * np.pi * m.local_time_h / 24.0
 
 
-def _run(case: Case):
-    return discover_gap(case.measured, case.model, case.covariates, longitude_deg=LON_DEG)
+def _run(case: Case, keep=None):
+    """Discovery on ``case`` (on the rows ``keep`` only, if given)."""
+    rows = slice(None) if keep is None else keep
+    return discover_gap(case.measured[rows], case.model[rows], case.covariates[rows],
+                        longitude_deg=LON_DEG)
 
 
 def _first_new(res, skip=("offset",)):
@@ -346,8 +349,7 @@ def test_a_step_shared_by_components_is_one_step_with_all_of_them():
         else:
             keep = (day < 14.0) | (day >= 21.0)
             lo, hi = t0 + pd.Timedelta(days=14.0), t0 + pd.Timedelta(days=21.0)
-        res = discover_gap(case.measured[keep], case.model[keep], case.covariates[keep],
-                           longitude_deg=LON_DEG)
+        res = _run(case, keep)
         steps = [e for e in res.effects if e.name == "step"]
         assert [e.components for e in steps] == [("Hp", "He", "Hn")], (seed, res.account())
         # the runner-up is another effect, not this step at another of the tried times
@@ -379,8 +381,7 @@ def test_a_drift_rate_change_several_components_share_is_one_drift_with_its_brea
         case = make_case({"bend": np.outer(np.maximum(day - 12.4, 0.0), [0.7, 0.7, 0.7])},
                          seed=seed)
         keep = (day < 11.0) | (day >= 14.0) if seed >= 3 else np.ones(day.size, dtype=bool)
-        res = discover_gap(case.measured[keep], case.model[keep], case.covariates[keep],
-                           longitude_deg=LON_DEG)
+        res = _run(case, keep)
         assert "step" not in res.names, (seed, res.account())
         drifts = [e for e in res.effects if e.name == "drift"]
         assert [e.components for e in drifts] == [("Hp", "He", "Hn")], (seed, res.account())

@@ -698,9 +698,8 @@ class _Loop:
                         key=lambda c: -c.comparison.gain)
         # the best candidate of another effect: the same effect at another step time or
         # period (the scans try several) says nothing about what else could explain it
-        rival = next((c for c in others if c.name != win.name), None)
-        if rival is not None:
-            ru = rival
+        ru = next((c for c in others if c.name != win.name), None)
+        if ru is not None:
             ev["runner_up"] = {"name": ru.name, "components": list(ru.effect.components),
                                **ru.comparison.as_dict()}
         f_win = self._signal(win)
