@@ -337,10 +337,12 @@ def test_a_step_shared_by_components_is_one_step_with_all_of_them():
     components, near the true time (for the week's gap: near the gap, where the data
     place it), and the sizes' 95 % intervals hold the truth. Tried only in the
     components whose own change point fell within 3 h of it, such a step was named whole
-    in one of these six months and a drift was named instead in the other five."""
+    in one of these six months and a drift was named instead in the other five. The
+    step time's 95 % interval holds the true time (inside the gap where a week is
+    missing)."""
     m, t_s, day, phi = _axes()
     t0 = pd.Timestamp("2019-11-01T00:00:00Z")
-    off_h, inside = [], []
+    off_h, inside, when = [], [], []
     for seed in range(6):
         case = make_case({"step": np.outer(day >= 17.3, [2.0, 2.0, 2.0])}, seed=seed)
         if seed < 3:
@@ -359,10 +361,17 @@ def test_a_step_shared_by_components_is_one_step_with_all_of_them():
         off_h.append(max((lo - t).total_seconds(), (t - hi).total_seconds(), 0.0) / 3600.0)
         inside += [lo_ <= 2.0 <= hi_ for lo_, hi_ in
                    (p["ci95"][c]["size_nT"] for c in ("Hp", "He", "Hn"))]
+        # the time's 95 % interval: after its first value, at or before its second
+        after, by = (pd.Timestamp(v) for v in p["time_ci95"])
+        assert p["time_ci95_s"] == [after.timestamp(), by.timestamp()], p
+        assert after < t <= by, p
+        when.append(after < t0 + pd.Timedelta(days=17.3) <= by)
     # the time: within 6 h in most months (red noise places a 2 nT step only roughly);
     # the intervals: 18 values at 95 %, at most 2 outside (binomial: 94 % of the time)
     assert np.median(off_h) <= 6.0, off_h
     assert sum(inside) >= 16, inside
+    # 6 intervals at 95 %: at most one without the true time (binomial: 97 % of the time)
+    assert sum(when) >= 5, when
 
 
 @pytest.mark.slow

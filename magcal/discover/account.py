@@ -68,7 +68,11 @@ def _what(fe) -> str:
     if name == "periodic":
         return f"periodic ({p['period_h']:.2f} h)"
     if name == "step":
-        return f"step at {p['time']}"
+        when = ""
+        if "time_ci95" in p:  # ISO times: shown to the minute, in UTC
+            lo, hi = (t[:16].replace("T", " ") for t in p["time_ci95"])
+            when = f" (95 %: after {lo}, by {hi} UTC)"
+        return f"step at {p['time']}{when}"
     if name == "drift" and "break_time" in p:
         return f"drift (rate change at {p['break_time']})"
     if name == "rotation":

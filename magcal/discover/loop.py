@@ -40,6 +40,7 @@ from magcal.discover.scan import (change_points, joint_step_time, n_period_trial
 from magcal.discover.selection import (
     BlockedGram, Comparison, CVScore, compare, delta_bic_eff, wald_test,
     model_covariance, paired_z, regression_n_eff, time_blocks)
+from magcal.discover.step_time import step_time_interval
 from magcal.io.jsonio import product_dict
 
 
@@ -130,6 +131,10 @@ class FittedEffect:
         (:meth:`~magcal.discover.selection.BlockedGram.jackknife_dof`): the report's
         ``parameters.ci95`` takes Student's t with them, because a jackknife over few
         blocks is itself scattered and the normal 1.96 covers less often than 95 %.
+    time_ci95_s : tuple of float or None
+        A step's 95 % confidence interval for its time, ``(after, at or before)`` in
+        seconds since 1970 (:func:`magcal.discover.step_time.step_time_interval`): the
+        report's ``parameters.time_ci95`` (ISO times) and ``time_ci95_s``.
     """
 
     effect: Effect
@@ -141,6 +146,7 @@ class FittedEffect:
     gap_before: dict = field(default_factory=dict, repr=False, compare=False)
     amplitude: dict = field(default_factory=dict, compare=False)
     beta_dof: np.ndarray | None = field(default=None, compare=False)
+    time_ci95_s: tuple[float, float] | None = field(default=None, compare=False)
 
     @property
     def name(self) -> str:
@@ -152,7 +158,14 @@ class FittedEffect:
 
     @property
     def parameters(self) -> dict:
-        return self.effect.describe(self.beta, self.beta_std, self.beta_dof)
+        out = self.effect.describe(self.beta, self.beta_std, self.beta_dof)
+        if self.time_ci95_s is not None:
+            import pandas as pd
+
+            out["time_ci95"] = [pd.Timestamp(v, unit="s", tz="UTC").isoformat()
+                                for v in self.time_ci95_s]
+            out["time_ci95_s"] = [float(v) for v in self.time_ci95_s]
+        return out
 
     def to_dict(self) -> dict:
         comps = list(self.effect.components)
@@ -643,8 +656,14 @@ class _Loop:
         dof = gram.jackknife_dof(self.base_cols)
         for eff, cols, rb, ra, ev, gb in effects_log:
             q = len(cols)
+            when = None
+            if isinstance(eff, Step):  # how well the data place it in time
+                own = [self.inputs.components.index(c) for c in eff.components]
+                when = step_time_interval(self.inputs.times_s, residual[:, own], eff.t_step_s,
+                                          base.beta[k:k + q])
             fitted.append(FittedEffect(eff, base.beta[k:k + q], base.beta_std[k:k + q],
-                                       rb, ra, ev, gb, beta_dof=dof[k:k + q]))
+                                       rb, ra, ev, gb, beta_dof=dof[k:k + q],
+                                       time_ci95_s=when))
             k += q
         return fitted, residual, stopped, rounds
 
