@@ -94,3 +94,39 @@ def test_bad_input():
         lr_critical_value(1.0)
     # too short to place a step away from the ends
     assert step_time_interval(t[:60], np.zeros(60), t[30], [1.0]) is None
+
+
+def test_report_account_and_figure_carry_the_interval(tmp_path):
+    """Discovery on 20 days of 10-min data with a 6 nT step in Hp: REPORT.json's step
+    holds the true time in ``time_ci95``, the account line states the interval, and the
+    figure shades it on the Hp time panel (not on He, which has no step)."""
+    import json
+
+    import pandas as pd
+
+    from magcal.discover import discover_gap
+    from magcal.discover.plots import plot_gap
+
+    rng = np.random.default_rng(8)
+    t = pd.date_range("2019-11-01", periods=20 * 144, freq="10min", tz="UTC")
+    truth = pd.Timestamp("2019-11-09T13:20:00Z")
+    model = pd.DataFrame({"Hp": 100.0 + 0 * t.hour, "He": 0.0 * t.hour}, index=t)
+    meas = model + np.column_stack([6.0 * (t >= truth), 0 * t.hour]) \
+        + rng.normal(0.0, 1.0, (t.size, 2))
+    res = discover_gap(meas, model)
+    step = res.effect("step")
+    assert step.components == ("Hp",)
+    doc = json.loads(json.dumps(res.to_json()))
+    p = next(e for e in doc["effects"] if e["name"] == "step")["parameters"]
+    after, by = (pd.Timestamp(v) for v in p["time_ci95"])
+    assert after < truth <= by and (by - after) <= pd.Timedelta(hours=4), p["time_ci95"]
+    line = next(x for x in res.account() if "added step" in x)
+    assert f"after {after:%Y-%m-%d %H:%M}, by {by:%Y-%m-%d %H:%M} UTC" in line, line
+    fig = plot_gap(res, tmp_path / "gap.png")
+    assert (tmp_path / "gap.png").stat().st_size > 0
+    t0 = res.times_s[0]
+    spans = [patch.get_patch_transform().transform(patch.get_path().vertices)[:, 0]
+             for patch in fig.axes[0].patches]  # x in days, as the panel's axis
+    want = [(v - t0) / DAY for v in step.time_ci95_s]
+    assert any(np.isclose(min(x), want[0]) and np.isclose(max(x), want[1]) for x in spans), spans
+    assert len(fig.axes) == 2 and not fig.axes[1].patches  # He (no local-time panels)

@@ -9,7 +9,9 @@ def plot_gap(result, path=None, max_points: int = 20000):
     """Plot the residual before and after the added effects.
 
     One row per component: left, residual against time (before in grey, after in
-    black); right, hourly means against local time (when a longitude was known).
+    black), with each named step that holds the component marked at its time (dashed)
+    and its 95 % time interval shaded; right, hourly means against local time (when a
+    longitude was known).
 
     Parameters
     ----------
@@ -43,6 +45,16 @@ def plot_gap(result, path=None, max_points: int = 20000):
         ax = axes[i, 0]
         ax.plot(t_days[::step], before[::step, i], color="0.7", lw=0.5, label="before")
         ax.plot(t_days[::step], after[::step, i], color="k", lw=0.5, label="after")
+        for fe in result.effects:
+            if fe.name != "step" or c not in fe.components:
+                continue
+            t0 = result.times_s[0]
+            ax.axvline((fe.effect.t_step_s - t0) / 86400.0, color="tab:red", lw=0.8, ls="--",
+                       label="step")
+            if fe.time_ci95_s is not None:
+                lo, hi = ((v - t0) / 86400.0 for v in fe.time_ci95_s)
+                ax.axvspan(lo, hi, color="tab:red", alpha=0.15, lw=0,
+                           label="step time, 95 %")
         ax.set_ylabel(f"{c} residual (nT)")
         if i == len(comps) - 1:
             ax.set_xlabel("days since start")
