@@ -82,7 +82,12 @@ def products(tmp_path_factory):
         "gap_initial": {"rms_nT": 5.125}, "gap_final": {"rms_nT": 1.25},
         "stopped_because": "no candidate improves BIC",
         "effects": [{"name": "diurnal", "components": ["Hp"], "parameters": {},
-                     "rms_before_nT": 5.125, "rms_after_nT": 1.25, "evidence": {}}]})
+                     "rms_before_nT": 5.125, "rms_after_nT": 1.25, "evidence": {}},
+                    {"name": "step", "components": ["Hp", "He"],
+                     "parameters": {"time": "2019-12-12T00:02:30+00:00",
+                                    "time_ci95": ["2019-12-11T23:02:30+00:00",
+                                                  "2019-12-12T01:02:30+00:00"]},
+                     "rms_before_nT": 1.25, "rms_after_nT": 0.875, "evidence": {}}]})
     return root
 
 
@@ -105,6 +110,8 @@ def test_report_holds_the_product_numbers_and_embeds_every_figure(products, tmp_
         assert v in text
     for v in ("5.125", "1.250", "diurnal", "1.2500", "0.0125"):  # discover and spin
         assert v in text
+    # the step's time with its 95 % interval
+    assert "2019-12-12 00:02 (95 %: after 2019-12-11 23:02, by 2019-12-12 01:02)" in text
     assert "Not available: no alignment/*conjunction*.json" in text
     # plan disagreement above 0.1 mHz: 0.05 x the 30 s wave of amplitude 2 -> rms 0.0707
     x_rms = 0.05 * 2.0 / np.sqrt(2.0)

@@ -592,14 +592,27 @@ def discover_section(root: Path) -> tuple:
             return "not computed (REPORT.json written before amplitudes existed)"
         return ", ".join(f"{c} {amp[c]:.3f} +- {se.get(c, float('nan')):.3f}" for c in amp)
 
-    rows = [(e["name"], ",".join(e.get("components", [])), e["rms_before_nT"],
+    def when(e):  # a step's time and its 95 % interval; a drift's break
+        p = e.get("parameters") or {}
+        if "time" in p and "time_ci95" in p:
+            lo, hi = (v[:16].replace("T", " ") for v in p["time_ci95"])
+            return f"{p['time'][:16].replace('T', ' ')} (95 %: after {lo}, by {hi})"
+        for key in ("time", "break_time"):
+            if key in p:
+                return p[key][:16].replace("T", " ")
+        return "-"
+
+    rows = [(e["name"], ",".join(e.get("components", [])), when(e), e["rms_before_nT"],
              e["rms_after_nT"], amplitude(e)) for e in doc.get("effects", [])]
     return (Paragraph(f"Gap between measured and model: {doc['gap_initial']['rms_nT']:.3f} nT "
                       f"rms at the start, {doc['gap_final']['rms_nT']:.3f} nT after the "
                       f"effects below ({doc.get('stopped_because', '')})."),
-            Table.from_records(["effect", "components", "rms before (nT)", "rms after (nT)",
+            Table.from_records(["effect", "components", "time (UTC)", "rms before (nT)",
+                                "rms after (nT)",
                                 "amplitude (rms over the record, nT) +- standard error"],
                                rows, caption="Effects in the order they were added; "
+                               "a step's time with its 95 % interval (it happened after the "
+                               "first time, by the second), a drift's break time; "
                                "standard errors under the OU + white noise model fitted to "
                                "the final residual (discover/REPORT.json amplitude_noise).",
                                source=_rel(path, root), fmt="{:.3f}"))
