@@ -35,7 +35,8 @@ def plot_gap(result, path=None, max_points: int = 20000):
     from magcal.io.atomic import atomic_path
 
     comps = result.components
-    t_days = (result.times_s - result.times_s[0]) / 86400.0
+    t0 = result.times_s[0]
+    t_days = (result.times_s - t0) / 86400.0
     step = max(1, len(t_days) // max_points)
     has_lt = result.local_time_h is not None
     fig, axes = plt.subplots(len(comps), 2 if has_lt else 1, figsize=(11, 2.4 * len(comps)),
@@ -48,7 +49,6 @@ def plot_gap(result, path=None, max_points: int = 20000):
         for fe in result.effects:
             if fe.name != "step" or c not in fe.components:
                 continue
-            t0 = result.times_s[0]
             ax.axvline((fe.effect.t_step_s - t0) / 86400.0, color="tab:red", lw=0.8, ls="--",
                        label="step")
             if fe.time_ci95_s is not None:
