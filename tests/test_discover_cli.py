@@ -14,8 +14,8 @@ from magcal.io.csv import write_csv_frame
 LON = 128.2
 
 
-def _files(tmp_path, rng, with_cov=True):
-    t = pd.date_range("2019-11-01", periods=14 * 1440, freq="1min", tz="UTC", name="time")
+def _files(tmp_path, rng, with_cov=True, days=14):
+    t = pd.date_range("2019-11-01", periods=days * 1440, freq="1min", tz="UTC", name="time")
     ut = t.hour + t.minute / 60
     lt = (ut + LON / 15) % 24
     model = pd.DataFrame({"Hp": 100 + 10 * np.cos(2 * np.pi * (lt - 12) / 24),
@@ -80,3 +80,32 @@ def test_cli_bad_input_exit_2_and_no_output(tmp_path, rng, capsys):
     assert not out.exists()
     assert main(["discover", str(p["m"]), str(tmp_path / "missing.csv"), "-o", str(out)]) == 2
     assert not out.exists()
+
+
+def test_cli_leaves_out_spikes_and_says_so(tmp_path, rng, capsys):
+    """A week with a hidden diurnal term and 0.5 % of the samples spiked by 30-300 nT
+    (either sign, every component): the default run leaves out exactly those samples,
+    reports them, and reaches the effects and the white-noise floor (1 nT) of a
+    spike-free record; with ``--no-screen`` (and no effect added) the spikes stay in
+    the gap, several times the floor."""
+    p = _files(tmp_path, rng, days=7)
+    meas = pd.read_csv(p["m"], index_col=0)
+    hit = rng.random(len(meas)) < 0.005
+    size = rng.choice([-1.0, 1.0], (hit.sum(), 1)) * rng.uniform(30.0, 300.0, (hit.sum(), 3))
+    meas.loc[hit, ["Hp", "He", "Hn"]] += size
+    meas.to_csv(p["m"])
+    out, raw = tmp_path / "screened.json", tmp_path / "raw.json"
+    common = [str(p["m"]), str(p["model"]), "--covariates", str(p["cov"])]
+    assert main(["discover", *common, "-o", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["screened"]["samples"] == int(hit.sum())
+    first = pd.Timestamp(meas.index[hit][0])
+    first = first if first.tz is not None else first.tz_localize("UTC")
+    assert pd.Timestamp(doc["screened"]["first"]) == first
+    assert [e["name"] for e in doc["effects"]][:2] == ["offset", "diurnal"]
+    assert_allclose(doc["gap_final"]["rms_nT"], 1.0, atol=0.05)
+    assert f"left out {int(hit.sum())} spike sample(s)" in capsys.readouterr().err
+    assert main(["discover", *common, "--no-screen", "--max-effects", "0", "-o", str(raw)]) == 0
+    doc = json.loads(raw.read_text())
+    assert doc["screened"] == {} and doc["provenance"]["parameters"]["screen"] is False
+    assert doc["gap_final"]["rms_nT"] > 3.0

@@ -25,6 +25,10 @@ def register(subparsers) -> None:
                    help="spacecraft east longitude in deg, for local time (else lon_deg)")
     p.add_argument("--max-effects", type=int, default=8, help="most effects to add (default 8)")
     p.add_argument("--plot", help="also write a PNG of the residual before and after")
+    p.add_argument("--no-screen", action="store_true",
+                   help="keep spikes of measured - model (by default samples beyond 8 robust "
+                        "sigma with a jump in and out are left out, counted in REPORT.json "
+                        "'screened')")
     add_output(p, help_text="REPORT.json")
     p.set_defaults(func=run)
 
@@ -60,13 +64,14 @@ def run(args) -> int:
         raise InputError(f"--longitude {args.longitude} outside [-360, 360]")
     try:
         result = discover_gap(measured, model, cov, longitude_deg=args.longitude,
-                              max_effects=args.max_effects)
+                              max_effects=args.max_effects, screen=not args.no_screen)
     except InputError as exc:
         if exc.file is None:
             raise InputError(exc.message, file=meas_path, row=exc.row,
                              column=exc.column) from None
         raise
-    params = {"longitude": args.longitude, "max_effects": args.max_effects}
+    params = {"longitude": args.longitude, "max_effects": args.max_effects,
+              "screen": not args.no_screen}
     result = result.with_provenance(make_provenance("discover", params, inputs=inputs))
     if args.plot:
         from magcal.discover.plots import plot_gap

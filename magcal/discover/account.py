@@ -89,6 +89,10 @@ def account_lines(result) -> list[str]:
     by = g0.get("by_component", {})
     per = ", ".join(f"{c} {by[c]['rms_nT']:.2f}" for c in result.components if c in by)
     lines = [f"gap: RMS {g0['rms_nT']:.2f} nT over all components ({per} nT)"]
+    left_out = result.screened or {}
+    if left_out.get("samples"):
+        lines.append(f"left out {left_out['samples']} spike sample(s) of measured - model "
+                     f"before the fit (the first at {left_out['first']})")
     for fe in result.effects:
         # a slow term (drift) can be highly significant against the day-to-day scatter
         # while the RMS, dominated by fast variability, barely moves: show the change

@@ -198,6 +198,8 @@ class DiscoveryResult:
     residual_final: np.ndarray = field(default=None, repr=False, compare=False)
     #: Noise model of the effects' amplitude standard errors (OU + white per component).
     amplitude_noise: dict = field(default_factory=dict)
+    #: What :func:`discover_gap` left out as spikes before the loop (empty if not screened).
+    screened: dict = field(default_factory=dict)
 
     @property
     def names(self) -> list[str]:
@@ -224,6 +226,7 @@ class DiscoveryResult:
             "longitude_deg": self.longitude_deg,
             "rounds": list(self.rounds),
             "amplitude_noise": self.amplitude_noise,
+            "screened": self.screened,
             "provenance": self.provenance,
         })
 
@@ -786,7 +789,8 @@ def discover(inputs: EffectInputs, measured, settings: DiscoverySettings | None 
 
 
 def discover_gap(measured, model, covariates=None, longitude_deg=None, max_effects: int = 8,
-                 rng=None, settings: DiscoverySettings | None = None) -> DiscoveryResult:
+                 rng=None, settings: DiscoverySettings | None = None,
+                 screen: bool = True) -> DiscoveryResult:
     """Find, name and add what a model is missing (CONTRACTS §5).
 
     Parameters
@@ -805,6 +809,10 @@ def discover_gap(measured, model, covariates=None, longitude_deg=None, max_effec
         Not used: the loop is deterministic. Accepted for a uniform call signature.
     settings : DiscoverySettings, optional
         Thresholds; ``max_effects`` overrides its field.
+    screen : bool
+        Leave out the spikes of measured - model first
+        (:func:`magcal.discover.inputs.screen_spikes`); the result's ``screened`` says
+        how many and where the first was.
 
     Returns
     -------
@@ -825,12 +833,15 @@ def discover_gap(measured, model, covariates=None, longitude_deg=None, max_effec
     """
     import dataclasses
 
-    from magcal.discover.inputs import align_frames, build_inputs
+    from magcal.discover.inputs import align_frames, build_inputs, screen_spikes
 
     settings = dataclasses.replace(settings or DiscoverySettings(), max_effects=int(max_effects))
     meas, mod, comps = align_frames(measured, model)
+    screened = {}
+    if screen:
+        meas, screened = screen_spikes(meas, mod)
     lon = longitude_deg
     inputs, _ = build_inputs(meas.index, mod, comps, covariates, lon)
     result = discover(inputs, meas[list(comps)].to_numpy(dtype=float), settings,
                       longitude_deg=lon)
-    return result
+    return dataclasses.replace(result, screened=screened)
