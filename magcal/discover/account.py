@@ -89,7 +89,7 @@ def account_lines(result) -> list[str]:
     by = g0.get("by_component", {})
     per = ", ".join(f"{c} {by[c]['rms_nT']:.2f}" for c in result.components if c in by)
     lines = [f"gap: RMS {g0['rms_nT']:.2f} nT over all components ({per} nT)"]
-    left_out = result.screened or {}
+    left_out = result.screened
     if left_out.get("samples"):
         lines.append(f"left out {left_out['samples']} spike sample(s) of measured - model "
                      f"before the fit (the first at {left_out['first']})")

@@ -63,19 +63,7 @@ def scan_step(times_s, residual, margin_s: float = 0.25 * DAY_S):
         r = r[:, None]
     if t.size < 2:
         return None, np.zeros(r.shape[1]), 0.0
-    ok = np.isfinite(r)
-    v = np.where(ok, r, 0.0)
-    cn = np.cumsum(ok, axis=0).astype(float)
-    cs = np.cumsum(v, axis=0)
-    tot_n = cn[-1]
-    tot_s = cs[-1]
-    n1 = cn[:-1]
-    n2 = tot_n - n1
-    s1 = cs[:-1]
-    s2 = tot_s - s1
-    with np.errstate(invalid="ignore", divide="ignore"):
-        between = n1 * n2 / np.maximum(tot_n, 1) * (s1 / n1 - s2 / n2) ** 2
-    between = np.where(np.isfinite(between), between, 0.0).sum(axis=1)
+    between, n1, n2, s1, s2 = _split_sums(r)
     after = t[1:]
     allowed = (after - t[0] >= margin_s) & (t[-1] - after >= margin_s)
     if not allowed.any():
@@ -85,6 +73,34 @@ def scan_step(times_s, residual, margin_s: float = 0.25 * DAY_S):
     with np.errstate(invalid="ignore", divide="ignore"):
         size = s2[k] / n2[k] - s1[k] / n1[k]
     return float(after[k]), np.nan_to_num(size), float(between[k])
+
+
+def split_gain(residual) -> np.ndarray:
+    """Between-segment sum of squares of every split of ``residual`` (n, m) into its
+    first ``j`` samples and the rest, ``j = 1 .. n - 1``, summed over the columns (NaN
+    entries ignored): what a step after sample ``j`` explains (nT^2, or in the columns'
+    units).
+
+    Examples
+    --------
+    >>> split_gain(np.array([[0.0], [0.0], [2.0], [2.0]])).round(6).tolist()
+    [1.333333, 4.0, 1.333333]
+    """
+    r = np.asarray(residual, dtype=float)
+    return _split_sums(r[:, None] if r.ndim == 1 else r)[0]
+
+
+def _split_sums(r: np.ndarray):
+    """``(gain, n1, n2, s1, s2)``: :func:`split_gain` and the counts and sums before
+    and after every split, per column."""
+    ok = np.isfinite(r)
+    cn = np.cumsum(ok, axis=0).astype(float)
+    cs = np.cumsum(np.where(ok, r, 0.0), axis=0)
+    n1, s1 = cn[:-1], cs[:-1]
+    n2, s2 = cn[-1] - n1, cs[-1] - s1
+    with np.errstate(invalid="ignore", divide="ignore"):
+        between = n1 * n2 / np.maximum(cn[-1], 1) * (s1 / n1 - s2 / n2) ** 2
+    return np.where(np.isfinite(between), between, 0.0).sum(axis=1), n1, n2, s1, s2
 
 
 def _uniform_grid(times_s, residual):

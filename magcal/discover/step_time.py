@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from magcal.discover.scan import DAY_S, _binned
+from magcal.discover.scan import DAY_S, _binned, _hourly_bins, split_gain
 from magcal.discover.selection import integrated_autocorr_time
 
 
@@ -95,24 +95,18 @@ def step_time_interval(times_s, residual, t_step_s: float, size_nT, *, level: fl
     n = bins.size
     if n < 2 * margin + 2:
         return None
-    # the step's mean in each bin: its share of the bin's samples at or after the step
+    # the step's mean in each bin: its share of the bin's samples (those with every
+    # component) at or after the step
     valid = np.all(np.isfinite(r), axis=1)
-    idx = np.floor((t[valid] - t[0]) / bin_s).astype(int)
-    count = np.bincount(idx, minlength=means.shape[0])[bins]
-    after = np.bincount(idx, weights=(t[valid] >= t_step_s).astype(float),
-                        minlength=means.shape[0])[bins]
+    share = _hourly_bins(t, np.where(valid, t >= t_step_s, np.nan), bin_s)[1][bins, 0]
     noise = means[bins]
     # long-run variance of the binned noise over every time scale (no detrending: the
     # slow wander of red model error is what misplaces a step by days)
     lrv = np.array([max(float(np.var(noise[:, c])), 1e-24)
                     * integrated_autocorr_time(noise[:, c]) for c in range(r.shape[1])])
-    y = (noise + np.outer(after / count, size)) / np.sqrt(lrv)
     # between-segment sum of squares of every split (j bins before it), in units of the
     # long-run variance: the gain in log-likelihood (x2) of a step there
-    cs = np.cumsum(y, axis=0)
-    j = np.arange(1, n, dtype=float)[:, None]
-    before = cs[:-1]
-    gain = (j * (n - j) / n * (before / j - (cs[-1] - before) / (n - j)) ** 2).sum(axis=1)
+    gain = split_gain((noise + np.outer(share, size)) / np.sqrt(lrv))
     split = np.arange(1, n)
     allowed = (split >= margin) & (n - 1 - split >= margin)
     gain = np.where(allowed, gain, -np.inf)
