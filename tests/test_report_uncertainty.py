@@ -111,7 +111,7 @@ def test_report_holds_the_product_numbers_and_embeds_every_figure(products, tmp_
     for v in ("5.125", "1.250", "diurnal", "1.2500", "0.0125"):  # discover and spin
         assert v in text
     # the step's time with its 95 % interval
-    assert "2019-12-12 00:02 (95 %: after 2019-12-11 23:02, by 2019-12-12 01:02)" in text
+    assert "2019-12-12 00:02 (95 %: after 2019-12-11 23:02, by 2019-12-12 01:02 UTC)" in text
     assert "Not available: no alignment/*conjunction*.json" in text
     # plan disagreement above 0.1 mHz: 0.05 x the 30 s wave of amplitude 2 -> rms 0.0707
     x_rms = 0.05 * 2.0 / np.sqrt(2.0)

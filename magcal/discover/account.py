@@ -10,6 +10,22 @@ from __future__ import annotations
 import numpy as np
 
 
+def step_interval_text(parameters) -> str:
+    """`` (95 %: after <lo>, by <hi> UTC)`` for a step's parameters with ``time_ci95``
+    (ISO times, shown to the minute), else ``""``.
+
+    Examples
+    --------
+    >>> step_interval_text({"time_ci95": ["2019-12-11T23:02:30+00:00",
+    ...                                   "2019-12-12T01:02:30+00:00"]})
+    ' (95 %: after 2019-12-11 23:02, by 2019-12-12 01:02 UTC)'
+    """
+    if "time_ci95" not in parameters:
+        return ""
+    lo, hi = (t[:16].replace("T", " ") for t in parameters["time_ci95"])
+    return f" (95 %: after {lo}, by {hi} UTC)"
+
+
 def _comps(components) -> str:
     return ", ".join(components)
 
@@ -68,11 +84,7 @@ def _what(fe) -> str:
     if name == "periodic":
         return f"periodic ({p['period_h']:.2f} h)"
     if name == "step":
-        when = ""
-        if "time_ci95" in p:  # ISO times: shown to the minute, in UTC
-            lo, hi = (t[:16].replace("T", " ") for t in p["time_ci95"])
-            when = f" (95 %: after {lo}, by {hi} UTC)"
-        return f"step at {p['time']}{when}"
+        return f"step at {p['time']}{step_interval_text(p)}"
     if name == "drift" and "break_time" in p:
         return f"drift (rate change at {p['break_time']})"
     if name == "rotation":

@@ -233,13 +233,18 @@ def joint_step_time(times_s, residual, *, bin_s: float = 3600.0,
     bins = np.flatnonzero(ok)
     if bins.size < 2 * margin + 2:
         return None
-    weight = np.array([1.0 / np.sqrt(_long_run_variance(means[ok, c], max(int(DAY_S / bin_s), 3)))
+    weight = np.array([1.0 / np.sqrt(_long_run_variance(means[ok, c], _day_lags(bin_s)))
                        for c in range(r.shape[1])])
     after, _, _ = scan_step(np.arange(bins.size, dtype=float), means[ok] * weight,
                             margin_s=margin)
     if after is None:
         return None
     return _step_sample(t, r * weight, starts, ok, int(bins[int(after)]), bin_s)
+
+
+def _day_lags(bin_s: float) -> int:
+    """Lags of a day (at least 3) in bins of ``bin_s``: the long-run variance's window."""
+    return max(int(DAY_S / bin_s), 3)
 
 
 def _binned(times_s, residual, bin_s: float, margin_s: float):
@@ -350,7 +355,7 @@ def change_points(times_s, residual, *, kind: str = "step", bin_s: float = 3600.
         else:  # a drift's hinge needs true time: bridge gaps linearly
             bins = np.arange(nb)
             x = np.interp(bins, np.flatnonzero(ok), x[ok])
-        s2 = _long_run_variance(x, max(int(DAY_S / bin_s), 3))
+        s2 = _long_run_variance(x, _day_lags(bin_s))
         cost = CumsumL2() if kind == "step" else CumsumCLinear()
         algo = rpt.Binseg(custom_cost=cost, min_size=margin, jump=1 if kind == "step" else 2)
         found = algo.fit(x[:, None]).predict(pen=penalty * s2 * np.log(x.size))[:-1]

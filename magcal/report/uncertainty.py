@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from magcal.discover.account import step_interval_text
 from magcal.report.budget import ABOVE, BELOW, DIRECTION, Contribution, budget_rows
 from magcal.report.document import Document, Figure, Paragraph, Table
 
@@ -594,12 +595,9 @@ def discover_section(root: Path) -> tuple:
 
     def when(e):  # a step's time and its 95 % interval; a drift's break
         p = e.get("parameters") or {}
-        if "time" in p and "time_ci95" in p:
-            lo, hi = (v[:16].replace("T", " ") for v in p["time_ci95"])
-            return f"{p['time'][:16].replace('T', ' ')} (95 %: after {lo}, by {hi})"
         for key in ("time", "break_time"):
             if key in p:
-                return p[key][:16].replace("T", " ")
+                return p[key][:16].replace("T", " ") + step_interval_text(p)
         return "-"
 
     rows = [(e["name"], ",".join(e.get("components", [])), when(e), e["rms_before_nT"],
