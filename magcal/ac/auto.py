@@ -313,11 +313,14 @@ def auto_plan(data: dict, t_s: np.ndarray, target: str, *, alpha_method: str = "
     others = [s for s in data if s != target]
     if not others:
         raise InputError("--auto needs at least one sensor besides the target")
-    if len(t_s) < MIN_AUTO_SAMPLES:
-        raise InputError(f"the record has {len(t_s)} samples; --auto needs at least "
+    # the record is the target's samples, not the grid's span: a two-hour record with a
+    # week's gap is scaled as two hours (windows of days would hold no data)
+    held = int(np.all(np.isfinite(np.asarray(data[target], dtype=float)), axis=1).sum())
+    if held < MIN_AUTO_SAMPLES:
+        raise InputError(f"the record has {held} samples with data; --auto needs at least "
                          f"{MIN_AUTO_SAMPLES} to choose filters and orders (give a plan)")
     dt = sample_period_s(t_s)
-    scales = record_scales(len(t_s), dt, candidate_windows_s)
+    scales = record_scales(held, dt, candidate_windows_s)
     highpass_s = scales["highpass_s"] if highpass_s is None else float(highpass_s)
     if isinstance(fit_highpass_s, str):
         fit_highpass_s = scales["fit_highpass_s"]

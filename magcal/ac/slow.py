@@ -340,8 +340,12 @@ def offset_intervals(data: dict, target: str, dt_s: float) -> tuple[np.ndarray, 
     n = x0.shape[0]
     mask = np.zeros(n, dtype=bool)
     report = {"left_out_rows": 0, "sensors": [], "intervals_s": []}
-    if n * dt_s < MIN_RECORD_S:
-        report["reason"] = f"record under {MIN_RECORD_S:.4g} s: nothing left out"
+    # the record is the samples the target has, not the span: a gap of a week on the
+    # grid would otherwise make a record of two hours long enough, and the fraction
+    # flagged small enough, to leave every sample out
+    held = np.all(np.isfinite(x0), axis=1)
+    if held.sum() * dt_s < MIN_RECORD_S:
+        report["reason"] = f"record under {MIN_RECORD_S:.4g} s of data: nothing left out"
         return mask, report
     from magcal.ac.auto import noise_sigma
 
@@ -350,27 +354,31 @@ def offset_intervals(data: dict, target: str, dt_s: float) -> tuple[np.ndarray, 
     # the boom partner (the quietest other sensor, as --auto pairs it): a noisier
     # reference hides small steps, which its spline then takes for fast changes
     for s in sorted(others, key=lambda s: (not np.isfinite(sigma[s]), sigma[s]))[:1]:
-        b = data[s]
-        sp = slow_part(x0 - np.asarray(b, dtype=float), dt_s, knots_s=(KNOT_S,))
+        diff = x0 - np.asarray(data[s], dtype=float)
+        sp = slow_part(diff, dt_s, knots_s=(KNOT_S,))
         if not sp.applied:
             continue
-        rate = np.linalg.norm(np.gradient(sp.smooth, axis=0), axis=1)
+        # the rate where both sensors have data (the spline is unconstrained in a gap)
+        valid = np.all(np.isfinite(diff), axis=1)
+        rate = np.linalg.norm(np.gradient(sp.smooth, axis=0), axis=1)[valid]
         med = float(np.median(rate))
         thr = max(med + OFFSET_SIGMA * MAD_TO_SIGMA * float(np.median(np.abs(rate - med))),
                   OFFSET_RATE_FACTOR * med)
-        hi = rate > thr
+        hi = np.zeros(n, dtype=bool)
+        hi[valid] = rate > thr
         if hi.any():
             hi = ndimage.binary_dilation(hi, iterations=max(1, int(round(OFFSET_GUARD_S / dt_s))))
             report["sensors"].append(s)
             mask |= hi
-    if mask.mean() > OFFSET_MAX_FRACTION:
-        report["reason"] = (f"{mask.mean():.0%} of the record flagged, over "
+    flagged = float(mask[held].mean())
+    if flagged > OFFSET_MAX_FRACTION:
+        report["reason"] = (f"{flagged:.0%} of the record flagged, over "
                             f"{OFFSET_MAX_FRACTION:.0%}: nothing left out")
         return np.zeros(n, dtype=bool), report
     edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(np.int8), 0]))
     report["intervals_s"] = [[float(a * dt_s), float(b * dt_s)]
                              for a, b in zip(edges[::2], edges[1::2])]
-    report["left_out_rows"] = int(mask.sum())
+    report["left_out_rows"] = int((mask & held).sum())
     report["reason"] = ("intervals where the smooth part of a difference with the target "
                         "changes fast (a sensor's own offset drifting) left out of the fit")
     return mask, report
