@@ -103,6 +103,8 @@ def timescales(d: np.ndarray, dt_s: float) -> dict:
 
     ok = np.all(np.isfinite(d), axis=1)
     x = np.asarray(d, dtype=float)[ok]
+    if x.shape[0] < 4:  # the pair shares no samples: nothing to characterise
+        return {"spectral_peak_period_s": float("nan"), "autocorrelation_1e_s": float("nan")}
     x = x - x.mean(axis=0)
     w, v = np.linalg.eigh(x.T @ x)
     p = x @ v[:, 2]
