@@ -165,6 +165,8 @@ class Delivery:
     onboard_check: BandCheck | None
     #: the smooth slow part taken out of the correction (:mod:`magcal.ac.slow`)
     slow: SlowPart | None = None
+    #: rows of a sensor's own glitch, left out of the band filter's input and the checks
+    glitch_rows: int = 0
 
     @property
     def collapses_to_on_board(self) -> bool:
@@ -178,6 +180,7 @@ class Delivery:
                 "collapses_to_on_board": self.collapses_to_on_board,
                 "slow_offsets": ({"removed": False} if self.slow is None
                                  else self.slow.to_dict()),
+                "glitch_rows_left_out": int(self.glitch_rows),
                 "worse_factor": WORSE_FACTOR,
                 "rule": "no band/component of the delivered product above worse_factor "
                         "times the raw target's power (log-spaced bands, Welch); below "
@@ -200,7 +203,7 @@ def _nan_where(product, raw, onboard):
 
 def deliver(raw: np.ndarray, onboard: np.ndarray, dt_s: float, *, bands_hz=None,
             weights=None, kind: str | None = None,
-            max_rounds: int = 8, slow: bool | None = None) -> Delivery:
+            max_rounds: int = 8, slow: bool | None = None, glitches=None) -> Delivery:
     """The best product that is nowhere worse than ``raw`` (module docstring).
 
     Parameters
@@ -215,6 +218,13 @@ def deliver(raw: np.ndarray, onboard: np.ndarray, dt_s: float, *, bands_hz=None,
         records of at least :data:`magcal.ac.slow.MIN_RECORD_S` only); None and True
         both try it, False keeps the whole correction (PARAMS.json written before
         ``ground.slow_offsets`` existed).
+    glitches : ndarray of bool (n,), optional
+        Rows where a sensor has a glitch of its own (:func:`magcal.ac.robust.glitch_rows`):
+        missing for the band filter, the band weights and the checks; there the
+        product is the constant matrices' (or raw, when raw is delivered). Kept in, a
+        glitch of one sensor enters the correction, which the band filter spreads over
+        the whole record, and the raw target it is checked against is glitched too, so
+        a product worse than raw on every good sample passed the check.
 
     Examples
     --------
@@ -226,15 +236,45 @@ def deliver(raw: np.ndarray, onboard: np.ndarray, dt_s: float, *, bands_hz=None,
     >>> out.kind, out.check.worse_than_raw   # the noise below 0.27 Hz leaks: left out too
     ('band_limited', [])
     """
-    raw = np.asarray(raw, dtype=float)
-    onboard = np.asarray(onboard, dtype=float)
-    if raw.shape != onboard.shape:
-        raise InputError(f"raw {raw.shape} and product {onboard.shape} differ in shape")
+    kw = dict(bands_hz=bands_hz, weights=weights, kind=kind, max_rounds=max_rounds, slow=slow)
+    first = _deliver(raw, onboard, dt_s, **kw)
+    if glitches is None or not np.any(glitches):
+        return first
+    # the product with every row kept wins when it is no worse than raw on the rows
+    # without a glitch and at least as whole a correction (a flagged row may be a
+    # disturber seen by one sensor only, which the whole correction removes)
+    glitches = np.asarray(glitches, dtype=bool)
+    second = _deliver(raw, onboard, dt_s, glitches=glitches, **kw)
+    bad = np.where(glitches[:, None], np.nan, 1.0)
+    check = _check(np.asarray(raw, dtype=float) * bad, first.product * bad, dt_s)
+    if ((check is None or not check.worse_than_raw)
+            and KINDS.index(first.kind) <= KINDS.index(second.kind)):
+        return first
+    return second
+
+
+def _deliver(raw: np.ndarray, onboard: np.ndarray, dt_s: float, *, bands_hz=None,
+            weights=None, kind: str | None = None,
+            max_rounds: int = 8, slow: bool | None = None, glitches=None) -> Delivery:
+    """:func:`deliver` with the glitch rows ``glitches`` (or none) left out."""
+    raw0 = np.asarray(raw, dtype=float)
+    onboard0 = np.asarray(onboard, dtype=float)
+    if raw0.shape != onboard0.shape:
+        raise InputError(f"raw {raw0.shape} and product {onboard0.shape} differ in shape")
+    # raw and onboard: the glitch rows missing (what is filtered and checked);
+    # raw0 and onboard0: every row (what is delivered)
+    raw, onboard = raw0.copy(), onboard0.copy()
+    n_glitch = 0
+    if glitches is not None:
+        glitches = np.asarray(glitches, dtype=bool)
+        raw[glitches] = np.nan
+        onboard[glitches] = np.nan
+        n_glitch = int(glitches.sum())
     onboard_check = _check(raw, onboard, dt_s)
     if onboard_check is None:
-        return Delivery(onboard, "on_board", "record too short for a band check: the "
+        return Delivery(onboard0.copy(), "on_board", "record too short for a band check: the "
                         "on-board product is delivered unchecked", (), np.ones((0, 3)),
-                        None, None)
+                        None, None, glitch_rows=n_glitch)
     sp = None if slow is False else slow_part(onboard - raw, dt_s)
     if sp is not None and sp.applied:
         onboard = onboard - sp.smooth      # NaN rows stay NaN
@@ -246,11 +286,11 @@ def deliver(raw: np.ndarray, onboard: np.ndarray, dt_s: float, *, bands_hz=None,
         bands_hz, weights = select_weights(raw, onboard, dt_s)
     weights = np.array(weights, dtype=float).reshape(-1, 3)
     if weights.size and not weights.any():
-        return Delivery(raw.copy(), "raw", "the fit delivered the raw target (no band "
+        return Delivery(raw0.copy(), "raw", "the fit delivered the raw target (no band "
                         "where the correction helps)", tuple(bands_hz), weights,
-                        _check(raw, raw, dt_s), onboard_check, sp)
+                        _check(raw, raw, dt_s), onboard_check, sp, n_glitch)
     delta_mean = np.nanmean(onboard - raw, axis=0)
-    raw_filled = np.where(np.isfinite(raw), raw, np.nanmean(raw, axis=0))
+    raw_filled = np.where(np.isfinite(raw0), raw0, np.nanmean(raw, axis=0))
     if kind not in ("ground", "band_limited"):
         kind = "on_board" if np.all(weights == 1.0) and sp is None else "ground"
     reason = {"on_board": "the on-board correction raises no band's power: the constant "
@@ -264,18 +304,20 @@ def deliver(raw: np.ndarray, onboard: np.ndarray, dt_s: float, *, bands_hz=None,
                               "worse than raw)"}[kind]
     for _ in range(max_rounds):
         if kind == "on_board":
-            product = onboard
+            product = onboard0.copy()
         else:
             product = _nan_where(raw_filled + band_filter(onboard - raw, dt_s, bands_hz,
                                                           weights) + delta_mean,
-                                 raw, onboard)
-        check = _check(raw, product, dt_s)
+                                 raw0, onboard0)
+            if n_glitch:  # there the constant matrices' product, not spread by a filter
+                product[glitches] = onboard0[glitches]
+        check = _check(raw, _nan_where(product, raw, onboard), dt_s)
         worse = [] if check is None else check.worse_than_raw
         if not worse:
             if sp is not None:
                 reason += f"; {sp.reason}"
             return Delivery(product, kind, reason, tuple(bands_hz), weights, check,
-                            onboard_check, sp)
+                            onboard_check, sp, n_glitch)
         listed = ", ".join(f"{w['band_hz'][0]:.3g}-{w['band_hz'][1]:.3g} Hz {w['component']}"
                            for w in worse[:4])
         for w in worse:
@@ -289,6 +331,6 @@ def deliver(raw: np.ndarray, onboard: np.ndarray, dt_s: float, *, bands_hz=None,
         kind = "band_limited"
         reason = (f"the correction was still above {WORSE_FACTOR:g}x the raw power in "
                   f"{len(worse)} band/component(s) ({listed}): it is left out there")
-    return Delivery(raw.copy(), "raw", f"no band-limited correction met the rule ({reason}): "
+    return Delivery(raw0.copy(), "raw", f"no band-limited correction met the rule ({reason}): "
                     "the raw target is delivered", tuple(bands_hz),
-                    np.zeros_like(weights), _check(raw, raw, dt_s), onboard_check, sp)
+                    np.zeros_like(weights), _check(raw, raw, dt_s), onboard_check, sp, n_glitch)

@@ -357,7 +357,8 @@ class PiCoG:
         if self.check_bands:
             from magcal.ac.bands import deliver
 
-            self.delivery_ = deliver(raw, onboard, grid.dt_s)
+            self.delivery_ = deliver(raw, onboard, grid.dt_s,
+                                     glitches=_glitches(data, self.M_) if self.robust else None)
         self.warnings_ = product_warnings(self.band_check_, self.G_, raw, plan.target)
         if self.delivery_ is not None and self.delivery_.kind != "on_board":
             self.warnings_.insert(0, f"delivered product: {self.delivery_.kind} "
@@ -573,17 +574,19 @@ def apply_params(frame: pd.DataFrame, doc: dict, *, pure_ac: bool = False,
     if (not on_board and doc.get("ground") and target in sensors_in_frame(frame)
             and len(frame) > 2):
         out, _ = deliver_frame(frame, target, out, doc["ground"],
-                               G if keep_correction_offset else None)
+                               G if keep_correction_offset else None, sensors=list(M))
     return out, delivered_warnings(frame, target, out, G)
 
 
 def deliver_frame(frame: pd.DataFrame, target: str, out: pd.DataFrame, ground: dict,
-                  G=None):
+                  G=None, sensors=None):
     """The band-selective product of PARAMS.json ``ground`` on ``frame`` with the
     never-worse-than-raw rule re-checked on these data (:func:`magcal.ac.bands.deliver`).
 
     ``out`` is the on-board product (:func:`apply_upload`); ``G`` is given when it was
     left out of ``out`` (``--keep-correction-offset``): the check adds it back.
+    ``sensors`` (default: every sensor in ``frame``) are those the correction combines:
+    rows where one of them has a glitch of its own are not delivered.
     Returns ``(product frame, Delivery)``; the Delivery is None when the sample grid
     cannot be fitted (then ``out`` is returned unchanged).
     """
@@ -599,9 +602,14 @@ def deliver_frame(frame: pd.DataFrame, target: str, out: pd.DataFrame, ground: d
     r = np.full((grid.n_grid, 3), np.nan)
     o = np.full((grid.n_grid, 3), np.nan)
     r[grid.slots], o[grid.slots] = raw, onboard + shift
+    data = {}
+    for s in sensors if sensors is not None else sensors_in_frame(frame):
+        data[s] = np.full((grid.n_grid, 3), np.nan)
+        data[s][grid.slots] = sensor_array(frame, s)
     res = deliver(r, o, grid.dt_s, bands_hz=[tuple(b) for b in ground.get("bands_hz", [])],
                   weights=ground.get("weights"), kind=ground.get("delivered"),
-                  slow=bool((ground.get("slow_offsets") or {}).get("removed", False)))
+                  slow=bool((ground.get("slow_offsets") or {}).get("removed", False)),
+                  glitches=_glitches(data, data))
     new = out.copy()
     vals = res.product[grid.slots] - shift
     bad = ~np.all(np.isfinite(vals), axis=1)
@@ -609,6 +617,16 @@ def deliver_frame(frame: pd.DataFrame, target: str, out: pd.DataFrame, ground: d
     new["flag"] = np.maximum(new["flag"].to_numpy(), bad.astype(int))
     new.attrs["delivery"] = res.to_dict()
     return new, res
+
+
+def _glitches(data: dict, sensors) -> np.ndarray | None:
+    """Rows of a glitch of one of ``sensors`` (:func:`magcal.ac.robust.glitch_rows`),
+    None with fewer than two sensors (a glitch is told from a disturbance by the other
+    sensor)."""
+    from magcal.ac.robust import glitch_rows
+
+    used = {s: data[s] for s in sensors if s in data}
+    return glitch_rows(used) if len(used) > 1 else None
 
 
 def delivered_warnings(frame: pd.DataFrame, target: str, out: pd.DataFrame, G) -> list[str]:

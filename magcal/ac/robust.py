@@ -143,6 +143,15 @@ def sensor_outliers(data: dict) -> dict:
     return out
 
 
+def glitch_rows(data: dict) -> np.ndarray:
+    """Rows where some sensor has a glitch of its own (:func:`sensor_outliers`): left
+    out of the fit, and of the delivered product's band filter and check, where one
+    glitch would otherwise be spread over the record (:func:`magcal.ac.bands.deliver`)."""
+    bad = sensor_outliers(data)
+    n = len(next(iter(data.values())))
+    return np.logical_or.reduce(list(bad.values())) if bad else np.zeros(n, dtype=bool)
+
+
 def screen(data: dict) -> tuple[dict, dict]:
     """The sensors with every flagged row (:func:`sensor_outliers`) set to NaN in all of
     them, and a JSON-ready report (samples flagged per sensor, rows left out)."""
