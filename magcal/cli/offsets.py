@@ -93,6 +93,7 @@ def run_apply(args) -> int:
     from magcal.io.csv import write_csv_frame
     from magcal.io.formats import read_any
     from magcal.offsets import apply_offsets, outside_valid_windows, read_offsets_csv
+    from magcal.offsets.apply import skipped_windows_note
     from magcal.provenance import make_provenance
 
     path = existing_file(args.input)
@@ -106,6 +107,9 @@ def run_apply(args) -> int:
     out["offset_flag"] = flag.astype(int)
     prov = make_provenance("offsets apply", {}, inputs=[path, args.offsets])
     write_csv_frame(args.output, out, provenance=prov)
+    skipped = skipped_windows_note(table)
+    if skipped:
+        print(f"magcal offsets apply: warning: {skipped}", file=sys.stderr)
     outside = int(outside_valid_windows(times, table).sum())
     if outside:
         print(f"magcal offsets apply: warning: {outside} of {len(out)} samples lie in no "
