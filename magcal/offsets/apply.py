@@ -129,9 +129,10 @@ def skipped_windows_note(table) -> str:
     >>> from types import SimpleNamespace
     >>> c = np.array(["2019-11-04T12", "2019-11-07T12"], dtype="datetime64[ns]")
     >>> tab = SimpleNamespace(center=c, offset_nT=np.array([[1.0], [np.nan]]))
-    >>> print(skipped_windows_note(tab).replace("), ", "),\n"))
-    1 of 2 windows without a valid offset (NaN, fill value or non-finite),
-    skipped: centre 2019-11-07T12:00:00
+    >>> for part in skipped_windows_note(tab).split(", skipped: "):
+    ...     print(part)
+    1 of 2 windows without a valid offset (NaN, fill value or non-finite)
+    centre 2019-11-07T12:00:00
     """
     bad = ~np.all(np.isfinite(np.asarray(table.offset_nT, dtype=float)), axis=1)
     if not bad.any():
