@@ -123,3 +123,29 @@ def test_auto_fit_reports_choices(tmp_path, three_sensor_csv):
     raw = pd.read_csv(path)[["fgmo_x", "fgmo_y", "fgmo_z"]].to_numpy()[ok] - amb[ok]
     raw -= raw.mean(0)
     assert np.sum(raw ** 2) / np.sum(resid ** 2) > 100
+
+
+_EYE = np.eye(3).tolist()
+
+
+@pytest.mark.parametrize("doc, message", [
+    ({"M": {"fgmo": _EYE}, "target": "fgmo", "G": [1.0, 2.0]},
+     "G must be a finite 3 vector, found [1.0, 2.0]"),
+    ({"M": {"fgmo": _EYE}, "target": "fgmo", "G": "abc"}, "G must be a finite 3 vector"),
+    ({"M": "fgmo", "target": "fgmo"}, "M must be an object of sensor: 3x3 matrix, found str"),
+    ({"M": [_EYE], "target": "fgmo"}, "M must be an object of sensor: 3x3 matrix, found list"),
+    ({"M": {"fgmo": "I"}, "target": "fgmo"}, "M['fgmo'] must be a finite 3x3 matrix"),
+    ({"M": {"fgmo": _EYE}, "target": "zzz"}, "target 'zzz' is not a sensor of M (have: fgmo)"),
+])
+def test_apply_refuses_malformed_params_naming_the_key(tmp_path, three_sensor_csv, capsys,
+                                                       doc, message):
+    # sweep: G of 2 elements and M as a string were internal errors (exit 1); a target
+    # that is not in M was accepted (exit 0)
+    path, _, _ = three_sensor_csv
+    params = tmp_path / "bad_params.json"
+    params.write_text(json.dumps({"schema_version": 1, **doc}))
+    out = tmp_path / "clean.csv"
+    assert main(["picog", "apply", str(path), "--params", str(params), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"{params}: {message}" in err and "internal error" not in err
+    assert not out.exists()
