@@ -52,5 +52,23 @@ class InputError(MagcalError, ValueError):
         return ": ".join(parts)
 
 
+def not_a_file_error(path) -> InputError:
+    """The :class:`InputError` for an input ``path`` that is not a file: a directory
+    ("is a directory, expected a file") or nothing at all ("file not found").
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> d = tempfile.mkdtemp()
+    >>> not_a_file_error(d).message, not_a_file_error(d + "/nope.csv").message
+    ('is a directory, expected a file', 'file not found')
+    """
+    from pathlib import Path
+
+    if Path(path).is_dir():
+        return InputError("is a directory, expected a file", file=path)
+    return InputError("file not found", file=path)
+
+
 class NotYetAvailableError(MagcalError):
     """A stage of the chain that is not implemented yet."""

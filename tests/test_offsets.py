@@ -190,3 +190,12 @@ def test_bad_usage():
     with pytest.raises(InputError, match="increasing"):
         OffsetEstimator().fit(t[::-1], np.zeros((10, 3)), np.zeros((10, 3)), np.zeros(10))
     assert isinstance(pd.Timestamp(t[0]), pd.Timestamp)
+
+
+@pytest.mark.parametrize("window_days, step_days, name", [
+    (np.nan, 7.0, "window_days"), (np.inf, 7.0, "window_days"), (28.0, np.nan, "step_days"),
+    (-1.0, 7.0, "window_days")])
+def test_window_grid_refuses_non_finite_or_non_positive(window_days, step_days, name):
+    # sweep: NaN and inf reached int(round(...)) and crashed (ValueError, OverflowError)
+    with pytest.raises(InputError, match=f"{name} must be a finite number > 0"):
+        window_grid(0, 30 * 86_400_000_000_000, window_days, step_days)

@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 
-from magcal.cli._common import add_model_arguments, add_output, existing_file
+from magcal.cli._common import add_model_arguments, add_output, existing_file, positive_float
 from magcal.errors import InputError
 from magcal.offsets.defaults import MIN_DAY_COVERAGE, MIN_LT_COVERAGE
 
@@ -28,8 +28,10 @@ def register(subparsers) -> None:
     add_model_arguments(fit)
     fit.add_argument("--kp-max", type=float, default=1.0,
                      help="largest Kp used (default 1.0; 1+ = 1.33 is excluded)")
-    fit.add_argument("--window-days", type=float, default=28.0, help="window (default 28)")
-    fit.add_argument("--step-days", type=float, default=7.0, help="step (default 7)")
+    fit.add_argument("--window-days", type=positive_float, default=28.0,
+                     help="window in days, > 0 (default 28)")
+    fit.add_argument("--step-days", type=positive_float, default=7.0,
+                     help="step in days, > 0 (default 7)")
     fit.add_argument("--min-used", type=int, default=720,
                      help="fewest quiet 1-min samples for a valid window (default 720)")
     fit.add_argument("--min-day-coverage", type=float, default=MIN_DAY_COVERAGE,

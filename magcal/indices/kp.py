@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from magcal.errors import InputError
+from magcal.errors import InputError, not_a_file_error
 from magcal.timeconv import utc_ns
 
 #: Length of one Kp interval in nanoseconds.
@@ -221,7 +221,7 @@ def detect_kp_format(path: str | os.PathLike) -> str:
     """
     p = Path(path)
     if not p.is_file():
-        raise InputError("file not found", file=p)
+        raise not_a_file_error(p)
     head = _read_lines(p)[:80]
     text = "\n".join(head)
     if "CssiSpaceWeather" in text or "BEGIN OBSERVED" in text:

@@ -35,8 +35,9 @@ def window_grid(first_ns: int, last_ns: int, window_days: float = 28.0,
     >>> (s // DAY_NS).tolist(), (e // DAY_NS).tolist()
     ([0, 7], [28, 35])
     """
-    if window_days <= 0 or step_days <= 0:
-        raise InputError("window_days and step_days must be positive")
+    for name, value in (("window_days", window_days), ("step_days", step_days)):
+        if not (math.isfinite(value) and value > 0):  # NaN or inf: no window grid
+            raise InputError(f"{name} must be a finite number > 0, got {value!r}")
     win = int(round(window_days * DAY_NS))
     step = int(round(step_days * DAY_NS))
     origin = (first_ns // DAY_NS) * DAY_NS if origin_ns is None else int(origin_ns)
