@@ -149,3 +149,16 @@ def test_apply_refuses_malformed_params_naming_the_key(tmp_path, three_sensor_cs
     err = capsys.readouterr().err
     assert f"{params}: {message}" in err and "internal error" not in err
     assert not out.exists()
+
+
+def test_missing_sensor_names_the_file_as_a_path(tmp_path, three_sensor_csv, capsys):
+    # sweep: the file was printed as a list, "['.../missing_col.csv']: column fgmo_y: ..."
+    path, _, _ = three_sensor_csv
+    frame = pd.read_csv(path).drop(columns=["fgmo_y"])
+    bad = tmp_path / "missing_col.csv"
+    frame.to_csv(bad, index=False)
+    assert main(["picog", "fit", str(bad), "--target", "fgmo", "--auto",
+                 "-o", str(tmp_path / "p.json")]) == 2
+    err = capsys.readouterr().err
+    assert f"error: {bad}: column fgmo_y: sensor 'fgmo' is missing from the input" in err
+    assert "['" not in err

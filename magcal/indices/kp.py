@@ -80,8 +80,8 @@ def snap_to_thirds(values, *, what: str = "Kp") -> np.ndarray:
     off = finite & (np.abs(3.0 * kp - thirds) > THIRDS_TOLERANCE)
     off |= finite & ((thirds < 0) | (thirds > 27))
     if off.any():
-        bad = kp[off].ravel()[0]
-        raise InputError(f"{what} value {bad!r} is not on the Kp scale of thirds 0..9 "
+        bad = float(kp[off].ravel()[0])  # a plain number in the message, not np.float64(..)
+        raise InputError(f"{what} value {bad:.6g} is not on the Kp scale of thirds 0..9 "
                          "(e.g. 1.333 or 1.3 for 1+, 1.667 or 1.7 for 2-)")
     return thirds / 3.0
 
