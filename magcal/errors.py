@@ -30,11 +30,18 @@ class InputError(MagcalError, ValueError):
     --------
     >>> str(InputError("time not increasing", file="a.csv", row=12, column="time"))
     'a.csv: row 12: column time: time not increasing'
+
+    A list of files (a reader's ``attrs["source"]``) is named as paths, not a list:
+
+    >>> str(InputError("no sensor 'b'", file=["a.csv"], column="b_x"))
+    "a.csv: column b_x: no sensor 'b'"
     """
 
     def __init__(self, message: str, *, file=None, row: int | None = None,
                  column: str | None = None):
         self.message = message
+        if isinstance(file, (list, tuple)):
+            file = ", ".join(str(f) for f in file) if file else None
         self.file = None if file is None else str(file)
         self.row = row
         self.column = column
@@ -50,6 +57,24 @@ class InputError(MagcalError, ValueError):
             parts.append(f"column {self.column}")
         parts.append(self.message)
         return ": ".join(parts)
+
+
+def not_a_file_error(path) -> InputError:
+    """The :class:`InputError` for an input ``path`` that is not a file: a directory
+    ("is a directory, expected a file") or nothing at all ("file not found").
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> d = tempfile.mkdtemp()
+    >>> not_a_file_error(d).message, not_a_file_error(d + "/nope.csv").message
+    ('is a directory, expected a file', 'file not found')
+    """
+    from pathlib import Path
+
+    if Path(path).is_dir():
+        return InputError("is a directory, expected a file", file=path)
+    return InputError("file not found", file=path)
 
 
 class NotYetAvailableError(MagcalError):

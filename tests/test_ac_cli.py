@@ -179,3 +179,41 @@ def test_glitches_of_the_target_are_not_spread_over_the_record(tmp_path):
     err_raw = (raw[cols].to_numpy() - truth[cols].to_numpy())[good]
     ac = lambda e: float(np.sqrt(np.mean((e - e.mean(0)) ** 2)))  # noqa: E731
     assert ac(err) <= 0.4 and ac(err) < 0.6 * ac(err_raw), (ac(err), ac(err_raw))
+
+_EYE = np.eye(3).tolist()
+
+
+@pytest.mark.parametrize("doc, message", [
+    ({"M": {"fgmo": _EYE}, "target": "fgmo", "G": [1.0, 2.0]},
+     "G must be a finite 3 vector, found [1.0, 2.0]"),
+    ({"M": {"fgmo": _EYE}, "target": "fgmo", "G": "abc"}, "G must be a finite 3 vector"),
+    ({"M": "fgmo", "target": "fgmo"}, "M must be an object of sensor: 3x3 matrix, found str"),
+    ({"M": [_EYE], "target": "fgmo"}, "M must be an object of sensor: 3x3 matrix, found list"),
+    ({"M": {"fgmo": "I"}, "target": "fgmo"}, "M['fgmo'] must be a finite 3x3 matrix"),
+    ({"M": {"fgmo": _EYE}, "target": "zzz"}, "target 'zzz' is not a sensor of M (have: fgmo)"),
+])
+def test_apply_refuses_malformed_params_naming_the_key(tmp_path, three_sensor_csv, capsys,
+                                                       doc, message):
+    # sweep: G of 2 elements and M as a string were internal errors (exit 1); a target
+    # that is not in M was accepted (exit 0)
+    path, _, _ = three_sensor_csv
+    params = tmp_path / "bad_params.json"
+    params.write_text(json.dumps({"schema_version": 1, **doc}))
+    out = tmp_path / "clean.csv"
+    assert main(["picog", "apply", str(path), "--params", str(params), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"{params}: {message}" in err and "internal error" not in err
+    assert not out.exists()
+
+
+def test_missing_sensor_names_the_file_as_a_path(tmp_path, three_sensor_csv, capsys):
+    # sweep: the file was printed as a list, "['.../missing_col.csv']: column fgmo_y: ..."
+    path, _, _ = three_sensor_csv
+    frame = pd.read_csv(path).drop(columns=["fgmo_y"])
+    bad = tmp_path / "missing_col.csv"
+    frame.to_csv(bad, index=False)
+    assert main(["picog", "fit", str(bad), "--target", "fgmo", "--auto",
+                 "-o", str(tmp_path / "p.json")]) == 2
+    err = capsys.readouterr().err
+    assert f"error: {bad}: column fgmo_y: sensor 'fgmo' is missing from the input" in err
+    assert "['" not in err

@@ -190,3 +190,19 @@ def test_kp_at_real_goes_day(real_data):
     kp = read_kp(real_data("indices", "celestrak_SW_2017-2023_subset.txt"))
     values = kp_at(kp, pd.date_range("2017-04-14T01:00", periods=8, freq="3h", tz="UTC"))
     assert_allclose(values * 3, [9, 10, 8, 6, 8, 6, 8, 6], atol=1e-12)
+
+
+@pytest.mark.parametrize("value, shown", [("33", "33"), ("36.667", "36.667"), ("-1", "-1")])
+def test_off_scale_kp_is_printed_as_a_plain_number(tmp_path, capsys, value, shown):
+    # sweep: the message read "Kp value np.float64(33.0) is not on the Kp scale"
+    from magcal.cli import main
+
+    kp = tmp_path / "kp.csv"
+    kp.write_text(f"time,kp\n2019-11-01T00:00:00,1\n2019-11-01T03:00:00,{value}\n")
+    data = tmp_path / "DATA.csv"
+    data.write_text("time,Hp,He,Hn\n2019-11-01T00:00:00,1,2,3\n2019-11-01T00:01:00,1,2,3\n")
+    assert main(["offsets", "fit", str(data), "--kp", str(kp), "--longitude", "128.2",
+                 "-o", str(tmp_path / "OFF.csv")]) == 2
+    err = capsys.readouterr().err
+    assert f"{kp}: row 3: column kp: Kp value {shown} is not on the Kp scale" in err
+    assert "np.float64" not in err

@@ -190,3 +190,27 @@ def test_bad_usage():
     with pytest.raises(InputError, match="increasing"):
         OffsetEstimator().fit(t[::-1], np.zeros((10, 3)), np.zeros((10, 3)), np.zeros(10))
     assert isinstance(pd.Timestamp(t[0]), pd.Timestamp)
+
+
+@pytest.mark.parametrize("window_days, step_days, name", [
+    (np.nan, 7.0, "window_days"), (np.inf, 7.0, "window_days"), (28.0, np.nan, "step_days"),
+    (-1.0, 7.0, "window_days")])
+def test_window_grid_refuses_non_finite_or_non_positive(window_days, step_days, name):
+    # sweep: NaN and inf reached int(round(...)) and crashed (ValueError, OverflowError)
+    with pytest.raises(InputError, match=f"{name} must be a finite number > 0"):
+        window_grid(0, 30 * 86_400_000_000_000, window_days, step_days)
+
+
+def test_window_without_data_names_the_all_nan_column():
+    # sweep: an all-NaN Hp column gave every window "no data in window", naming nothing
+    t = np.datetime64("2019-11-01", "ns") + np.arange(3 * 1440) * MIN
+    data = np.ones((t.size, 3))
+    data[:, 0] = np.nan
+    tab = OffsetEstimator(window_days=1, step_days=1, min_used=10).fit(
+        t, data, np.zeros_like(data), np.zeros(t.size)).table_
+    assert not tab.valid.any()
+    assert set(tab.reason) == {"no data in window: column Hp has no finite value"}
+    # a plain gap (every column empty) keeps the plain reason
+    st = window_statistics(t.astype(np.int64), data, np.ones(t.size, bool),
+                           [0], [1], min_used=1, columns=("Hp", "He", "Hn"))
+    assert st["reason"] == ["no data in window"]

@@ -93,3 +93,49 @@ def test_monthly_offsets_workflow(tmp_path):
     off = pd.read_csv(tmp_path / "OFFSETS.csv")
     assert_allclose(cdf.varget("offset_hpen"), off[["Hp", "He", "Hn"]].to_numpy(), atol=1e-4)
     assert "Provenance" in cdf.globalattsget()
+
+
+def _offsets_csv(path, hp, he):
+    """A 4-window OFFSETS.csv (daily centres, Hn 0) with the given Hp and He cells."""
+    centres = pd.date_range("2019-11-02", periods=4, freq="1D")
+    frame = pd.DataFrame({
+        "center": centres.strftime("%Y-%m-%dT%H:%M:%S"),
+        "start": (centres - pd.Timedelta("12h")).strftime("%Y-%m-%dT%H:%M:%S"),
+        "end": (centres + pd.Timedelta("12h")).strftime("%Y-%m-%dT%H:%M:%S"),
+        "Hp": hp, "He": he, "Hn": ["0"] * 4, "Hp_std": ["1"] * 4, "He_std": ["1"] * 4,
+        "Hn_std": ["1"] * 4, "n_used": ["900"] * 4, "fraction_used": ["0.6"] * 4})
+    frame.to_csv(path, index=False)
+    return path
+
+
+def test_apply_treats_fill_and_nonfinite_offsets_as_missing_windows(tmp_path, capsys):
+    # sweep D5: a -1e31 Hp in OFFSETS.csv was applied (Hp ~ 1e31 on 8639 rows, exit 0)
+    times = pd.date_range("2019-11-01T12:00", "2019-11-05T12:00", freq="1h")
+    data = pd.DataFrame({"time": times.strftime("%Y-%m-%dT%H:%M:%S"), "Hp": 100.0,
+                         "He": 50.0, "Hn": -80.0})
+    data.to_csv(tmp_path / "DATA.csv", index=False)
+    fill = _offsets_csv(tmp_path / "OFF_FILL.csv", ["10", "-1e31", "30", "40"],
+                        ["1", "2", "inf", "4"])
+    nan = _offsets_csv(tmp_path / "OFF_NAN.csv", ["10", "NaN", "30", "40"],
+                       ["1", "2", "NaN", "4"])
+    for name, table in (("FILL", fill), ("NAN", nan)):
+        assert main(["offsets", "apply", str(tmp_path / "DATA.csv"), "--offsets", str(table),
+                     "-o", str(tmp_path / f"CORR_{name}.csv")]) == 0
+    err = capsys.readouterr().err
+    assert "2 of 4 windows without a valid offset" in err
+    assert "2019-11-03T00:00:00" in err and "2019-11-04T00:00:00" in err
+    got = pd.read_csv(tmp_path / "CORR_FILL.csv")
+    want = pd.read_csv(tmp_path / "CORR_NAN.csv")
+    vals = got[["Hp", "He", "Hn"]].to_numpy()
+    assert np.isfinite(vals).all() and np.abs(vals).max() < 200
+    # the fill windows are skipped exactly like NaN windows: Hp interpolated 10 -> 40
+    # between the valid centres of Nov 2 and Nov 5
+    assert_allclose(vals, want[["Hp", "He", "Hn"]].to_numpy())
+    mid = got["time"] == "2019-11-03T12:00:00"
+    assert_allclose(got.loc[mid, "Hp"], 100.0 - 25.0)
+    assert got["offset_flag"].tolist() == want["offset_flag"].tolist()
+    from magcal.offsets import read_offsets_csv
+
+    table = read_offsets_csv(fill)
+    assert table.valid.tolist() == [True, False, False, True]
+    assert "Hp is a fill value" in table.reason[1] and "He is a fill value" in table.reason[2]

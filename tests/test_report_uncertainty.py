@@ -293,3 +293,26 @@ def test_chain_discovery_states_each_amplitude_with_a_standard_error(chain_run):
     name, amp = doc["effects"][0]["name"], doc["effects"][0]["amplitude_nT"]
     c = next(iter(amp))
     assert f"{c} {amp[c]:.3f} +- " in text and name in text
+
+
+@pytest.mark.parametrize("rel, text, message", [
+    ("ac/PARAMS.json", '{"schema_version": 1, "M": ', "not valid JSON (line 1 column 28"),
+    ("ac/PARAMS_paper.json", '{"schema_version": 1, "M": [[1, 0, 0]]}',
+     "key 'M' is a list, expected a dict"),
+    ("alignment/ALIGN.json", "[]", "expected a JSON object, found a list"),
+    ("alignment/ALIGN.json", '{"method": "gls", "n_used": 5}', "missing key 'angles_deg'"),
+    ("spin/CAL.json", '{"schema_version": 1}', "missing key 'spin_tone_before_nT'"),
+    ("discover/REPORT.json", '{"schema_version": 1, "effects": []}',
+     "missing key 'gap_initial'"),
+])
+def test_malformed_product_json_exits_2_naming_file_and_key(tmp_path, capsys, rel, text,
+                                                            message):
+    # sweep: these were internal errors (exit 1: JSONDecodeError, TypeError, KeyError)
+    path = tmp_path / "products" / rel
+    path.parent.mkdir(parents=True)
+    path.write_text(text)
+    out = tmp_path / "r.html"
+    assert main(["report", str(tmp_path / "products"), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"{path}: {message}" in err and "internal error" not in err
+    assert not out.exists()

@@ -647,21 +647,59 @@ def delivered_warnings(frame: pd.DataFrame, target: str, out: pd.DataFrame, G) -
     return product_warnings(check, G, raw, target, recorded_in=None)
 
 
+def _float_array(value, key: str, shape: tuple, file) -> np.ndarray:
+    """``value`` as a finite float array of ``shape``; InputError naming ``key`` otherwise."""
+    what = "x".join(map(str, shape)) + (" matrix" if len(shape) == 2 else " vector")
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        arr = None
+    if isinstance(value, (str, bytes)) or arr is None or arr.shape != shape \
+            or not np.all(np.isfinite(arr)):
+        raise InputError(f"{key} must be a finite {what}, found {value!r:.60}", file=file)
+    return arr
+
+
 def params_from_json(doc: dict, *, file=None) -> tuple[dict, np.ndarray | None, str]:
-    """(M, G, target) from a PARAMS.json document, validated."""
+    """(M, G, target) from a PARAMS.json document, validated.
+
+    Raises
+    ------
+    InputError
+        Naming the key: ``M`` missing, not an object of finite 3x3 matrices or not summing
+        to the identity; ``G`` not a finite 3-vector; ``target`` not a sensor of ``M``.
+
+    Examples
+    --------
+    >>> I = np.eye(3).tolist()
+    >>> params_from_json({"M": {"a": I}, "target": "a", "G": [1, 2]})
+    Traceback (most recent call last):
+    ...
+    magcal.errors.InputError: G must be a finite 3 vector, found [1, 2]
+    >>> params_from_json({"M": {"a": I}, "target": "b"})
+    Traceback (most recent call last):
+    ...
+    magcal.errors.InputError: target 'b' is not a sensor of M (have: a)
+    """
+    if not isinstance(doc, dict):
+        raise InputError(f"expected a JSON object, found a {type(doc).__name__}", file=file)
     for key in ("M", "target"):
         if key not in doc:
             raise InputError(f"missing key {key!r}", file=file)
+    if not isinstance(doc["M"], dict):
+        raise InputError(f"M must be an object of sensor: 3x3 matrix, found "
+                         f"{type(doc['M']).__name__} {doc['M']!r:.60}", file=file)
     M = {}
     for k, v in doc["M"].items():
-        arr = np.asarray(v, dtype=float)
-        if arr.shape != (3, 3) or not np.all(np.isfinite(arr)):
-            raise InputError(f"M[{k!r}] must be a finite 3x3 matrix", file=file)
-        M[k] = arr
+        M[k] = _float_array(v, f"M[{k!r}]", (3, 3), file)
     if not M:
         raise InputError("M is empty", file=file)
+    target = doc["target"]
+    if not isinstance(target, str) or target not in M:
+        raise InputError(f"target {target!r} is not a sensor of M (have: {', '.join(M)})",
+                         file=file)
     if np.max(np.abs(sum(M.values()) - np.eye(3))) > 1e-6:
         raise InputError("the M matrices do not sum to the identity (Eq. 33)", file=file)
     G = doc.get("G")
-    G = None if G is None else np.asarray(G, dtype=float)
-    return M, G, doc["target"]
+    G = None if G is None else _float_array(G, "G", (3,), file)
+    return M, G, target

@@ -53,7 +53,7 @@ import pandas as pd
 
 from magcal.ac.chain import Order, Plan, Stage
 from magcal.ac.core import DIRECTION_METHODS
-from magcal.errors import InputError
+from magcal.errors import InputError, not_a_file_error
 
 _NAME = re.compile(r"^[a-z0-9_]+$")
 
@@ -249,7 +249,7 @@ def read_plan(path) -> tuple[Plan, dict]:
     """Read and validate a PLAN.toml file."""
     p = Path(path)
     if not p.is_file():
-        raise InputError("file not found", file=p)
+        raise not_a_file_error(p)
     try:
         doc = tomllib.loads(p.read_text())
     except tomllib.TOMLDecodeError as exc:

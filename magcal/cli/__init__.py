@@ -92,6 +92,7 @@ def debug_requested(argv: list[str], environ=None) -> tuple[list[str], bool]:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the ``magcal`` command; return the exit status."""
+    from magcal.cli._common import check_output_files
     from magcal.offline import configure_offline
 
     parser = build_parser()
@@ -102,6 +103,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     configure_offline()
     try:
+        check_output_files(args)
         status = args.func(args)
     except InputError as exc:
         print(f"magcal {args.verb}: error: {exc}", file=sys.stderr)

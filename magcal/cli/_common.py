@@ -4,20 +4,69 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from magcal.errors import InputError
+from magcal.errors import InputError, not_a_file_error
 
 
 def existing_file(path: str) -> Path:
     """Check that an input file exists; raise :class:`InputError` otherwise."""
     p = Path(path)
     if not p.is_file():
-        raise InputError("file not found", file=p)
+        raise not_a_file_error(p)
     return p
 
 
 def add_output(parser, required: bool = True, help_text: str = "output file") -> None:
-    """Add the standard ``-o/--output`` option."""
+    """Add the standard ``-o/--output`` option (an output file, checked by
+    :func:`check_output_files` before the verb runs)."""
     parser.add_argument("-o", "--output", required=required, help=help_text)
+    parser.set_defaults(file_outputs=("output",))
+
+
+def check_output_files(args) -> None:
+    """Refuse output files that are existing directories, for every verb at once.
+
+    ``args.file_outputs`` names the options that hold output *files* (set by
+    :func:`add_output`; verbs writing a folder, like ``run`` and ``demo``, have none).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from types import SimpleNamespace
+    >>> d = tempfile.mkdtemp()
+    >>> check_output_files(SimpleNamespace(file_outputs=("output",), output=d))
+    Traceback (most recent call last):
+    ...
+    magcal.errors.InputError: ...: is a directory, expected an output file (give a file name)
+    """
+    for name in getattr(args, "file_outputs", ()):
+        value = getattr(args, name, None)
+        if value is not None and Path(value).is_dir():
+            raise InputError("is a directory, expected an output file (give a file name)",
+                             file=value)
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0 (``nan``, ``inf`` and ``-5`` are usage errors).
+
+    Examples
+    --------
+    >>> positive_float("28")
+    28.0
+    >>> positive_float("nan")
+    Traceback (most recent call last):
+    ...
+    argparse.ArgumentTypeError: must be a finite number > 0, got 'nan'
+    """
+    import argparse
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return value
 
 
 def add_model_arguments(p) -> None:

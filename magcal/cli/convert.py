@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import sys
 
+from magcal.cli._common import add_output
 from magcal.io.formats import FORMATS
 
 
@@ -16,7 +17,7 @@ def register(subparsers) -> None:
                     "joined in time order, as a CONTRACTS §0 CSV, an ISTP CDF or a CF-1.8 "
                     "netCDF4 file.")
     p.add_argument("inputs", nargs="+", help="input file(s)")
-    p.add_argument("-o", "--output", required=True, help="output file (.csv, .csv.gz, .cdf or .nc)")
+    add_output(p, help_text="output file (.csv, .csv.gz, .cdf or .nc)")
     p.add_argument("--to", choices=("csv", "cdf", "netcdf"), default=None,
                    help="output format (default: from the output name; CSV unless .cdf "
                         "or .nc)")

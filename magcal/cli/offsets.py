@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 
-from magcal.cli._common import add_model_arguments, add_output, existing_file
+from magcal.cli._common import add_model_arguments, add_output, existing_file, positive_float
 from magcal.errors import InputError
 from magcal.offsets.defaults import MIN_DAY_COVERAGE, MIN_LT_COVERAGE
 
@@ -28,8 +28,10 @@ def register(subparsers) -> None:
     add_model_arguments(fit)
     fit.add_argument("--kp-max", type=float, default=1.0,
                      help="largest Kp used (default 1.0; 1+ = 1.33 is excluded)")
-    fit.add_argument("--window-days", type=float, default=28.0, help="window (default 28)")
-    fit.add_argument("--step-days", type=float, default=7.0, help="step (default 7)")
+    fit.add_argument("--window-days", type=positive_float, default=28.0,
+                     help="window in days, > 0 (default 28)")
+    fit.add_argument("--step-days", type=positive_float, default=7.0,
+                     help="step in days, > 0 (default 7)")
     fit.add_argument("--min-used", type=int, default=720,
                      help="fewest quiet 1-min samples for a valid window (default 720)")
     fit.add_argument("--min-day-coverage", type=float, default=MIN_DAY_COVERAGE,
@@ -93,6 +95,7 @@ def run_apply(args) -> int:
     from magcal.io.csv import write_csv_frame
     from magcal.io.formats import read_any
     from magcal.offsets import apply_offsets, outside_valid_windows, read_offsets_csv
+    from magcal.offsets.apply import skipped_windows_note
     from magcal.provenance import make_provenance
 
     path = existing_file(args.input)
@@ -106,6 +109,9 @@ def run_apply(args) -> int:
     out["offset_flag"] = flag.astype(int)
     prov = make_provenance("offsets apply", {}, inputs=[path, args.offsets])
     write_csv_frame(args.output, out, provenance=prov)
+    skipped = skipped_windows_note(table)
+    if skipped:
+        print(f"magcal offsets apply: warning: {skipped}", file=sys.stderr)
     outside = int(outside_valid_windows(times, table).sum())
     if outside:
         print(f"magcal offsets apply: warning: {outside} of {len(out)} samples lie in no "

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import sys
 
+from magcal.cli._common import add_output, positive_float
 from magcal.io.formats import FORMATS
 
 
@@ -16,15 +17,16 @@ def register(subparsers) -> None:
                     "1 spike, 2 saturated or stuck, 4 fill or non-finite, 8 time anomaly; "
                     "16 and 32 are set by the chain only). The summary (JSON) goes to stdout.")
     p.add_argument("inputs", nargs="+", help="input file(s), any supported format")
-    p.add_argument("-o", "--output", required=True, help="output CSV: time,quality")
+    add_output(p, help_text="output CSV: time,quality")
     p.add_argument("--config", metavar="CHAIN.toml",
                    help="take the thresholds from this configuration's [qc] section")
     p.add_argument("--sensors", help="comma-separated, physically distinct sensors to check "
                                       "(default: all, frames of one sensor included); a "
                                       "spike that two of them show at once is a field "
                                       "(a spacecraft pulse), not flagged")
-    p.add_argument("--range-nt", type=float, default=None, metavar="NT",
-                   help="declared instrument range in nT: |component| >= NT is saturated")
+    p.add_argument("--range-nt", type=positive_float, default=None, metavar="NT",
+                   help="declared instrument range in nT (> 0): |component| >= NT is "
+                        "saturated")
     p.add_argument("--format", choices=("auto",) + FORMATS, default="auto",
                    help="input format (default: detected from the content)")
     p.set_defaults(func=run)

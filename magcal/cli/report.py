@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from magcal.cli._common import add_output
 from magcal.errors import InputError
 
 
@@ -18,8 +19,9 @@ def register(subparsers) -> None:
             "budget above and below 0.1 mHz, each number with its source file. Missing "
             "products are reported as missing."))
     p.add_argument("products", help="products folder (e.g. the OUTDIR of 'magcal demo')")
-    p.add_argument("-o", "--output", required=True, help="output REPORT.html")
+    add_output(p, help_text="output REPORT.html")
     p.add_argument("--pdf", default=None, help="also write this PDF")
+    p.set_defaults(file_outputs=("output", "pdf"))
     p.add_argument("--title", default="magcal uncertainty report", help="report title")
     p.set_defaults(func=run)
 

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from magcal.errors import InputError
+from magcal.errors import InputError, not_a_file_error
 from magcal.timeconv import utc_ns
 from magcal.indices.kp import kp_to_irbem, snap_to_thirds
 
@@ -64,7 +64,7 @@ def detect_drivers_format(path: str | os.PathLike) -> str:
     """Name of the driver file format (one of :data:`DRIVER_FORMATS`), from the content."""
     p = Path(path)
     if not p.is_file():
-        raise InputError("file not found", file=p)
+        raise not_a_file_error(p)
     with open(p, "rb") as handle:
         magic = handle.read(8)
     if magic == b"\x89HDF\r\n\x1a\n":

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from magcal.errors import InputError
+from magcal.errors import InputError, not_a_file_error
 from magcal.timeconv import utc_ns
 
 #: Length of one Kp interval in nanoseconds.
@@ -80,8 +80,8 @@ def snap_to_thirds(values, *, what: str = "Kp") -> np.ndarray:
     off = finite & (np.abs(3.0 * kp - thirds) > THIRDS_TOLERANCE)
     off |= finite & ((thirds < 0) | (thirds > 27))
     if off.any():
-        bad = kp[off].ravel()[0]
-        raise InputError(f"{what} value {bad!r} is not on the Kp scale of thirds 0..9 "
+        bad = float(kp[off].ravel()[0])  # a plain number in the message, not np.float64(..)
+        raise InputError(f"{what} value {bad:.6g} is not on the Kp scale of thirds 0..9 "
                          "(e.g. 1.333 or 1.3 for 1+, 1.667 or 1.7 for 2-)")
     return thirds / 3.0
 
@@ -221,7 +221,7 @@ def detect_kp_format(path: str | os.PathLike) -> str:
     """
     p = Path(path)
     if not p.is_file():
-        raise InputError("file not found", file=p)
+        raise not_a_file_error(p)
     head = _read_lines(p)[:80]
     text = "\n".join(head)
     if "CssiSpaceWeather" in text or "BEGIN OBSERVED" in text:

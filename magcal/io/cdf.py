@@ -26,7 +26,7 @@ import numpy as np
 import pandas as pd
 
 from magcal._version import __version__
-from magcal.errors import InputError
+from magcal.errors import InputError, not_a_file_error
 from magcal.io.atomic import atomic_path
 
 #: Fill value for float data in written products (ISTP convention).
@@ -137,7 +137,7 @@ def read_cdf(path: str | os.PathLike, variables=None) -> CDFData:
 
     p = Path(path)
     if not p.is_file():
-        raise InputError("file not found", file=p)
+        raise not_a_file_error(p)
     try:
         cdf = cdflib.CDF(str(p))
         info = cdf.cdf_info()

@@ -22,7 +22,7 @@ from typing import Iterable
 import numpy as np
 import pandas as pd
 
-from magcal.errors import InputError
+from magcal.errors import InputError, not_a_file_error
 from magcal.io.atomic import atomic_path
 
 #: Values that instrument files use for "no data"; converted to NaN and counted.
@@ -285,7 +285,7 @@ def read_text_table(path: str | os.PathLike,
     """
     p = Path(path)
     if not p.is_file():
-        raise InputError("file not found", file=p)
+        raise not_a_file_error(p)
     raw = _read_bytes(p)
     if raw.startswith(b"\xef\xbb\xbf"):
         raw = raw[3:]

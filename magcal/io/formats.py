@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from magcal.errors import InputError
+from magcal.errors import InputError, not_a_file_error
 
 #: Formats :func:`read_any` understands, for messages and ``--format`` choices.
 FORMATS = ("csv", "goes-netcdf", "cdf", "netcdf")
@@ -114,7 +114,7 @@ def detect_format(path: str | os.PathLike) -> str:
     """
     p = Path(path)
     if not p.is_file():
-        raise InputError("file not found", file=p)
+        raise not_a_file_error(p)
     raw = _head(p)
     if not raw:
         raise InputError(f"empty file; {_SUPPORTED}", file=p)

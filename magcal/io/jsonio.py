@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from magcal._version import __version__
-from magcal.errors import InputError
+from magcal.errors import InputError, not_a_file_error
 from magcal.io.atomic import atomic_path
 
 SCHEMA_VERSION = 1
@@ -82,8 +82,8 @@ def read_json(path: str | os.PathLike, required: tuple[str, ...] = ()) -> dict:
         If the file is missing, not JSON, lacks ``schema_version`` or a required key.
     """
     p = Path(path)
-    if not p.exists():
-        raise InputError("file not found", file=p)
+    if not p.is_file():
+        raise not_a_file_error(p)
     try:
         data = json.loads(p.read_text())
     except json.JSONDecodeError as exc:

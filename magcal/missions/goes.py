@@ -42,7 +42,7 @@ from typing import Iterable
 import numpy as np
 import pandas as pd
 
-from magcal.errors import InputError
+from magcal.errors import InputError, not_a_file_error
 
 #: Credit line to carry into any product made from these files.
 GOES_CREDIT = ("GOES-R magnetometer L2 data: NOAA/NESDIS/NCEI "
@@ -83,7 +83,7 @@ def _files(paths) -> list[Path]:
         elif p.is_file():
             out.append(p)
         else:
-            raise InputError("file not found", file=p)
+            raise not_a_file_error(p)
     if not out:
         raise InputError("no GOES netCDF files given")
     return out

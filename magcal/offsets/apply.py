@@ -119,6 +119,31 @@ def outside_valid_windows(times, table) -> np.ndarray:
     return ~inside
 
 
+def skipped_windows_note(table) -> str:
+    """What ``offsets apply`` says about windows without a valid offset (NaN, fill value
+    or non-finite in OFFSETS.csv): they are skipped, never applied; '' when there are none.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from types import SimpleNamespace
+    >>> c = np.array(["2019-11-04T12", "2019-11-07T12"], dtype="datetime64[ns]")
+    >>> tab = SimpleNamespace(center=c, offset_nT=np.array([[1.0], [np.nan]]))
+    >>> for part in skipped_windows_note(tab).split(", skipped: "):
+    ...     print(part)
+    1 of 2 windows without a valid offset (NaN, fill value or non-finite)
+    centre 2019-11-07T12:00:00
+    """
+    bad = ~np.all(np.isfinite(np.asarray(table.offset_nT, dtype=float)), axis=1)
+    if not bad.any():
+        return ""
+    centres = [str(np.datetime64(c, "s")) for c in np.asarray(table.center)[bad]]
+    shown = ", ".join(centres[:5]) + (f" and {len(centres) - 5} more" if len(centres) > 5
+                                      else "")
+    return (f"{int(bad.sum())} of {bad.size} windows without a valid offset (NaN, fill value "
+            f"or non-finite), skipped: centre{'s' if len(centres) > 1 else ''} {shown}")
+
+
 def offset_uncertainty(times, table) -> np.ndarray:
     """1-sigma uncertainty (nT) of the interpolated offset at each sample, (n, 3).
 

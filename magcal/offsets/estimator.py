@@ -21,7 +21,7 @@ import numpy as np
 
 from magcal.errors import InputError
 from magcal.offsets.apply import apply_offsets
-from magcal.offsets.table import OffsetTable
+from magcal.offsets.table import COMPONENTS, OffsetTable
 from magcal.offsets.defaults import MIN_DAY_COVERAGE, MIN_LT_COVERAGE
 from magcal.offsets.windows import (DAY_NS, thin_coverage_reason, window_coverage,
                                     window_grid, window_statistics)
@@ -189,7 +189,8 @@ class OffsetEstimator:
         diff = data - model
         used = quiet_mask(kp, self.kp_max) & np.all(np.isfinite(diff), axis=1)
         stats = window_statistics(t, diff, used, starts, ends, self.min_used,
-                                  local_time_h=lt if self.method == "lt_balanced" else None)
+                                  local_time_h=lt if self.method == "lt_balanced" else None,
+                                  columns=COMPONENTS)
         cover = window_coverage(t, used, starts, ends, local_time_h=lt)
         if span_days is None:
             step = float(np.median(np.diff(t))) if t.size > 1 else 0.0

@@ -134,6 +134,43 @@ def write_offsets_csv(path, table: OffsetTable, float_format: str = "%.4f") -> P
     return Path(path)
 
 
+def missing_as_nan(values) -> tuple[np.ndarray, np.ndarray]:
+    """``values`` with fill values (:func:`magcal.io.csv.replace_fill_values`: the -1e31
+    family, -9999) and non-finite numbers as NaN, and where they were.
+
+    Examples
+    --------
+    >>> missing_as_nan([1.5, -1e31, np.inf, -9999.0, np.nan])
+    (array([1.5, nan, nan, nan, nan]), array([False,  True,  True,  True, False]))
+    """
+    from magcal.io.csv import replace_fill_values
+
+    out, _ = replace_fill_values(np.asarray(values, dtype=float))
+    out[~np.isfinite(out)] = np.nan
+    return out, np.isnan(out) & ~np.isnan(np.asarray(values, dtype=float))
+
+
+def missing_offset_reasons(offsets_nT, reason) -> tuple:
+    """``reason`` with a note on each window whose offset ``(k, 3)`` holds a fill value or
+    a non-finite number: such a window is missing (NaN), never applied.
+
+    Examples
+    --------
+    >>> missing_offset_reasons(np.array([[1.0, 2, 3], [-1e31, 2, 3]]), ("", ""))
+    ('', 'offset Hp is a fill value or not finite (-1e+31): window treated as missing')
+    """
+    offsets = np.asarray(offsets_nT, dtype=float)
+    flagged = missing_as_nan(offsets.ravel())[1].reshape(offsets.shape)
+    out = list(reason)
+    for k in np.flatnonzero(flagged.any(axis=1)):
+        j = int(np.flatnonzero(flagged[k])[0])
+        note = (f"offset {COMPONENTS[j]} is a fill value or not finite "
+                f"({offsets[k, j]:g}): window treated as missing")
+        old = str(out[k]) if str(out[k]) not in ("nan", "None") else ""
+        out[k] = f"{note}; {old}" if old else note
+    return tuple(out)
+
+
 def read_offsets_csv(path) -> OffsetTable:
     """Read an ``OFFSETS.csv`` (contract columns required, extras optional).
 
@@ -141,7 +178,8 @@ def read_offsets_csv(path) -> OffsetTable:
     ------
     InputError
         Missing file or column, unparsable time or number (naming the line), or
-        centres not strictly increasing.
+        centres not strictly increasing. Fill values (-1e31 family, -9999) and
+        non-finite numbers are not errors: they read as NaN (a missing window).
     """
     from magcal.io.csv import parse_times, read_text_table
 
@@ -160,7 +198,7 @@ def read_offsets_csv(path) -> OffsetTable:
         raise InputError("window centres not strictly increasing", file=p, row=bad + 2,
                          column="center")
 
-    def num(col, default=np.nan):
+    def num(col, default=np.nan, keep_missing=False):
         if col not in raw.columns:
             return np.full(len(raw), default, dtype=float)
         values = raw[col].str.strip().replace({"": "nan", "null": "nan", "NULL": "nan"})
@@ -170,14 +208,18 @@ def read_offsets_csv(path) -> OffsetTable:
             row = int(np.flatnonzero(bad)[0])
             raise InputError(f"not a number: {raw[col].iloc[row]!r}", file=p, row=row + 2,
                              column=col)
-        return out
+        return out if keep_missing else missing_as_nan(out)[0]
 
+    # fill values and non-finite offsets are missing windows (NaN, skipped by apply),
+    # with the reason saying so; the as-given values name them
+    given = np.stack([num(c, keep_missing=True) for c in COMPONENTS], axis=1)
     offset = np.stack([num(c) for c in COMPONENTS], axis=1)
     std = np.stack([num(f"{c}_std") for c in COMPONENTS], axis=1)
     mad = np.stack([num(f"{c}_mad") for c in COMPONENTS], axis=1)
     n_used = np.nan_to_num(num("n_used"), nan=0).astype(np.int64)
     n_av = np.nan_to_num(num("n_available", -1), nan=-1).astype(np.int64)
     reason = tuple(raw["reason"]) if "reason" in raw.columns else ("",) * len(raw)
+    reason = missing_offset_reasons(given, reason)
     cover = {c: np.nan_to_num(num(c, -1), nan=-1).astype(np.int64)
              for c in ("days_covered", "lt_hours_covered")}
     return OffsetTable(center=times["center"], start=times["start"], end=times["end"],

@@ -35,8 +35,9 @@ def window_grid(first_ns: int, last_ns: int, window_days: float = 28.0,
     >>> (s // DAY_NS).tolist(), (e // DAY_NS).tolist()
     ([0, 7], [28, 35])
     """
-    if window_days <= 0 or step_days <= 0:
-        raise InputError("window_days and step_days must be positive")
+    for name, value in (("window_days", window_days), ("step_days", step_days)):
+        if not (math.isfinite(value) and value > 0):  # NaN or inf: no window grid
+            raise InputError(f"{name} must be a finite number > 0, got {value!r}")
     win = int(round(window_days * DAY_NS))
     step = int(round(step_days * DAY_NS))
     origin = (first_ns // DAY_NS) * DAY_NS if origin_ns is None else int(origin_ns)
@@ -49,7 +50,8 @@ def window_grid(first_ns: int, last_ns: int, window_days: float = 28.0,
 
 
 def window_statistics(t_ns, diff, selected, starts_ns, ends_ns, min_used: int = 720,
-                      local_time_h=None, lt_bins: int = 24, min_per_bin: int = 5) -> dict:
+                      local_time_h=None, lt_bins: int = 24, min_per_bin: int = 5,
+                      columns=None) -> dict:
     """Per-window median, std and scaled MAD of ``diff`` over the selected samples.
 
     Parameters
@@ -70,6 +72,9 @@ def window_statistics(t_ns, diff, selected, starts_ns, ends_ns, min_used: int = 
         local time does not leak a local-time field into the offset. Windows with a bin
         holding fewer than ``min_per_bin`` selected samples get NaN and a reason. The
         default (None) is the plain median of CONTRACTS §2.
+    columns : sequence of str, optional
+        Names of the ``diff`` columns, for the reason of a window without data when some
+        columns do have data there (default: ``0, 1, ...``).
 
     Returns
     -------
@@ -108,6 +113,7 @@ def window_statistics(t_ns, diff, selected, starts_ns, ends_ns, min_used: int = 
         lt_bin = np.minimum((np.mod(lt[avail][use], 24.0) / 24.0 * lt_bins).astype(int),
                             lt_bins - 1)
     n_av = np.searchsorted(t_av, ends) - np.searchsorted(t_av, starts)
+    first, last = np.searchsorted(t, starts), np.searchsorted(t, ends)
     lo, hi = np.searchsorted(t_use, starts), np.searchsorted(t_use, ends)
     n_used = hi - lo
     k, m = starts.size, d.shape[1]
@@ -118,7 +124,7 @@ def window_statistics(t_ns, diff, selected, starts_ns, ends_ns, min_used: int = 
     reasons = []
     for i in range(k):
         if n_av[i] == 0:
-            reasons.append("no data in window")
+            reasons.append(no_data_reason(d[first[i]:last[i]], columns))
             continue
         if n_used[i] < max(int(min_used), 1):
             reasons.append(f"too few quiet samples: n_used={int(n_used[i])} < "
@@ -146,6 +152,31 @@ def window_statistics(t_ns, diff, selected, starts_ns, ends_ns, min_used: int = 
         frac = np.where(n_av > 0, n_used / np.maximum(n_av, 1), np.nan)
     return {"median": median, "std": std, "mad": mad, "se": se, "n_used": n_used.astype(np.int64),
             "n_available": n_av.astype(np.int64), "fraction_used": frac, "reason": reasons}
+
+
+def no_data_reason(diff_window, columns=None) -> str:
+    """Why a window has no available sample (a sample needs every column finite): plain
+    "no data in window", or naming the columns without a finite value there when other
+    columns have some (e.g. an all-NaN ``Hp`` column; the window then has no sample).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> no_data_reason(np.array([[np.nan, 1.0, 2.0]] * 3), ["Hp", "He", "Hn"])
+    'no data in window: column Hp has no finite value'
+    >>> no_data_reason(np.full((0, 3), np.nan), ["Hp", "He", "Hn"])
+    'no data in window'
+    """
+    d = np.asarray(diff_window, dtype=float)
+    d = d[:, None] if d.ndim == 1 else d
+    names = [str(c) for c in (range(d.shape[1]) if columns is None else columns)]
+    empty = ~np.isfinite(d).any(axis=0)
+    if d.shape[0] == 0 or empty.all():
+        return "no data in window"
+    which = ", ".join(names[j] for j in np.flatnonzero(empty))
+    many = int(empty.sum()) > 1
+    return (f"no data in window: column{'s' if many else ''} {which} "
+            f"ha{'ve' if many else 's'} no finite value")
 
 
 def window_coverage(t_ns, selected, starts_ns, ends_ns, local_time_h=None,

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from magcal.discover.account import step_interval_text
+from magcal.errors import InputError
 from magcal.report.budget import ABOVE, BELOW, DIRECTION, Contribution, budget_rows
 from magcal.report.document import Document, Figure, Paragraph, Table
 
@@ -48,8 +49,46 @@ def _rel(path: Path, root: Path) -> str:
         return str(path)
 
 
-def _read_json(path: Path) -> dict:
-    return json.loads(path.read_text())
+def _read_json(path: Path, required=()) -> dict:
+    """A product file's JSON object; a malformed one is bad input (exit 2), not a crash.
+
+    Raises
+    ------
+    InputError
+        Not JSON (naming the line and column), not a JSON object, or without a key of
+        ``required`` (naming it).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> p = Path(tempfile.mkdtemp()) / "CAL.json"
+    >>> _ = p.write_text('{"schema_version": 1}')
+    >>> _read_json(p, required=("spin_tone_before_nT",))
+    Traceback (most recent call last):
+    ...
+    magcal.errors.InputError: ...CAL.json: missing key 'spin_tone_before_nT'
+    """
+    try:
+        doc = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        where = (f"line {exc.lineno} column {exc.colno}: "
+                 if isinstance(exc, json.JSONDecodeError) else "")
+        raise InputError(f"not valid JSON ({where}{getattr(exc, 'msg', exc)}; truncated?)",
+                         file=path) from None
+    if not isinstance(doc, dict):
+        raise InputError(f"expected a JSON object, found a {type(doc).__name__}", file=path)
+    return _require(doc, required, path)
+
+
+def _require(doc: dict, keys, path: Path, kind=None) -> dict:
+    """``doc``, after checking it holds ``keys`` (of type ``kind`` if given)."""
+    for key in keys:
+        if key not in doc:
+            raise InputError(f"missing key {key!r}", file=path)
+        if kind is not None and not isinstance(doc[key], kind):
+            raise InputError(f"key {key!r} is a {type(doc[key]).__name__}, expected a "
+                             f"{kind.__name__}", file=path)
+    return doc
 
 
 def _missing(*names) -> Paragraph:
@@ -98,7 +137,7 @@ def ac_section(root: Path, budget: list) -> tuple:
     hp_ratio: dict[str, float] = {}
     for pf in params_files:
         name = pf.stem.removeprefix("PARAMS_")
-        params = _read_json(pf)
+        params = _require(_read_json(pf), ("M",), pf, kind=dict)
         ident = float(np.abs(sum(np.asarray(m, dtype=float) for m in params["M"].values())
                              - np.eye(3)).max())
         steps = params.get("steps", [])
@@ -442,7 +481,7 @@ def alignment_section(root: Path, budget: list) -> tuple:
         budget += [Contribution(b, "alignment", None, "not computed: no alignment/ALIGN.json")
                    for b in (DIRECTION, BELOW)]
         return (_missing("alignment/ALIGN.json"),)
-    doc = _read_json(path)
+    doc = _read_json(path, required=("method", "n_used"))
     src = _rel(path, root)
     items = [Paragraph(
         f"Rotation of the data against the reference (method {doc['method']}, "
@@ -458,6 +497,7 @@ def alignment_section(root: Path, budget: list) -> tuple:
         budget += [Contribution(b, "alignment", None, why, src) for b in (DIRECTION, BELOW)]
         items += [Paragraph("Warning: " + w) for w in doc.get("warnings", [])]
         return tuple(items)
+    _require(doc, ("angles_deg", "std_deg", "ci95_deg"), path, kind=dict)
     rows = [(c, doc["angles_deg"][c], doc["std_deg"][c], doc["ci95_deg"][c][0],
              doc["ci95_deg"][c][1]) for c in COMPONENTS]
     items.append(Table.from_records(
@@ -586,7 +626,8 @@ def discover_section(root: Path) -> tuple:
     path = root / "discover" / "REPORT.json"
     if not path.is_file():
         return (_missing("discover/REPORT.json"),)
-    doc = _read_json(path)
+    doc = _read_json(path, required=("gap_initial", "gap_final"))
+
     def amplitude(e):
         amp, se = e.get("amplitude_nT") or {}, e.get("amplitude_se_nT") or {}
         if not amp:
@@ -620,7 +661,8 @@ def spin_section(root: Path) -> tuple:
     path = root / "spin" / "CAL.json"
     if not path.is_file():
         return (_missing("spin/CAL.json"),)
-    doc = _read_json(path)
+    doc = _require(_read_json(path), ("spin_tone_before_nT", "spin_tone_after_nT"), path,
+                   kind=dict)
     before, after = doc["spin_tone_before_nT"], doc["spin_tone_after_nT"]
     rows = [(k, *[float(x) for x in before[k]], *[float(x) for x in after[k]]) for k in before]
     return (Paragraph("Spin calibration: determined " + ", ".join(doc.get("determined", []))
