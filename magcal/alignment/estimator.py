@@ -11,7 +11,8 @@ from magcal.alignment.checks import (add_systematic, inflate, local_time_check,
                                      select_lt_harmonics, whole_vs_windows,
                                      window_consistency)
 from magcal.alignment.determinability import (MAX_ANGLE_DEG, check_after, check_before,
-                                              identity_fit, not_determinable)
+                                              identity_fit, identity_on_rows,
+                                              not_determinable)
 from magcal.alignment.gls import DEFAULT_NOISE_MODEL, fit_alignment, prepare
 from magcal.alignment.noise import COMPONENTS
 from magcal.alignment.posterior import sample_posterior
@@ -88,6 +89,23 @@ def precision_record(result, closed, without_lt=None) -> dict:
         out["crb_std_without_lt_deg"] = comp(without_lt.std_deg)
         out["std_over_crb_without_lt"] = comp(result.std_deg / without_lt.std_deg)
     return out
+
+
+def screened_record(closed) -> dict | None:
+    """What the closed form's robust screen left out (JSON-ready), None when nothing.
+
+    The count and rule are those of :func:`magcal.alignment.gls.fit_alignment`; with
+    ``--mcmc`` the posterior is sampled on the same rows.
+    """
+    from magcal.alignment.gls import ROBUST_K, ROBUST_K_REFERENCE
+
+    if closed.left_out is None or not closed.left_out.any():
+        return None
+    return {"samples": int(closed.left_out.sum()),
+            "test": f"residual beyond {ROBUST_K_REFERENCE:g} robust std of data - "
+                    f"reference, then beyond {ROBUST_K:g} robust std of the fit "
+                    "(median absolute deviation)",
+            "applies_to": "closed form, posterior and the identity comparison"}
 
 
 def resolve_window_days(window_days, span_days: float):
@@ -222,6 +240,13 @@ class Aligner:
         if verdict.determinable:
             closed, result, warnings, checks = self._fit_rotation(times, data, ref, k,
                                                                   span_days, kw, fits)
+            # the identity must be judged on the rows the rotation (closed form and
+            # posterior alike) was fitted on, not on rows screened differently
+            same = identity_on_rows(identity, closed, times, data, ref,
+                                    lt_harmonics=k if span_days >= 1.0 else 0, **kw)
+            if same is not identity:
+                identity = same
+                verdict = dataclasses.replace(verdict, identity_rms_nT=same.residual_rms_nT)
             verdict = check_after(result, verdict)
         else:
             closed, warnings, checks = None, [], {}
@@ -256,6 +281,10 @@ class Aligner:
 
         closed = closed_form(k)
         warnings, checks = [], {}
+        screened = screened_record(closed)
+        if screened is not None:  # the closed form's count, reported for every method
+            warnings += [w for w in closed.warnings if "left out as outliers" in w]
+            checks["screened"] = screened
         if k == 0 and span_days < AUTO_LT_MIN_DAYS and self.lt_harmonics == "auto":
             checks["local_time_check"] = {
                 "harmonics_fitted": False,
@@ -271,7 +300,11 @@ class Aligner:
         if self.mcmc:
             if self.rng is None:
                 raise MagcalError("Aligner(mcmc=True) needs rng=numpy.random.default_rng(seed)")
-            result = sample_posterior(times, data, ref, self.rng, fit_offset=self.fit_offset,
+            # the posterior sees the rows the closed form kept: its outliers are left
+            # out here too (NaN rows are dropped like missing ones)
+            kept = data if closed.left_out is None else np.where(
+                closed.left_out[:, None], np.nan, np.asarray(data, dtype=float))
+            result = sample_posterior(times, kept, ref, self.rng, fit_offset=self.fit_offset,
                                       fit_scale=self.fit_scale, n_walkers=self.n_walkers,
                                       min_autocorr_times=self.min_autocorr_times,
                                       max_steps=self.max_steps, start=closed,

@@ -370,6 +370,10 @@ def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bo
                     f"(residual beyond {ROBUST_K:g} robust std)",)
     method = "wahba+ou-gls"  # the noise dictionary names the model (OU or OU + white)
     extra = {}
+    if robust:  # the rows left out, in the input's row order (the posterior uses the same)
+        left_out = np.zeros(keep.size, dtype=bool)
+        left_out[np.flatnonzero(keep)[~use]] = True
+        extra["left_out"] = left_out
     if model and model[0] is not None:
         extra["model_param_cov"] = model[0]
     return summarize(theta, cov, names, noise, resid, method=method, dof=dof,

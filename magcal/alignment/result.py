@@ -98,6 +98,11 @@ class AlignmentResult:
     #: order, angles in rad), when the stated ``param_cov`` is another (the spectral
     #: sandwich, :mod:`magcal.alignment.sandwich`); None when they are the same.
     model_param_cov: np.ndarray | None = dataclasses.field(default=None, repr=False)
+    #: Rows of the input (``data``'s row order, all rows) that the robust screen of
+    #: :func:`magcal.alignment.gls.fit_alignment` left out as outliers (bool, shape
+    #: (n,)); None when no screen ran. Not written to JSON (the count is in
+    #: ``warnings`` and, from :class:`~magcal.alignment.estimator.Aligner`, ``screened``).
+    left_out: np.ndarray | None = dataclasses.field(default=None, repr=False)
 
     @property
     def determinable(self) -> bool:

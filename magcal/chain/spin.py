@@ -49,9 +49,9 @@ def _spincal(data, cfg: ChainConfig, files):
     after = max(max(v) for v in doc["spin_tone_after_nT"].values())
     lines = (f"determined {len(doc['determined'])} of 12: {', '.join(doc['determined'])}",
              f"largest spin tone {before:.3f} nT before -> {after:.4f} nT after")
-    warnings = () if after <= before else (
+    warnings = tuple(product.warnings) + (() if after <= before else (
         f"the calibration leaves a larger spin tone ({after:.3f} nT) than the raw data "
-        f"({before:.3f} nT)",)
+        f"({before:.3f} nT)",))
     return doc, StageProduct(stage="spin", summary={"spin_tone_before_nT": before,
                                                     "spin_tone_after_nT": after},
                              lines=lines, documents={"CAL.json": doc}, warnings=warnings)

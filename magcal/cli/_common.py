@@ -91,6 +91,18 @@ def add_model_arguments(p) -> None:
                    help="worker processes for the model (default: all usable cores)")
 
 
+def print_screened(prefix: str, screened: dict | None) -> None:
+    """One stderr line with what the quality screen left out (nothing when none)."""
+    import sys
+
+    if not screened or not screened.get("samples"):
+        return
+    parts = ", ".join(f"{screened[k]} {k.replace('_', ' ')}" for k in
+                      ("fill", "saturated_or_stuck", "spike") if screened.get(k))
+    print(f"{prefix}: screened: {screened['samples']} samples left out ({parts}); "
+          "--no-screen keeps them", file=sys.stderr)
+
+
 def add_spin_arguments(p) -> None:
     """Options shared by ``spincal`` and ``flipper``: phase, units and spin sense."""
     from magcal.spin.inputs import SPIN_SENSES

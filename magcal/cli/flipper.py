@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from magcal.cli._common import add_output, add_spin_arguments, existing_file
+from magcal.cli._common import add_output, add_spin_arguments, existing_file, print_screened
 from magcal.errors import InputError
 
 
@@ -18,6 +18,9 @@ def register(subparsers) -> None:
     add_spin_arguments(p)
     p.add_argument("--cal", help="CAL.json from 'magcal spincal' (flip position 0)")
     p.add_argument("--complete", help="also write CAL.json completed with O3 (needs --cal)")
+    p.add_argument("--no-screen", action="store_true",
+                   help="take the readings as given: do not leave out fill values, "
+                        "saturated or stuck runs and spikes (of the field magnitude) first")
     add_output(p, help_text="FLIP.json")
     p.set_defaults(func=run)
 
@@ -32,7 +35,8 @@ def run(args) -> int:
     if args.complete and not args.cal:
         raise InputError("--complete needs --cal CAL.json")
     data = load_spin_data(src, args.spin_period, args.t0, scale=args.scale,
-                          spin_sense=args.spin_sense, require_flip=True)
+                          spin_sense=args.spin_sense, require_flip=True,
+                          screen=not args.no_screen)
     inputs = [src]
     cal_doc = None
     if args.cal:
@@ -40,7 +44,8 @@ def run(args) -> int:
         cal_doc = read_json(cal_path, required=("coupling", "offsets"))
         inputs.append(cal_path)
     params = {"spin_period_s": args.spin_period, "t0": args.t0, "cal": args.cal,
-              "scale": args.scale, "spin_sense": args.spin_sense}
+              "scale": args.scale, "spin_sense": args.spin_sense,
+              "screen": not args.no_screen}
     try:
         product = flipper(data, coupling=None if cal_doc is None else cal_doc["coupling"],
                           offsets=None if cal_doc is None else cal_doc["offsets"],
@@ -52,6 +57,7 @@ def run(args) -> int:
             raise InputError(exc.message, file=args.cal, column=exc.column) from None
         raise
     write_json(args.output, product.to_json())
+    print_screened("magcal flipper", data.screened)
     if done is not None:
         write_json(args.complete, done)
     return 0

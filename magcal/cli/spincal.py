@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from magcal.cli._common import add_output, add_spin_arguments, existing_file
+import sys
+
+from magcal.cli._common import add_output, add_spin_arguments, existing_file, print_screened
 from magcal.errors import InputError
 
 
@@ -25,6 +27,9 @@ def register(subparsers) -> None:
                    help="whole spins per analysis block (default 1)")
     p.add_argument("--flip-state", type=int, choices=(0, 1), default=0,
                    help="with a flip column, calibrate the rows in this position (default 0)")
+    p.add_argument("--no-screen", action="store_true",
+                   help="take the readings as given: do not leave out fill values, "
+                        "saturated or stuck runs and spikes (of the field magnitude) first")
     add_output(p, help_text="CAL.json")
     p.set_defaults(func=run)
 
@@ -37,7 +42,8 @@ def run(args) -> int:
 
     src = existing_file(args.input)
     data = load_spin_data(src, args.spin_period, args.t0, scale=args.scale,
-                          spin_sense=args.spin_sense, flip_state=args.flip_state)
+                          spin_sense=args.spin_sense, flip_state=args.flip_state,
+                          screen=not args.no_screen)
     inputs = [src]
     c0 = o0 = None
     if args.prior:
@@ -47,7 +53,8 @@ def run(args) -> int:
         inputs.append(prior_path)
     params = {"spin_period_s": args.spin_period, "t0": args.t0, "harmonics": args.harmonics,
               "spins_per_block": args.spins_per_block, "flip_state": args.flip_state,
-              "prior": args.prior, "scale": args.scale, "spin_sense": args.spin_sense}
+              "prior": args.prior, "scale": args.scale, "spin_sense": args.spin_sense,
+              "screen": not args.no_screen}
     try:
         product = spincal(data, coupling0=c0, offsets0=o0, n_harmonics=args.harmonics,
                           spins_per_block=args.spins_per_block, flip_state=args.flip_state,
@@ -57,4 +64,7 @@ def run(args) -> int:
             raise InputError(exc.message, file=args.prior, column=exc.column) from None
         raise
     write_json(args.output, product.to_json())
+    print_screened("magcal spincal", data.screened)
+    for warning in product.warnings:
+        print(f"magcal spincal: warning: {warning}", file=sys.stderr)
     return 0

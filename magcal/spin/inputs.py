@@ -179,6 +179,9 @@ class SpinData:
         What the readings showed (None when the record is too short to measure it).
     n_missing_rows : int
     source : str
+    screened : dict or None
+        Rows the quality screen left out (:func:`magcal.spin.screen.screen_spin`),
+        None when it did not run.
     """
 
     t_s: np.ndarray
@@ -192,6 +195,7 @@ class SpinData:
     assumptions: SpinAssumptions | None = None
     n_missing_rows: int = 0
     source: str = ""
+    screened: dict | None = None
 
     def phase_record(self) -> dict:
         """The ``spin_phase`` block of CAL.json / FLIP.json."""
@@ -201,6 +205,24 @@ class SpinData:
         if self.assumptions is not None:
             out["checks"] = self.assumptions.as_dict()
         return out
+
+
+def unwrap_increasing(phase) -> np.ndarray:
+    """Unwrap a spin phase that increases: add 2 pi at every fall of more than pi.
+
+    Unlike :func:`numpy.unwrap` it leaves a forward jump alone, so an already unwrapped
+    column keeps its turns across a gap (rows missing or screened out).
+
+    Examples
+    --------
+    >>> unwrap_increasing([6.0, 0.2, 1.0, 40.0]).round(3).tolist()
+    [6.0, 6.483, 7.283, 46.283]
+    """
+    p = np.asarray(phase, dtype=float)
+    if p.size < 2:
+        return p.copy()
+    turns = np.concatenate([[0.0], np.cumsum(np.diff(p) < -np.pi)])
+    return p + 2.0 * np.pi * turns
 
 
 def _read_flip(frame, good, path):
@@ -228,7 +250,7 @@ def _phase(frame, t, b, flip, good, path, spin_period_s, t0):
             bad = int(np.flatnonzero(np.isnan(ph))[0])
             raise InputError("missing spin phase", file=path, column="phase",
                              row=int(np.flatnonzero(good)[bad]) + 2)
-        return np.unwrap(ph), "phase column", {}
+        return unwrap_increasing(ph), "phase column", {}
     if spin_period_s is None:
         phase, info = phase_from_data(t, plane_x, b[:, 1])
         return phase, "derived from the rotation of b1, b2", info
@@ -256,7 +278,8 @@ def _phase(frame, t, b, flip, good, path, spin_period_s, t0):
 def load_spin_data(path: str | os.PathLike, spin_period_s: float | None = None,
                    t0: str | None = None, *, scale: float = 1.0,
                    spin_sense: str = "positive", flip_state: int | None = None,
-                   check: bool = True, require_flip: bool = False) -> SpinData:
+                   check: bool = True, require_flip: bool = False,
+                   screen: bool = True) -> SpinData:
     """Read a spinning-spacecraft CSV (CONTRACTS §4), resolve the phase and check it.
 
     Parameters
@@ -280,6 +303,10 @@ def load_spin_data(path: str | os.PathLike, spin_period_s: float | None = None,
         Measure and check the assumptions (:func:`check_spin_assumptions`).
     require_flip : bool
         Refuse a file without a ``flip`` column (the flipper needs one).
+    screen : bool
+        Leave out fill values, saturated or stuck runs and spikes
+        (:func:`magcal.spin.screen.screen_spin`) before the phase is resolved; the
+        count is in ``SpinData.screened``.
 
     Returns
     -------
@@ -299,6 +326,19 @@ def load_spin_data(path: str | os.PathLike, spin_period_s: float | None = None,
         raise InputError(f"scale {scale} must be a positive number of nT per input unit")
     frame = read_any(path, required=["b1", "b2", "b3"])
     good = frame[["b1", "b2", "b3"]].notna().all(axis=1).to_numpy()
+    n_missing = int((~good).sum())
+    if "phase" in frame.columns:  # unwrapped over every row, before rows are left out
+        ph = frame["phase"].to_numpy(dtype=float)
+        if np.isfinite(ph).all():
+            frame = frame.assign(phase=unwrap_increasing(ph))
+    screened = None
+    if screen and len(frame) >= 3:
+        from magcal.spin.screen import screen_spin
+
+        t_all = (frame.index - frame.index[0]).total_seconds().to_numpy()
+        bad, screened = screen_spin(t_all, frame[["b1", "b2", "b3"]].to_numpy(dtype=float)
+                                    * float(scale))
+        good = good & ~bad
     frame = frame[good]
     if len(frame) < 3:
         raise InputError("fewer than 3 rows with all of b1, b2, b3", file=path)
@@ -336,7 +376,7 @@ def load_spin_data(path: str | os.PathLike, spin_period_s: float | None = None,
             found = _checked(t, b, phase, flip, flip_state, path)
     return SpinData(t_s=t, b=b, phase=phase, flip=flip, sense=sense, scale=float(scale),
                     phase_source=source, phase_info=info, assumptions=found,
-                    n_missing_rows=int((~good).sum()), source=str(path))
+                    n_missing_rows=n_missing, source=str(path), screened=screened)
 
 
 def _checked(t, b, phase, flip, flip_state, path) -> SpinAssumptions | None:
