@@ -81,3 +81,12 @@ def test_the_shipped_spinning_sample_has_no_time_anomaly():
     res = check_files([path])
     assert res.result.counts().get("time_anomaly", 0) == 0  # was 34714 of 81000
     assert res.result.flags.size == 81000
+
+
+def test_gaps_are_listed_not_flagged():
+    from magcal.qc.checks import time_gaps
+
+    t = np.delete(np.arange(3600, dtype=np.int64), np.arange(1000, 1100)) * 10**9
+    t[2500:] += 7200 * 10**9
+    assert time_gaps(t, 1.0) == [(1000, 101.0), (2500, 7201.0)]
+    assert not time_mask(t, 1.0).any()

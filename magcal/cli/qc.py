@@ -50,10 +50,9 @@ def run(args) -> int:
     summary = res.to_json()
     for line in res.warnings():
         print(f"magcal qc: warning: {line}", file=sys.stderr)
-    print(json.dumps({k: summary[k] for k in ("n_samples", "n_flagged", "counts", "by_sensor",
-                                                "checked", "incomplete", "units",
-                                                "columns_not_checked") if k in summary},
-                     indent=1))
+    keys = ("n_samples", "n_flagged", "counts", "by_sensor", "checked", "incomplete", "units",
+            "columns_not_checked", "time_gaps")
+    print(json.dumps({k: summary[k] for k in keys if k in summary}, indent=1))
     print(f"magcal qc: {summary['n_flagged']} of {summary['n_samples']} samples flagged "
           f"-> {args.output}", file=sys.stderr)
     return 0

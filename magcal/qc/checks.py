@@ -365,6 +365,25 @@ def time_mask(times_ns, cadence_s: float, *, tolerance: float = 0.25,
     return out | (d > limit)
 
 
+def time_gaps(times_ns, cadence_s: float) -> list:
+    """Gaps of a record: ``(i, step_s)`` for each step into sample ``i`` longer than 1.5
+    clock periods (:func:`clock_period`). They are no anomaly of the samples around
+    them (no bit); ``magcal qc`` lists them.
+
+    Examples
+    --------
+    >>> t = np.delete(np.arange(100), np.arange(40, 50)) * 10**9
+    >>> time_gaps(t, 1.0)
+    [(40, 11.0)]
+    """
+    t = np.asarray(times_ns, dtype=np.int64)
+    if t.size < 2 or not np.isfinite(cadence_s) or cadence_s <= 0:
+        return []
+    step = np.diff(t)
+    at = np.flatnonzero(step > 1.5 * clock_period(t, cadence_s))
+    return [(int(i) + 1, float(step[i]) / 1e9) for i in at]
+
+
 def clock_period(times_ns, cadence_s: float) -> float:
     """The clock's period (ns): the mean of the steps within half a nominal cadence of
     it (the nominal cadence when there is none).

@@ -145,6 +145,13 @@ class FileQuality:
             out["incomplete"] = {s: lay.missing[s] for s in self.sensors if s in lay.missing}
             out["units"] = {s: lay.units[s] for s in self.sensors if s in lay.units}
             out["columns_not_checked"] = list(lay.not_checked)
+        from magcal.qc.checks import time_gaps
+
+        gaps = time_gaps(self.times.as_unit("ns").asi8, self.cadence_s)
+        out["time_gaps"] = {"count": len(gaps), "longest_s": max((g for _, g in gaps),
+                                                                  default=0.0),
+                            "first": [[self.times[i - 1].isoformat(), self.times[i].isoformat(),
+                                       g] for i, g in gaps[:20]]}
         return out
 
     def warnings(self) -> list:
