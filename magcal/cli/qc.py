@@ -50,8 +50,11 @@ def run(args) -> int:
     res = check_files(args.inputs, settings, sensors=sensors, input_format=args.format)
     write_csv_frame(args.output, res.to_frame(), provenance=res.to_json())
     summary = res.to_json()
-    print(json.dumps({k: summary[k] for k in ("n_samples", "n_flagged", "counts",
-                                                "by_sensor")}, indent=1))
+    for line in res.warnings():
+        print(f"magcal qc: warning: {line}", file=sys.stderr)
+    keys = ("n_samples", "n_flagged", "counts", "by_sensor", "checked", "incomplete", "units",
+            "columns_not_checked", "time_gaps")
+    print(json.dumps({k: summary[k] for k in keys if k in summary}, indent=1))
     print(f"magcal qc: {summary['n_flagged']} of {summary['n_samples']} samples flagged "
           f"-> {args.output}", file=sys.stderr)
     return 0

@@ -309,12 +309,28 @@ def saturation_mask(values, *, range_nT: float | None = None, min_run: int = 3) 
 
 
 def time_mask(times_ns, cadence_s: float, *, tolerance: float = 0.25,
-              window: int = 101) -> np.ndarray:
-    """Samples whose stamps are off the record's cadence grid by more than
-    ``tolerance`` of the cadence. The grid's phase is followed locally (circular
-    running median over ``window`` samples), so a clock whose true period differs from
-    the nominal cadence by a little (GOES-R's 0.100054 s stamps) is not an anomaly,
+              window: int = 101, k: float = 8.0, floor: float = 0.01) -> np.ndarray:
+    """Samples whose stamps are off the record's clock grid, or not after the previous
+    stamp (a duplicate or a jump backwards).
+
+    The grid's period is the clock's: the mean of the steps within half a nominal
+    cadence of it (gaps left out), not the nominal (median) step. A clock whose period
+    is not a whole number of the stamps' resolution prints a regular pattern of
+    unequal steps (Galileo's 2/9 s stamped in 1/30 s: 0.2333, 0.2333, 0.2 s), whose
+    median step is not its period; judged against the median step, such a record
+    drifts off the grid by 5 % a sample and was 43 % "anomalous". The grid's phase is
+    followed locally (circular running median over ``window`` samples), so a clock
+    whose true period changes slowly (GOES-R's 0.100054 s stamps) is not an anomaly,
     while a block of shifted stamps shorter than half the window is.
+
+    A stamp is off the grid when its distance from it exceeds ``tolerance`` of the
+    period, or the record's own timing spread: ``k`` robust sigmas of the distances
+    (90th percentile of their absolute values over 1.645; it covers the rounding
+    pattern and the clock's jitter), but at least ``floor`` of the period. On a
+    regular 1 Hz record stamped to the millisecond, one stamp 0.1 s late is off the
+    grid; on Galileo's pattern (distances up to 0.075 of the period) nothing is.
+    Gaps (steps of whole periods, or longer than 1.5 of them) are no anomaly of the
+    samples around them; :func:`time_gaps` lists them.
 
     Examples
     --------
@@ -322,17 +338,66 @@ def time_mask(times_ns, cadence_s: float, *, tolerance: float = 0.25,
     >>> t[100:110] += 12 * 10**9
     >>> np.flatnonzero(time_mask(t, 30.0)).tolist() == list(range(100, 110))
     True
+    >>> s = np.arange(3600) * 10**9
+    >>> s[1000] += 10**8                         # one stamp 0.1 s late at 1 Hz
+    >>> np.flatnonzero(time_mask(s, 1.0)).tolist()
+    [1000]
+    >>> g = np.ceil(np.arange(900) * 2 / 9 * 30 - 1e-9) / 30  # 2/9 s stamped in 1/30 s
+    >>> int(time_mask(np.round(g * 1e9).astype(np.int64), 7 / 30).sum())
+    0
     """
 
     t = np.asarray(times_ns, dtype=np.int64)
+    out = np.zeros(t.size, dtype=bool)
     if t.size < 3 or not np.isfinite(cadence_s) or cadence_s <= 0:
-        return np.zeros(t.size, dtype=bool)
-    c = int(round(cadence_s * 1e9))
-    angle = 2 * np.pi * (((t - t[0]) % c) / c)
+        return out
+    step = np.diff(t)
+    out[1:] = step <= 0  # a duplicate stamp or a jump backwards
+    period = clock_period(t, cadence_s)
+    # the distance of each stamp from a grid of the clock's period, in periods (float:
+    # a day of ns is exact in float64, and the period need not be a whole ns)
+    angle = 2 * np.pi * (np.fmod((t - t[0]).astype(float), period) / period)
     ref = np.arctan2(running_median(np.sin(angle), window),
                      running_median(np.cos(angle), window))
     d = np.abs(np.angle(np.exp(1j * (angle - ref)))) / (2 * np.pi)
-    return d > tolerance
+    sigma = float(np.quantile(d, 0.9)) / Q90_SIGMA
+    limit = min(tolerance, max(k * sigma, floor))
+    return out | (d > limit)
+
+
+def time_gaps(times_ns, cadence_s: float) -> list:
+    """Gaps of a record: ``(i, step_s)`` for each step into sample ``i`` longer than 1.5
+    clock periods (:func:`clock_period`). They are no anomaly of the samples around
+    them (no bit); ``magcal qc`` lists them.
+
+    Examples
+    --------
+    >>> t = np.delete(np.arange(100), np.arange(40, 50)) * 10**9
+    >>> time_gaps(t, 1.0)
+    [(40, 11.0)]
+    """
+    t = np.asarray(times_ns, dtype=np.int64)
+    if t.size < 2 or not np.isfinite(cadence_s) or cadence_s <= 0:
+        return []
+    step = np.diff(t)
+    at = np.flatnonzero(step > 1.5 * clock_period(t, cadence_s))
+    return [(int(i) + 1, float(step[i]) / 1e9) for i in at]
+
+
+def clock_period(times_ns, cadence_s: float) -> float:
+    """The clock's period (ns): the mean of the steps within half a nominal cadence of
+    it (the nominal cadence when there is none).
+
+    Examples
+    --------
+    >>> t = np.round(np.ceil(np.arange(10) * 2 / 9 * 30 - 1e-9) / 30 * 1e9)
+    >>> np.round(np.diff(t)[:3] / 1e9, 4).tolist(), round(clock_period(t.astype(np.int64), 7 / 30))
+    ([0.2333, 0.2333, 0.2], 222222222)
+    """
+    step = np.diff(np.asarray(times_ns, dtype=np.int64)).astype(float)
+    c = cadence_s * 1e9
+    regular = step[(step > 0.5 * c) & (step < 1.5 * c)]
+    return float(regular.mean()) if regular.size else float(c)
 
 
 def running_median(a: np.ndarray, window: int) -> np.ndarray:
