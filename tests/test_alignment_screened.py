@@ -11,7 +11,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from magcal.alignment.determinability import identity_fit, identity_on_rows
 from magcal.alignment.estimator import Aligner
 from magcal.alignment.gls import fit_alignment
 from magcal.alignment.synthetic import synthetic_pair
@@ -60,19 +59,6 @@ def test_mcmc_on_spiky_data_is_determinable_and_holds_the_truth(seed):
     det = res.determinability
     assert np.sqrt(np.mean(det.rotation_rms_nT ** 2)) < np.sqrt(np.mean(det.identity_rms_nT ** 2))
     assert np.all(det.rotation_rms_nT < 3.0)  # nT: the spikes (30-300 nT) are not in it
-
-
-def test_identity_refitted_on_the_rotation_rows_when_screens_differ():
-    case, data, rows = _spiky_case(3)
-    closed = fit_alignment(case.times, data, case.ref)
-    ident = identity_fit(case.times, data, case.ref)
-    # same rows left out: the identity is kept as it is
-    assert identity_on_rows(ident, closed, case.times, data, case.ref) is ident
-    # an identity fit that screened nothing: refitted on the rotation's rows
-    raw = identity_fit(case.times, data, case.ref, robust=False)
-    same = identity_on_rows(raw, closed, case.times, data, case.ref)
-    assert same is not raw and same.n_used == closed.n_used
-    assert np.all(same.residual_rms_nT < 0.5 * raw.residual_rms_nT)
 
 
 def test_clean_data_unchanged_by_the_screen():

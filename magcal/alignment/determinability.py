@@ -151,8 +151,7 @@ def identity_fit(times, data, ref, *, fit_offset: bool = True, fit_scale: bool =
 
     Without any nuisance term the residual is ``data - ref`` and only the noise model is
     fitted (``method="identity"``). ``robust=False`` fits every finite row (no outlier
-    screen): the comparison with a rotation fit on rows already screened
-    (:func:`identity_on_rows`).
+    screen).
     """
     from magcal.alignment.gls import fit_alignment, noise_fitter
 
@@ -169,37 +168,6 @@ def identity_fit(times, data, ref, *, fit_offset: bool = True, fit_scale: bool =
         noise=noise_fitter(noise_model)(resid, t),
         residual_rms_nT=np.sqrt(np.mean(resid ** 2, axis=0)), param_names=(),
         param_cov=np.zeros((0, 0)))
-
-
-def identity_on_rows(identity: AlignmentResult, rotation: AlignmentResult, times, data,
-                     ref, **kw) -> AlignmentResult:
-    """The identity fit on exactly the rows the rotation fit used.
-
-    The rotation fit leaves out its own outliers (``rotation.left_out``), the identity
-    fit its own; compared on different rows, a spike the one kept and the other left
-    out decides the comparison. When the two left out the same rows, ``identity`` is
-    returned as it is; otherwise the identity is refitted, without a screen of its own,
-    on the rows the rotation kept.
-
-    Parameters
-    ----------
-    identity, rotation : AlignmentResult
-        The identity (nuisance-only) fit and the closed-form rotation fit.
-    times, data, ref
-        The inputs both were fitted on.
-    **kw
-        The identity fit's settings (``fit_offset``, ``lt_harmonics``, ...).
-    """
-    rot = rotation.left_out
-    if rot is None:
-        return identity
-    ident = identity.left_out
-    if ident is None:
-        ident = np.zeros_like(rot)
-    if np.array_equal(ident, rot):
-        return identity
-    screened = np.where(rot[:, None], np.nan, np.asarray(data, dtype=float))
-    return identity_fit(times, screened, ref, robust=False, **kw)
 
 
 def rotation_bound(times, data, ref, identity: AlignmentResult, *, fit_offset: bool = True,

@@ -11,8 +11,7 @@ from magcal.alignment.checks import (add_systematic, inflate, local_time_check,
                                      select_lt_harmonics, whole_vs_windows,
                                      window_consistency)
 from magcal.alignment.determinability import (MAX_ANGLE_DEG, check_after, check_before,
-                                              identity_fit, identity_on_rows,
-                                              not_determinable)
+                                              identity_fit, not_determinable)
 from magcal.alignment.gls import DEFAULT_NOISE_MODEL, fit_alignment, prepare
 from magcal.alignment.noise import COMPONENTS
 from magcal.alignment.posterior import sample_posterior
@@ -240,13 +239,6 @@ class Aligner:
         if verdict.determinable:
             closed, result, warnings, checks = self._fit_rotation(times, data, ref, k,
                                                                   span_days, kw, fits)
-            # the identity must be judged on the rows the rotation (closed form and
-            # posterior alike) was fitted on, not on rows screened differently
-            same = identity_on_rows(identity, closed, times, data, ref,
-                                    lt_harmonics=k if span_days >= 1.0 else 0, **kw)
-            if same is not identity:
-                identity = same
-                verdict = dataclasses.replace(verdict, identity_rms_nT=same.residual_rms_nT)
             verdict = check_after(result, verdict)
         else:
             closed, warnings, checks = None, [], {}
