@@ -104,7 +104,7 @@ def screened_record(closed) -> dict | None:
             "test": f"residual beyond {ROBUST_K_REFERENCE:g} robust std of data - "
                     f"reference, then beyond {ROBUST_K:g} robust std of the fit "
                     "(median absolute deviation)",
-            "applies_to": "closed form, posterior and the identity comparison"}
+            "applies_to": "closed form and posterior (the identity is fitted with its own screen)"}
 
 
 def resolve_window_days(window_days, span_days: float):
