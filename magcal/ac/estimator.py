@@ -358,7 +358,8 @@ class PiCoG:
             from magcal.ac.bands import deliver
 
             self.delivery_ = deliver(raw, onboard, grid.dt_s,
-                                     glitches=_glitches(data, self.M_) if self.robust else None)
+                                     glitches=(_glitches(data, self.M_, plan.target)
+                                               if self.robust else None))
         self.warnings_ = product_warnings(self.band_check_, self.G_, raw, plan.target)
         if self.delivery_ is not None and self.delivery_.kind != "on_board":
             self.warnings_.insert(0, f"delivered product: {self.delivery_.kind} "
@@ -609,7 +610,7 @@ def deliver_frame(frame: pd.DataFrame, target: str, out: pd.DataFrame, ground: d
     res = deliver(r, o, grid.dt_s, bands_hz=[tuple(b) for b in ground.get("bands_hz", [])],
                   weights=ground.get("weights"), kind=ground.get("delivered"),
                   slow=bool((ground.get("slow_offsets") or {}).get("removed", False)),
-                  glitches=_glitches(data, data))
+                  glitches=_glitches(data, data, target))
     new = out.copy()
     vals = res.product[grid.slots] - shift
     bad = ~np.all(np.isfinite(vals), axis=1)
@@ -619,14 +620,17 @@ def deliver_frame(frame: pd.DataFrame, target: str, out: pd.DataFrame, ground: d
     return new, res
 
 
-def _glitches(data: dict, sensors) -> np.ndarray | None:
-    """Rows of a glitch of one of ``sensors`` (:func:`magcal.ac.robust.glitch_rows`),
-    None with fewer than two sensors (a glitch is told from a disturbance by the other
-    sensor)."""
-    from magcal.ac.robust import glitch_rows
+def _glitches(data: dict, sensors, target: str) -> np.ndarray | None:
+    """Rows of a glitch of one of ``sensors`` (:func:`magcal.ac.robust.glitch_rows`) or
+    of a suspect target reading (:func:`magcal.ac.robust.target_suspect`); None with
+    fewer than two sensors (a glitch is told from a disturbance by the other sensor)."""
+    from magcal.ac.robust import glitch_rows, target_suspect
 
     used = {s: data[s] for s in sensors if s in data}
-    return glitch_rows(used) if len(used) > 1 else None
+    if len(used) < 2:
+        return None
+    rows = glitch_rows(used)
+    return rows | target_suspect(used[target]) if target in used else rows
 
 
 def delivered_warnings(frame: pd.DataFrame, target: str, out: pd.DataFrame, G) -> list[str]:

@@ -152,6 +152,17 @@ def glitch_rows(data: dict) -> np.ndarray:
     return np.logical_or.reduce(list(bad.values())) if bad else np.zeros(n, dtype=bool)
 
 
+def target_suspect(b: np.ndarray) -> np.ndarray:
+    """Rows where the target itself reads a spike, a saturated component or a stuck
+    value by the quality-control tests (:mod:`magcal.qc.checks`): a raw target with
+    them is no yardstick for the never-worse-than-raw check (a 10-minute saturated
+    component hid a product 2.5x worse than raw on every other row)."""
+    from magcal.qc.checks import saturation_mask, spike_mask, stuck_mask
+
+    b = np.asarray(b, dtype=float)
+    return spike_mask(b) | saturation_mask(b, min_run=STUCK_N) | stuck_mask(b)
+
+
 def screen(data: dict) -> tuple[dict, dict]:
     """The sensors with every flagged row (:func:`sensor_outliers`) set to NaN in all of
     them, and a JSON-ready report (samples flagged per sensor, rows left out)."""
