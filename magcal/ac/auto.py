@@ -283,7 +283,8 @@ def _pair_orders(data, t_s, stages, cur, w, target, partner, obj_before, ctx, re
 def auto_plan(data: dict, t_s: np.ndarray, target: str, *, alpha_method: str = "decorrelate",
               highpass_s: float | None = None, min_gain: float = 0.05, max_orders: int = 3,
               candidate_windows_s=CANDIDATE_WINDOWS_S, fit_highpass_s="scaled",
-              direction: str = "coherent") -> tuple[Plan, dict]:
+              direction: str = "coherent", n_record: int | None = None
+              ) -> tuple[Plan, dict]:
     """Choose references, pair, windows and orders; return the plan and the reasons.
 
     Parameters
@@ -303,6 +304,11 @@ def auto_plan(data: dict, t_s: np.ndarray, target: str, *, alpha_method: str = "
         None: no filtering; "scaled": from :func:`record_scales`).
     direction : {"coherent", "variance"}
         Direction method of every order (see :class:`magcal.ac.chain.Order`).
+    n_record : int, optional
+        Samples the record holds, which the filters are scaled to (default: the rows
+        where ``data[target]`` has data). Given by :class:`magcal.ac.PiCoG` from the
+        target before its glitches were left out: a few glitches do not shorten the
+        record, a gap of a week does not lengthen it.
 
     Returns
     -------
@@ -317,7 +323,8 @@ def auto_plan(data: dict, t_s: np.ndarray, target: str, *, alpha_method: str = "
         raise InputError("--auto needs at least one sensor besides the target")
     # the record is the target's samples, not the grid's span: a two-hour record with a
     # week's gap is scaled as two hours (windows of days would hold no data)
-    held = int(np.all(np.isfinite(np.asarray(data[target], dtype=float)), axis=1).sum())
+    held = (int(np.all(np.isfinite(np.asarray(data[target], dtype=float)), axis=1).sum())
+            if n_record is None else int(n_record))
     if held < MIN_AUTO_SAMPLES:
         raise InputError(f"the record has {held} samples with data; --auto needs at least "
                          f"{MIN_AUTO_SAMPLES} to choose filters and orders (give a plan)")

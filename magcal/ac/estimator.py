@@ -329,7 +329,9 @@ class PiCoG:
             require_common_frame(frame, names)
             _check_valid(data)
             fit_data = self._leave_out_offsets(self._screen(data), target, grid.dt_s)
-            plan, report = auto_plan(fit_data, grid_t, target, alpha_method=self.alpha_method)
+            held = int(np.all(np.isfinite(data[target]), axis=1).sum())
+            plan, report = auto_plan(fit_data, grid_t, target, alpha_method=self.alpha_method,
+                                     n_record=held)
         else:
             if self.plan is None:
                 raise InputError("give a plan or use auto")
