@@ -124,6 +124,9 @@ def test_settings_are_checked_and_bits_are_the_contracts():
         QCSettings(spike_window=4)
     with pytest.raises(InputError, match="unknown key 'spike'"):
         QCSettings.from_mapping({"spike": 3})
+    for bad in (-5.0, 0.0, float("nan"), float("inf")):  # [qc] range_nT as the CLI's option
+        with pytest.raises(InputError, match="range_nT must be a positive"):
+            QCSettings.from_mapping({"range_nT": bad})
     assert not QCSettings.from_mapping({"enabled": False}).enabled
 
 

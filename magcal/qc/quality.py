@@ -71,6 +71,10 @@ class QCSettings:
                      "time_tolerance"):
             if not float(getattr(self, name)) > 0:
                 raise InputError(f"[qc] {name} must be positive", column=f"qc.{name}")
+        if self.range_nT is not None and not 0 < float(self.range_nT) < np.inf:
+            raise InputError(f"[qc] range_nT must be a positive finite number of nT, got "
+                             f"{self.range_nT!r} (every sample would be flagged saturated)",
+                             column="qc.range_nT")
         if self.stuck_samples < 2 or self.saturation_samples < 1:
             raise InputError("[qc] stuck_samples must be >= 2 and saturation_samples >= 1",
                              column="qc.stuck_samples")
