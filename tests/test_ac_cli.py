@@ -128,12 +128,12 @@ def test_auto_fit_reports_choices(tmp_path, three_sensor_csv):
 SAMPLES = __import__("pathlib").Path(__file__).resolve().parents[1] / "data_samples"
 
 
-def test_auto_fit_on_two_hours_a_week_apart_scales_to_the_data_and_is_not_worse(tmp_path):
+def test_auto_fit_on_two_hours_a_week_apart_scales_to_the_data_and_cleans_them(tmp_path):
     """Two hours of the shipped geostationary sample, the second a week after the first:
     ``--auto`` crashed (the slow-offset screen took the week's span for the record and
     left every sample out). The filters are now those of a 2 h record, nothing is left
-    out as a drifting offset, and the delivered fgmo is no worse against the simulator's
-    truth than the raw fgmo."""
+    out as a drifting offset, and the delivered fgmo is cleaned as the two hours alone
+    are, against the simulator's truth."""
     raw = pd.read_csv(SAMPLES / "geostationary_3days_1s.csv.gz", nrows=7200)
     truth = pd.read_csv(SAMPLES / "geostationary_3days_truth.csv.gz", nrows=7200)
     shifted = pd.to_datetime(raw["time"]).where(raw.index < 3600,
@@ -153,7 +153,11 @@ def test_auto_fit_on_two_hours_a_week_apart_scales_to_the_data_and_is_not_worse(
     err = clean[["x", "y", "z"]].to_numpy() - truth[cols].to_numpy()
     err_raw = raw[cols].to_numpy() - truth[cols].to_numpy()
     ac = lambda e: float(np.sqrt(np.mean((e - e.mean(0)) ** 2)))  # noqa: E731
-    assert ac(err) <= ac(err_raw), (ac(err), ac(err_raw))
+    # and cleaned as the two hours alone are (0.29 nT against raw's 0.72): the band
+    # check takes the two pieces' spectra, not the week's interpolated line (on which
+    # raw was delivered)
+    assert doc["ground"]["delivered"] != "raw"
+    assert ac(err) <= 0.5 * ac(err_raw), (ac(err), ac(err_raw))
 
 
 def test_glitches_of_the_target_are_not_spread_over_the_record(tmp_path):

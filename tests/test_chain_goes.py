@@ -105,7 +105,12 @@ def test_picog_says_what_it_removes_and_never_delivers_worse(goes_run):
     ac = load("ac", "AC.json")
     assert ac["removed_rms_nT"] >= 0.0 and ac["identity_error"] < 1e-12
     if ac["n_bands_worse"]:
-        assert ac["delivered"] == "raw"
+        # the constant matrices were worse in some band: the uncleaned target, or a
+        # band-selective product whose own check found no band worse than raw
+        ground = load("ac", "PARAMS.json")["ground"]
+        assert ac["delivered"] == "raw" or (
+            ac["product"] in ("ground", "band_limited") and ground["worse_than_raw"] == []
+            and ground["delivered"] == ac["product"]), (ac["delivered"], ac.get("product"))
         assert any("worse than raw" in w for w in ac["warnings"])
 
 

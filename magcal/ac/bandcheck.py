@@ -67,6 +67,47 @@ def record_bands_hz(n: int, dt_s: float, *, min_bins: int = 6, max_segment_s: fl
     return bands, nper
 
 
+#: A gap longer than this fraction of the samples held splits a record into pieces whose
+#: spectra are averaged (:func:`data_pieces`); shorter gaps are interpolated.
+LONG_GAP_FRACTION = 0.1
+
+
+def data_pieces(raw, clean, long_gap_fraction: float = LONG_GAP_FRACTION) -> list[slice]:
+    """The pieces of a record between its long gaps, longest first.
+
+    A gap (rows where ``raw`` or ``clean`` misses a component) longer than
+    ``long_gap_fraction`` of the rows held splits the record: interpolated, a gap of a
+    week between two hours of data is a week-long straight line, whose spectrum, and
+    the step between the product's and raw's lines, decided the band check. Shorter
+    gaps stay inside a piece (interpolated, as before). A record without a long gap is
+    one piece: the whole record.
+
+    Examples
+    --------
+    >>> x = np.zeros((100, 3)); x[30:80] = np.nan          # a gap as long as the data
+    >>> [(s.start, s.stop) for s in data_pieces(x, x)]
+    [(0, 30), (80, 100)]
+    >>> x = np.zeros((100, 3)); x[30:33] = np.nan
+    >>> [(s.start, s.stop) for s in data_pieces(x, x)]
+    [(0, 100)]
+    """
+    ok = (np.all(np.isfinite(np.asarray(raw, dtype=float)), axis=1)
+          & np.all(np.isfinite(np.asarray(clean, dtype=float)), axis=1))
+    n = ok.size
+    if ok.all() or not ok.any():
+        return [slice(0, n)]
+    edges = np.flatnonzero(np.diff(np.r_[0, (~ok).astype(np.int8), 0]))
+    long_gaps = [(a, b) for a, b in zip(edges[::2], edges[1::2])
+                 if b - a > long_gap_fraction * ok.sum() and 0 < a and b < n]
+    if not long_gaps:
+        return [slice(0, n)]
+    held = np.flatnonzero(ok)
+    bounds = [int(held[0])] + [v for a, b in long_gaps for v in (int(a), int(b))] + \
+        [int(held[-1]) + 1]
+    pieces = [slice(bounds[i], bounds[i + 1]) for i in range(0, len(bounds), 2)]
+    return sorted(pieces, key=lambda sl: sl.stop - sl.start, reverse=True)
+
+
 @dataclass(frozen=True)
 class BandCheck:
     """Raw and cleaned power per band and component (see :func:`band_check`)."""
@@ -137,6 +178,11 @@ def band_check(raw: np.ndarray, clean: np.ndarray, dt_s: float, *, bands_hz=None
     >>> bool(chk.reduction[[lo <= 35 < hi for lo, hi in chk.bands_hz]][0, 0] > 1e3)
     True
     """
+    raw_all, clean_all = np.asarray(raw, dtype=float), np.asarray(clean, dtype=float)
+    raw, clean = raw_all, clean_all
+    pieces = data_pieces(raw, clean)
+    if len(pieces) > 1:  # long gaps: the spectra of the pieces, not of the lines across
+        raw, clean = raw[pieces[0]], clean[pieces[0]]
     raw, clean = fill_nan(raw), fill_nan(clean)
     if bands_hz is None:
         bands_hz, nper = record_bands_hz(raw.shape[0], dt_s)
@@ -144,6 +190,18 @@ def band_check(raw: np.ndarray, clean: np.ndarray, dt_s: float, *, bands_hz=None
         nper = min(raw.shape[0], max(64, raw.shape[0] // 8))
     f, p_raw = signal.welch(raw, fs=1.0 / dt_s, nperseg=nper, axis=0)
     _, p_cln = signal.welch(clean, fs=1.0 / dt_s, nperseg=nper, axis=0)
+    if len(pieces) > 1:  # the others that hold a Welch segment, weighted by their count
+        weight = raw.shape[0] // nper
+        p_raw, p_cln = p_raw * weight, p_cln * weight
+        for sl in pieces[1:]:
+            if sl.stop - sl.start < nper:
+                continue
+            w = (sl.stop - sl.start) // nper
+            r, c = fill_nan(raw_all[sl]), fill_nan(clean_all[sl])
+            p_raw = p_raw + w * signal.welch(r, fs=1.0 / dt_s, nperseg=nper, axis=0)[1]
+            p_cln = p_cln + w * signal.welch(c, fs=1.0 / dt_s, nperseg=nper, axis=0)[1]
+            weight += w
+        p_raw, p_cln = p_raw / weight, p_cln / weight
     rp, cp = [], []
     for lo, hi in bands_hz:
         sel = (f >= lo) & (f < hi) if hi < f[-1] else (f >= lo) & (f <= hi)
