@@ -273,11 +273,18 @@ def batch_standard_error(t_ns, x, batch_ns: int = DAY_NS, min_batches: int = 3,
     varying fields), so the spread over ``sqrt(n)`` says nothing about how well the
     offset is known. Batch means: the window is cut into days, each day's median is one
     batch value, and the standard error is ``sd(batches) / sqrt(n_batches)`` inflated by
-    ``sqrt(1 + 2 r1)`` with ``r1 >= 0`` the lag-one correlation of consecutive days'
-    values (residuals correlated across midnight). Days holding under ``min_fraction``
-    of the fullest day's samples are left out; fewer than ``min_batches`` days give NaN.
-    Measured (issue 21): 95 % intervals hold the true offset in >= 90 % of archives whose
-    model misses an AR(1) field of 3 nT, tau 6 h.
+    ``sqrt((1 + r) / (1 - r))``, the variance factor of the mean of an AR(1) series of
+    days, with ``r`` the lag-one correlation of consecutive days' values plus its
+    small-sample bias ``(1 + 3 r) / n_batches`` (Kendall 1954), within [0, 0.9]. A model
+    miss that stays correlated over days makes every later day's value follow the
+    earlier ones; ``sqrt(1 + 2 r1)`` (the first lag alone, unbiased) held the truth in
+    75 % of 28-day windows whose miss had a 2-day correlation time (now 91 %). Days
+    holding under ``min_fraction`` of the fullest day's samples are left out; fewer than
+    ``min_batches`` days give NaN. Measured over 200 seeded windows of an AR(1) miss of
+    3 nT plus 0.5 nT white noise, 70 % of samples quiet: the 95 % interval (1.96 se)
+    held the true offset in 94 % (tau 6 h), 92 % (tau 12 h), 91 % (tau 2 days), 93 % with
+    a week missing and 92 % with 8 scattered days (the rest is the normal quantile on
+    8-28 batches).
 
     Parameters
     ----------
@@ -291,12 +298,12 @@ def batch_standard_error(t_ns, x, batch_ns: int = DAY_NS, min_batches: int = 3,
     Examples
     --------
     Ten days whose values climb 0, 1, ..., 9: sd / sqrt(10) = 0.957, and consecutive
-    days are correlated (r1 = 0.7), so it is inflated by sqrt(2.4).
+    days are correlated (r1 = 0.7, 0.9 with its bias), so it is inflated by sqrt(19).
 
     >>> t = np.arange(10 * 24) * (DAY_NS // 24)
     >>> x = np.repeat(np.arange(10.0), 24)[:, None]
     >>> batch_standard_error(t, x).round(3)
-    array([1.483])
+    array([4.173])
     """
     t = np.asarray(t_ns, dtype=np.int64)
     x = np.asarray(x, dtype=float)
@@ -316,5 +323,6 @@ def batch_standard_error(t_ns, x, batch_ns: int = DAY_NS, min_batches: int = 3,
     c = b - b.mean(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
         r1 = np.sum(c[1:] * c[:-1], axis=0) / np.sum(c ** 2, axis=0)
-    r1 = np.clip(np.nan_to_num(r1), 0.0, 0.9)
-    return sd / np.sqrt(nb) * np.sqrt(1.0 + 2.0 * r1)
+    r1 = np.nan_to_num(r1)
+    r = np.clip(r1 + (1.0 + 3.0 * np.clip(r1, 0.0, None)) / nb, 0.0, 0.9)
+    return sd / np.sqrt(nb) * np.sqrt((1.0 + r) / (1.0 - r))
