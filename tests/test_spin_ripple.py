@@ -169,3 +169,37 @@ def test_bad_input(rng):
     bad[5, 1] = np.nan
     with pytest.raises(InputError, match="missing values"):
         fit_spin_ripple(t, bad, p, min_spins=1)
+
+
+def _z_scores(config, seeds):
+    """(error / stated std) of the eight determinable parameters, one row per record."""
+    rows = []
+    for seed in seeds:
+        res = simulate_spinning(config, rng=np.random.default_rng(seed))
+        c0, o0 = _priors_from_truth(res.truth)
+        cal = fit_spin_ripple(*_arrays(res), coupling0=c0, offsets0=o0)
+        full = np.concatenate([res.truth.coupling.ravel(), res.truth.offsets_nT])
+        rows.append([(cal.parameter(n) - full[PARAM_NAMES.index(n)]) / cal.std[n]
+                     for n in DETERMINABLE])
+    return np.array(rows)
+
+
+@pytest.mark.slow
+def test_stated_errors_cover_as_claimed_and_are_not_wasteful():
+    """100 seeded Galileo-like records with a 1 nT red natural field (power-law index 2)
+    and 0.05 nT noise: the 95 % intervals hold the truth in 93-99 % of the 800 cases, and
+    the errors' spread is 0.75-1.25 of the stated std in every parameter. On the
+    Galileo-like records (0.2 nT field) the median spread is at least half the stated
+    std. One cluster per spin in the sandwich (before) gave spreads of 0.47-0.88 and
+    0.11-0.51 there: the natural field's block residuals cancel between consecutive
+    spins, which that sandwich counted in full (intervals 2-9x too wide)."""
+    import dataclasses
+
+    red = dataclasses.replace(SpinningConfig.galileo_like(), turbulence_rms_nT=1.0,
+                              noise_nT=0.05)
+    z = _z_scores(red, range(1000, 1100))
+    assert 0.93 <= np.mean(np.abs(z) <= 1.96) <= 0.99, np.mean(np.abs(z) <= 1.96)
+    assert np.all((z.std(axis=0) >= 0.75) & (z.std(axis=0) <= 1.25)), z.std(axis=0)
+    z = _z_scores(SpinningConfig.galileo_like(), range(1000, 1060))
+    assert np.median(z.std(axis=0)) >= 0.5, z.std(axis=0)
+    assert np.mean(np.abs(z) <= 1.96) >= 0.93

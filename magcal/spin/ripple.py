@@ -39,6 +39,11 @@ FIXED_BY_RIPPLE = ("c11", "c12", "c33", "O3")
 #: Despun component names.
 COMPONENTS = ("BX", "BY", "BZ")
 
+#: Consecutive spin blocks summed into one cluster of the sandwich covariance, and the
+#: fewest clusters kept (:func:`solve_ripple`).
+CLUSTER_BLOCKS = 10
+MIN_CLUSTERS = 20
+
 # Signals whose block harmonics are precomputed: b_j cos p, b_j sin p, b_j, cos p, sin p, 1.
 _N_SIGNALS = 12
 
@@ -278,12 +283,22 @@ def prepare_harmonics(t_s, b, phase_rad, *, n_harmonics: int = 2, spins_per_bloc
 
 
 def solve_ripple(harm: np.ndarray, coupling0, offsets0, free=DETERMINABLE, *,
-                 max_iter: int = 20, tol: float = 1e-12
+                 max_iter: int = 20, tol: float = 1e-12, cluster_blocks: int | None = None
                  ) -> tuple[np.ndarray, np.ndarray, int, bool]:
     """Gauss-Newton solution of the ripple problem on precomputed block harmonics.
 
     Returns ``theta`` (12 parameters), the cluster-robust covariance of the free ones,
     the number of iterations and whether the step size fell below ``tol``.
+
+    The covariance is a sandwich whose clusters are ``cluster_blocks`` consecutive
+    blocks (default :data:`CLUSTER_BLOCKS`, fewer when that leaves under
+    :data:`MIN_CLUSTERS` clusters). The natural field a block's harmonics leave in its
+    residual is correlated with the next block's, negatively (lag-one correlation of
+    the block scores -0.2 to -0.7 on Galileo-like records): one cluster per spin counted
+    each block's score in full where consecutive ones cancel, and its 95 % intervals were
+    2-9x wider than the errors over 200 seeded records (all held the truth). Clusters of
+    ten spins: z-score sd 0.89-0.98 and 92-99 % coverage with a 1 nT red natural field,
+    0.46-0.88 on the Galileo-like records.
     """
     idx = _check_free(free)
     theta = np.concatenate([np.asarray(coupling0, float).ravel(), np.asarray(offsets0, float)])
@@ -306,7 +321,11 @@ def solve_ripple(harm: np.ndarray, coupling0, offsets0, free=DETERMINABLE, *,
     jac = np.einsum("bhs,csp->bhcp", harm, dw[:, :, idx]).reshape(nb, -1, len(idx))
     bread = np.linalg.pinv(np.einsum("bkp,bkq->pq", jac, jac))
     score = np.einsum("bkp,bk->bp", jac, r)
-    meat = score.T @ score * nb / max(nb - len(idx), 1)
+    m = CLUSTER_BLOCKS if cluster_blocks is None else int(cluster_blocks)
+    m = max(1, min(m, nb // MIN_CLUSTERS)) if cluster_blocks is None else max(1, m)
+    score = np.add.reduceat(score, np.arange(0, nb, m), axis=0)
+    ng = score.shape[0]
+    meat = score.T @ score * ng / max(ng - len(idx), 1)
     cov = bread @ meat @ bread
     return theta, cov, it, converged
 
