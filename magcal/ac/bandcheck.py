@@ -91,8 +91,9 @@ def data_pieces(raw, clean, long_gap_fraction: float = LONG_GAP_FRACTION) -> lis
     >>> [(s.start, s.stop) for s in data_pieces(x, x)]
     [(0, 100)]
     """
-    ok = (np.all(np.isfinite(np.asarray(raw, dtype=float)), axis=1)
-          & np.all(np.isfinite(np.asarray(clean, dtype=float)), axis=1))
+    raw, clean = np.asarray(raw, dtype=float), np.asarray(clean, dtype=float)
+    ok = (np.isfinite(raw).reshape(len(raw), -1).all(axis=1)
+          & np.isfinite(clean).reshape(len(clean), -1).all(axis=1))
     n = ok.size
     if ok.all() or not ok.any():
         return [slice(0, n)]
@@ -178,28 +179,30 @@ def band_check(raw: np.ndarray, clean: np.ndarray, dt_s: float, *, bands_hz=None
     >>> bool(chk.reduction[[lo <= 35 < hi for lo, hi in chk.bands_hz]][0, 0] > 1e3)
     True
     """
-    raw_all, clean_all = np.asarray(raw, dtype=float), np.asarray(clean, dtype=float)
-    raw, clean = raw_all, clean_all
+    raw, clean = np.asarray(raw, dtype=float), np.asarray(clean, dtype=float)
+    # long gaps: the spectra of the pieces between them (the longest first), not of the
+    # lines interpolated across; a record without one is a single piece
     pieces = data_pieces(raw, clean)
-    if len(pieces) > 1:  # long gaps: the spectra of the pieces, not of the lines across
-        raw, clean = raw[pieces[0]], clean[pieces[0]]
-    raw, clean = fill_nan(raw), fill_nan(clean)
+    n = pieces[0].stop - pieces[0].start
     if bands_hz is None:
-        bands_hz, nper = record_bands_hz(raw.shape[0], dt_s)
+        bands_hz, nper = record_bands_hz(n, dt_s)
     else:
-        nper = min(raw.shape[0], max(64, raw.shape[0] // 8))
-    f, p_raw = signal.welch(raw, fs=1.0 / dt_s, nperseg=nper, axis=0)
-    _, p_cln = signal.welch(clean, fs=1.0 / dt_s, nperseg=nper, axis=0)
+        nper = min(n, max(64, n // 8))
+
+    def psd(x, piece):
+        return signal.welch(fill_nan(x[piece]), fs=1.0 / dt_s, nperseg=nper, axis=0)
+
+    f, p_raw = psd(raw, pieces[0])
+    _, p_cln = psd(clean, pieces[0])
     if len(pieces) > 1:  # the others that hold a Welch segment, weighted by their count
-        weight = raw.shape[0] // nper
+        weight = n // nper
         p_raw, p_cln = p_raw * weight, p_cln * weight
-        for sl in pieces[1:]:
-            if sl.stop - sl.start < nper:
+        for piece in pieces[1:]:
+            w = (piece.stop - piece.start) // nper
+            if w == 0:
                 continue
-            w = (sl.stop - sl.start) // nper
-            r, c = fill_nan(raw_all[sl]), fill_nan(clean_all[sl])
-            p_raw = p_raw + w * signal.welch(r, fs=1.0 / dt_s, nperseg=nper, axis=0)[1]
-            p_cln = p_cln + w * signal.welch(c, fs=1.0 / dt_s, nperseg=nper, axis=0)[1]
+            p_raw = p_raw + w * psd(raw, piece)[1]
+            p_cln = p_cln + w * psd(clean, piece)[1]
             weight += w
         p_raw, p_cln = p_raw / weight, p_cln / weight
     rp, cp = [], []

@@ -126,6 +126,20 @@ class TimeGrid:
         """Grid times (s, the same base as the input times)."""
         return self.t0_s + self.dt_s * np.arange(self.n_grid)
 
+    def place(self, values) -> np.ndarray:
+        """``values`` (one row per input sample) on the grid, NaN in the empty slots.
+
+        Examples
+        --------
+        >>> grid = fit_time_grid(np.array([0.0, 1.0, 2.0, 4.0, 5.0, 6.0]))
+        >>> grid.place(np.arange(6.0)[:, None]).ravel()
+        array([ 0.,  1.,  2., nan,  3.,  4.,  5.])
+        """
+        values = np.asarray(values, dtype=float)
+        out = np.full((self.n_grid,) + values.shape[1:], np.nan)
+        out[self.slots] = values
+        return out
+
     def to_dict(self) -> dict:
         """JSON-ready summary (kept as ``time_grid`` in PARAMS.json)."""
         return {"dt_s": self.dt_s, "rate_hz": 1.0 / self.dt_s, "n_samples": int(len(self.slots)),
@@ -307,15 +321,13 @@ class PiCoG:
         if len(frame) < 3:
             raise InputError("need at least 3 samples to fit")
         grid = fit_time_grid(epoch_seconds(frame.index))
-        slots, n_grid, grid_t = grid.slots, grid.n_grid, grid.times_s
+        n_grid, grid_t = grid.n_grid, grid.times_s
         self.time_grid_ = grid
         self.slow_offsets_ = None
         names = sensors_in_frame(frame)
 
         def gridded(sensor):
-            out = np.full((n_grid, 3), np.nan)
-            out[slots] = sensor_array(frame, sensor)
-            return out
+            return grid.place(sensor_array(frame, sensor))
 
         if self.auto:
             from magcal.ac.auto import auto_plan
@@ -589,26 +601,24 @@ def deliver_frame(frame: pd.DataFrame, target: str, out: pd.DataFrame, ground: d
     ``out`` is the on-board product (:func:`apply_upload`); ``G`` is given when it was
     left out of ``out`` (``--keep-correction-offset``): the check adds it back.
     ``sensors`` (default: every sensor in ``frame``) are those the correction combines:
-    rows where one of them has a glitch of its own are not delivered.
+    rows where one of them has a glitch of its own (or the target a suspect reading) are
+    left out of the band filter's input and the check, and carry the constant matrices'
+    product (:func:`magcal.ac.bands.deliver`).
     Returns ``(product frame, Delivery)``; the Delivery is None when the sample grid
     cannot be fitted (then ``out`` is returned unchanged).
     """
     from magcal.ac.bands import deliver
 
-    raw = sensor_array(frame, target)
     onboard = out[list(COMPONENTS)].to_numpy(dtype=float)
     shift = np.zeros(3) if G is None else np.asarray(G, dtype=float)
     try:
         grid = fit_time_grid(epoch_seconds(frame.index))
     except InputError:
         return out, None
-    r = np.full((grid.n_grid, 3), np.nan)
-    o = np.full((grid.n_grid, 3), np.nan)
-    r[grid.slots], o[grid.slots] = raw, onboard + shift
-    data = {}
-    for s in sensors if sensors is not None else sensors_in_frame(frame):
-        data[s] = np.full((grid.n_grid, 3), np.nan)
-        data[s][grid.slots] = sensor_array(frame, s)
+    names = dict.fromkeys([*(sensors if sensors is not None else sensors_in_frame(frame)),
+                           target])
+    data = {s: grid.place(sensor_array(frame, s)) for s in names}
+    r, o = data[target], grid.place(onboard + shift)
     res = deliver(r, o, grid.dt_s, bands_hz=[tuple(b) for b in ground.get("bands_hz", [])],
                   weights=ground.get("weights"), kind=ground.get("delivered"),
                   slow=bool((ground.get("slow_offsets") or {}).get("removed", False)),
@@ -644,9 +654,7 @@ def delivered_warnings(frame: pd.DataFrame, target: str, out: pd.DataFrame, G) -
     clean = out[list(COMPONENTS)].to_numpy(dtype=float)
     try:
         grid = fit_time_grid(epoch_seconds(frame.index))
-        on_grid = [np.full((grid.n_grid, 3), np.nan) for _ in range(2)]
-        on_grid[0][grid.slots], on_grid[1][grid.slots] = raw, clean
-        check = band_check(*on_grid, grid.dt_s)
+        check = band_check(grid.place(raw), grid.place(clean), grid.dt_s)
     except InputError as exc:
         return product_warnings(None, G, raw, target) + [
             f"no band check of the product: {exc.message}"]

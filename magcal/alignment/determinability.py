@@ -144,21 +144,19 @@ class Determinability:
 
 def identity_fit(times, data, ref, *, fit_offset: bool = True, fit_scale: bool = False,
                  lt_harmonics: int = 0, lon_deg=None,
-                 noise_model: str = DEFAULT_NOISE_MODEL,
-                 robust: bool = True) -> AlignmentResult:
+                 noise_model: str = DEFAULT_NOISE_MODEL) -> AlignmentResult:
     """Fit of the nuisance terms alone (rotation fixed at the identity): the baseline a
     rotation must beat, and the noise model of the bound.
 
     Without any nuisance term the residual is ``data - ref`` and only the noise model is
-    fitted (``method="identity"``). ``robust=False`` fits every finite row (no outlier
-    screen).
+    fitted (``method="identity"``).
     """
     from magcal.alignment.gls import fit_alignment, noise_fitter
 
     if fit_offset or fit_scale or lt_harmonics:
         return fit_alignment(times, data, ref, fit_rotation=False, fit_offset=fit_offset,
                              fit_scale=fit_scale, lt_harmonics=lt_harmonics, lon_deg=lon_deg,
-                             noise_model=noise_model, robust=robust)
+                             noise_model=noise_model)
     t, d, r, _ = prepare(times, data, ref)
     resid = d - r
     return AlignmentResult(

@@ -213,7 +213,7 @@ def read_offsets_csv(path) -> OffsetTable:
     # fill values and non-finite offsets are missing windows (NaN, skipped by apply),
     # with the reason saying so; the as-given values name them
     given = np.stack([num(c, keep_missing=True) for c in COMPONENTS], axis=1)
-    offset = np.stack([num(c) for c in COMPONENTS], axis=1)
+    offset = missing_as_nan(given)[0]
     std = np.stack([num(f"{c}_std") for c in COMPONENTS], axis=1)
     mad = np.stack([num(f"{c}_mad") for c in COMPONENTS], axis=1)
     n_used = np.nan_to_num(num("n_used"), nan=0).astype(np.int64)
