@@ -131,3 +131,23 @@ def test_cli_reports_what_was_screened(tmp_path, capsys):
     assert "screened:" in capsys.readouterr().err
     flip = json.loads((tmp_path / "FLIP.json").read_text())
     assert flip["screened"]["samples"] == doc["screened"]["samples"]
+
+
+def test_chain_read_stage_reports_what_was_screened(tmp_path, capsys):
+    """``magcal run`` on a spiky spinning file says how many rows its stages left out
+    (READ.json ``screened``, the stage's line), as ``spincal`` does: the despun product
+    has no row there, which was silent before."""
+    sim = _sim(0)
+    path = _write(_messy(sim, "spikes", 0), tmp_path / "spikes.csv")
+    cfg = tmp_path / "SPIN.toml"
+    cfg.write_text(f'[input]\nfiles = ["{path.as_posix()}"]\n[spin]\nspin_period_s = 20.0\n'
+                   "flipper = true\n")
+    assert main(["run", str(cfg), "-o", str(tmp_path / "out")]) == 0
+    read = json.loads((tmp_path / "out" / "read" / "READ.json").read_text())
+    direct = load_spin_data(path).screened
+    assert read["screened"] == json.loads(json.dumps(direct))
+    assert direct["spike"] >= 0.9 * (len(sim.data) // 200)      # the injected 0.5 %
+    out = capsys.readouterr()
+    assert f"screened: {direct['samples']} samples left out" in out.out + out.err
+    despun = (tmp_path / "out" / "despun" / "DESPUN.csv").read_text().count("\n") - 1
+    assert despun == len(sim.data) - direct["samples"]

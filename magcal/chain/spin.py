@@ -32,11 +32,17 @@ def _load(cfg: ChainConfig, files):
         raise InputError(f"the spinning chain takes one file; [input] files matches "
                          f"{len(files)}", file=cfg.path, column="input.files")
     data = load_spin_data(files[0], cfg["spin"]["spin_period_s"], scale=1.0)
+    from magcal.spin.screen import describe_screened
+
     summary = {"n_samples": int(len(data.t_s)), "span_s": float(data.t_s[-1] - data.t_s[0]),
-               "has_flip": data.flip is not None, "spin_phase": data.phase_record()}
+               "has_flip": data.flip is not None, "spin_phase": data.phase_record(),
+               "screened": data.screened}
     line = (f"{len(data.t_s)} samples over {summary['span_s'] / 3600:.2f} h; phase from "
             f"{data.phase_source}; flip states {'present' if data.flip is not None else 'none'}")
-    return data, StageProduct(stage="read", summary=summary, lines=(line,),
+    screened = describe_screened(data.screened)
+    lines = (line,) + ((f"screened: {screened} (fills, saturated or stuck runs, spikes of "
+                        "|B|; left out of every stage)",) if screened else ())
+    return data, StageProduct(stage="read", summary=summary, lines=lines,
                               provenance=make_provenance("read", {}, inputs=files))
 
 

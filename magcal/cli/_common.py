@@ -95,12 +95,11 @@ def print_screened(prefix: str, screened: dict | None) -> None:
     """One stderr line with what the quality screen left out (nothing when none)."""
     import sys
 
-    if not screened or not screened.get("samples"):
-        return
-    parts = ", ".join(f"{screened[k]} {k.replace('_', ' ')}" for k in
-                      ("fill", "saturated_or_stuck", "spike") if screened.get(k))
-    print(f"{prefix}: screened: {screened['samples']} samples left out ({parts}); "
-          "--no-screen keeps them", file=sys.stderr)
+    from magcal.spin.screen import describe_screened
+
+    text = describe_screened(screened)
+    if text:
+        print(f"{prefix}: screened: {text}; --no-screen keeps them", file=sys.stderr)
 
 
 def add_spin_arguments(p) -> None:

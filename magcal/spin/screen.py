@@ -113,3 +113,20 @@ def screen_spin(t_s, b) -> tuple[np.ndarray, dict]:
               "saturated_or_stuck": int(stuck.sum()), "spike": int(spike.sum()),
               "tests": dict(TESTS)}
     return bad, record
+
+
+def describe_screened(screened: dict | None) -> str:
+    """What the screen left out, in words ("" when nothing).
+
+    Examples
+    --------
+    >>> describe_screened({"samples": 401, "fill": 1, "saturated_or_stuck": 400, "spike": 0})
+    '401 samples left out (1 fill, 400 saturated or stuck)'
+    >>> describe_screened({"samples": 0})
+    ''
+    """
+    if not screened or not screened.get("samples"):
+        return ""
+    parts = ", ".join(f"{screened[k]} {k.replace('_', ' ')}" for k in
+                      ("fill", "saturated_or_stuck", "spike") if screened.get(k))
+    return f"{screened['samples']} samples left out ({parts})"
