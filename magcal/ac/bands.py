@@ -104,7 +104,8 @@ def weights_per_frequency(f: np.ndarray, bands_hz, weights) -> np.ndarray:
 LOW_MIN_BINS = 4
 #: there the full correction is kept where it lowers the band's power by more than this
 #: many standard deviations of its cross term with what of the raw target it does not
-#: explain (measured on 2 h records: 2 keeps a 2 nT step's removal, 3 loses half of it)
+#: explain (2 h records: a 2 nT step then leaves 0.51 of raw's error, as the full
+#: correction did (0.50); 3 left 0.60)
 LOW_Z = 2.0
 
 
