@@ -147,8 +147,11 @@ def glitch_rows(data: dict) -> np.ndarray:
     """Rows where some sensor has a glitch of its own (:func:`sensor_outliers`): left
     out of the fit, and of the delivered product's band filter and check, where one
     glitch would otherwise be spread over the record (:func:`magcal.ac.bands.deliver`)."""
-    bad = sensor_outliers(data)
-    n = len(next(iter(data.values())))
+    return _any_sensor(sensor_outliers(data), len(next(iter(data.values()), ())))
+
+
+def _any_sensor(bad: dict, n: int) -> np.ndarray:
+    """Rows flagged in any sensor's mask of ``bad`` (none when it is empty)."""
     return np.logical_or.reduce(list(bad.values())) if bad else np.zeros(n, dtype=bool)
 
 
@@ -167,13 +170,13 @@ def screen(data: dict) -> tuple[dict, dict]:
     """The sensors with every flagged row (:func:`sensor_outliers`) set to NaN in all of
     them, and a JSON-ready report (samples flagged per sensor, rows left out)."""
     bad = sensor_outliers(data)
-    rows = np.logical_or.reduce(list(bad.values())) if bad else None
+    rows = _any_sensor(bad, len(next(iter(data.values()), ())))
     report = {"flagged": {s: int(m.sum()) for s, m in bad.items()},
-              "rows_left_out": int(rows.sum()) if rows is not None else 0,
+              "rows_left_out": int(rows.sum()),
               "rule": f"spike: > {THRESHOLD:g} robust std from a {MEDIAN_N}-sample running "
                       f"median in one sensor only; stuck: >= {STUCK_N} identical samples "
                       "in one sensor only"}
-    if rows is None or not rows.any():
+    if not rows.any():
         return data, report
     out = {}
     for s, b in data.items():

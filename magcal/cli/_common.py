@@ -103,7 +103,8 @@ def print_screened(prefix: str, screened: dict | None) -> None:
 
 
 def add_spin_arguments(p) -> None:
-    """Options shared by ``spincal`` and ``flipper``: phase, units and spin sense."""
+    """Options shared by ``spincal`` and ``flipper``: phase, units, spin sense and the
+    quality screen."""
     from magcal.spin.inputs import SPIN_SENSES
 
     p.add_argument("--spin-period", type=float, default=None,
@@ -118,3 +119,6 @@ def add_spin_arguments(p) -> None:
                    help="spin sense about sensor 3: positive (the contract's phase "
                         "2 pi (t - t0) / S, default), negative, or auto (taken from the "
                         "readings); input turning the other way is refused")
+    p.add_argument("--no-screen", action="store_true",
+                   help="take the readings as given: do not leave out fill values, "
+                        "saturated or stuck runs and spikes (of the field magnitude) first")

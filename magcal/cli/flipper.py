@@ -18,9 +18,6 @@ def register(subparsers) -> None:
     add_spin_arguments(p)
     p.add_argument("--cal", help="CAL.json from 'magcal spincal' (flip position 0)")
     p.add_argument("--complete", help="also write CAL.json completed with O3 (needs --cal)")
-    p.add_argument("--no-screen", action="store_true",
-                   help="take the readings as given: do not leave out fill values, "
-                        "saturated or stuck runs and spikes (of the field magnitude) first")
     add_output(p, help_text="FLIP.json")
     p.set_defaults(func=run)
 

@@ -27,9 +27,6 @@ def register(subparsers) -> None:
                    help="whole spins per analysis block (default 1)")
     p.add_argument("--flip-state", type=int, choices=(0, 1), default=0,
                    help="with a flip column, calibrate the rows in this position (default 0)")
-    p.add_argument("--no-screen", action="store_true",
-                   help="take the readings as given: do not leave out fill values, "
-                        "saturated or stuck runs and spikes (of the field magnitude) first")
     add_output(p, help_text="CAL.json")
     p.set_defaults(func=run)
 
