@@ -132,7 +132,8 @@ def test_product_csv_roundtrip_and_apply(tmp_path, months):
     header = path.read_text().splitlines()[0].split(",")
     assert tuple(header[:11]) == CONTRACT_COLUMNS
     assert header[11:] == ["Hp_mad", "He_mad", "Hn_mad", "n_available", "reason",
-                           "days_covered", "lt_hours_covered", "Hp_se", "He_se", "Hn_se"]
+                           "days_covered", "lt_hours_covered", "Hp_se", "He_se", "Hn_se",
+                           "Hp_dof", "He_dof", "Hn_dof"]
     assert (tmp_path / "OFFSETS.csv.provenance.json").exists()
     back = read_offsets_csv(path)
     assert_array_equal(back.days_covered, tab.days_covered)

@@ -266,11 +266,17 @@ def test_chain_report_reads_the_chains_ac_products_and_offset_errors(chain_run):
     table = read_offsets_csv(chain_run / "offsets" / "OFFSETS.csv")
     off = next(t for (s, c), t in tables.items() if s == "DC offsets" and "standard errors"
                in c)
-    assert off.columns[4:10] == ("Hp se", "He se", "Hn se", "Hp spread", "He spread",
-                                 "Hn spread")
+    assert off.columns[4:13] == ("Hp se", "He se", "Hn se", "Hp 95 %", "He 95 %", "Hn 95 %",
+                                 "Hp spread", "He spread", "Hn spread")
     ok = np.isfinite(table.offset_nT).all(axis=1)
     np.testing.assert_allclose([[float(x) for x in r[4:7]] for r in off.rows],
                                table.se_nT[ok], atol=0.006)
+    # the 95 % half-width is Student's t on the stated degrees of freedom times the se
+    from scipy.stats import t as student_t
+
+    np.testing.assert_allclose([[float(x) for x in r[7:10]] for r in off.rows],
+                               student_t.ppf(0.975, table.dof[ok]) * table.se_nT[ok],
+                               atol=0.006)
     rows = _budget(report)
     assert float(rows[("below 0.1 mHz", "offset: standard error")][2]) == pytest.approx(
         float(np.nanmax(table.se_nT[ok])), abs=1e-3)

@@ -33,6 +33,8 @@ _KNOWN = {
                     f"minus model"} for c in _HPEN},
     **{f"{c}_se": {"units": "nT", "long_name": f"1-sigma standard error of the window's {c} "
                    f"offset (correlation accounted for)"} for c in _HPEN},
+    **{f"{c}_dof": {"units": "1", "long_name": f"degrees of freedom of {c}_se: the 95 % "
+                    f"interval is the offset +- t(0.975, dof) {c}_se"} for c in _HPEN},
     "offset_flag": {"units": "1", "long_name": "how the offset of this sample was obtained"},
     "n_used": {"units": "1", "long_name": "samples used in the window"},
     "n_available": {"units": "1", "long_name": "samples available in the window"},

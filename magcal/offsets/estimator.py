@@ -208,7 +208,7 @@ class OffsetEstimator:
             reason=tuple(reasons), parameters=self.get_params(),
             provenance=dict(provenance or {}), days_covered=cover["days_covered"],
             lt_hours_covered=cover["lt_hours_covered"], warnings=self.warnings_,
-            se_nT=stats["se"])
+            se_nT=stats["se"], dof=stats["dof"])
         self.n_quiet_ = int(np.count_nonzero(quiet_mask(kp, self.kp_max)))
         return self
 

@@ -6,7 +6,9 @@ deviation scaled to a standard deviation), ``n_available`` (samples with data an
 in the window), ``reason`` (why the window is NaN; empty for a valid window, or
 ``caution: ...`` when a valid window carries a warning such as a record far shorter
 than the window), ``days_covered`` (UTC days of the window holding used samples) and
-``lt_hours_covered`` (of the 24 local-time hours; empty when the longitude is unknown).
+``lt_hours_covered`` (of the 24 local-time hours; empty when the longitude is unknown),
+``Hp_se,He_se,Hn_se`` (1-sigma standard errors, CONTRACTS §7.1) and ``Hp_dof,He_dof,
+Hn_dof`` (their degrees of freedom: the 95 % interval is ``offset +- t(0.975, dof) se``).
 Provenance is written beside the CSV as ``<file>.provenance.json``.
 """
 
@@ -28,7 +30,7 @@ COMPONENTS = ("Hp", "He", "Hn")
 CONTRACT_COLUMNS = ("center", "start", "end", "Hp", "He", "Hn", "Hp_std", "He_std", "Hn_std",
                     "n_used", "fraction_used")
 EXTRA_COLUMNS = ("Hp_mad", "He_mad", "Hn_mad", "n_available", "reason", "days_covered",
-                 "lt_hours_covered", "Hp_se", "He_se", "Hn_se")
+                 "lt_hours_covered", "Hp_se", "He_se", "Hn_se", "Hp_dof", "He_dof", "Hn_dof")
 
 
 @dataclass(frozen=True)
@@ -57,6 +59,11 @@ class OffsetTable:
         1-sigma standard error of each offset, residual correlation accounted for
         (:func:`magcal.offsets.windows.batch_standard_error`); columns ``Hp_se..`` of
         OFFSETS.csv (CONTRACTS §7.1), NaN where not computed.
+    dof : ndarray, shape (k, 3), optional
+        Degrees of freedom of ``se_nT`` (:func:`magcal.offsets.windows.batch_error_and_dof`:
+        the standard error is estimated from a few correlated days, so an interval takes
+        Student's t on them, :meth:`interval95`); columns ``Hp_dof..``, NaN where not
+        computed.
     """
 
     center: np.ndarray
@@ -75,6 +82,7 @@ class OffsetTable:
     lt_hours_covered: np.ndarray | None = None
     warnings: tuple = ()
     se_nT: np.ndarray | None = None
+    dof: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.center.size)
@@ -83,6 +91,33 @@ class OffsetTable:
     def valid(self) -> np.ndarray:
         """True for windows with a finite offset in all three components."""
         return np.all(np.isfinite(self.offset_nT), axis=1)
+
+    def interval95(self) -> np.ndarray:
+        """Half-width (nT) of each offset's 95 % interval, (k, 3): ``t(0.975, dof) se``.
+
+        Without degrees of freedom (an OFFSETS.csv written before they were) the normal
+        1.96 is used, which holds the truth less often than 95 % when the model miss is
+        correlated over days (:func:`magcal.offsets.windows.batch_error_and_dof`). NaN
+        where there is no standard error.
+
+        Examples
+        --------
+        >>> c = np.array(["2019-11-15"], dtype="datetime64[ns]")
+        >>> tab = OffsetTable(center=c, start=c, end=c, offset_nT=np.zeros((1, 3)),
+        ...                   std_nT=np.ones((1, 3)), mad_nT=np.ones((1, 3)),
+        ...                   n_used=np.array([9]), n_available=np.array([9]),
+        ...                   fraction_used=np.ones(1), se_nT=np.array([[0.5, 0.5, np.nan]]),
+        ...                   dof=np.array([[4.0, np.nan, np.nan]]))
+        >>> tab.interval95().round(3)
+        array([[1.388, 0.98 ,   nan]])
+        """
+        from magcal.stats import student_interval
+
+        n = len(self)
+        se = np.full((n, 3), np.nan) if self.se_nT is None else np.asarray(self.se_nT, float)
+        dof = np.full((n, 3), np.nan) if self.dof is None else np.asarray(self.dof, float)
+        lo, _ = student_interval(np.zeros_like(se), se, np.where(np.isfinite(dof), dof, np.inf))
+        return -lo
 
     def to_frame(self) -> pd.DataFrame:
         """The product as a DataFrame with the CSV columns (times as datetime64)."""
@@ -106,6 +141,9 @@ class OffsetTable:
         se = np.full((len(self), 3), np.nan) if self.se_nT is None else self.se_nT
         for j, c in enumerate(COMPONENTS):
             cols[f"{c}_se"] = se[:, j]
+        dof = np.full((len(self), 3), np.nan) if self.dof is None else self.dof
+        for j, c in enumerate(COMPONENTS):
+            cols[f"{c}_dof"] = dof[:, j]
         return pd.DataFrame(cols)
 
     def to_json(self) -> dict:
@@ -226,4 +264,5 @@ def read_offsets_csv(path) -> OffsetTable:
                        offset_nT=offset, std_nT=std, mad_nT=mad, n_used=n_used,
                        n_available=n_av, fraction_used=num("fraction_used"), reason=reason,
                        parameters={"source": os.fspath(p)},
-                       se_nT=np.stack([num(f"{c}_se") for c in COMPONENTS], axis=1), **cover)
+                       se_nT=np.stack([num(f"{c}_se") for c in COMPONENTS], axis=1),
+                       dof=np.stack([num(f"{c}_dof") for c in COMPONENTS], axis=1), **cover)

@@ -17,6 +17,11 @@ from magcal.errors import InputError
 from magcal.stats import normal_mad
 
 DAY_NS = 86_400 * 10**9
+#: Fewest degrees of freedom :func:`batch_error_and_dof` states. A model miss correlated
+#: over most of a window leaves under two effective days; t on one degree of freedom
+#: (12.7) then made the 95 % intervals of 28-day windows with a 5-day miss 2.4 times as
+#: wide as on two (4.3), which held the truth as often (94.8 % of 600 either way).
+DOF_FLOOR = 2.0
 #: Local-time bins (one hour each) over which a window's coverage is counted.
 LT_BINS = 24
 
@@ -79,7 +84,8 @@ def window_statistics(t_ns, diff, selected, starts_ns, ends_ns, min_used: int = 
     Returns
     -------
     dict
-        ``median, std, mad, se`` (k, m) (``se``: :func:`batch_standard_error`); ``n_used, n_available`` (k,) int; ``fraction_used``
+        ``median, std, mad, se, dof`` (k, m) (``se``, ``dof``:
+        :func:`batch_error_and_dof`); ``n_used, n_available`` (k,) int; ``fraction_used``
         (k,) = n_used / n_available; ``reason`` list of str ('' when fine).
 
     Examples
@@ -121,6 +127,7 @@ def window_statistics(t_ns, diff, selected, starts_ns, ends_ns, min_used: int = 
     std = np.full((k, m), np.nan)
     mad = np.full((k, m), np.nan)
     se = np.full((k, m), np.nan)
+    dof = np.full((k, m), np.nan)
     reasons = []
     for i in range(k):
         if n_av[i] == 0:
@@ -146,11 +153,12 @@ def window_statistics(t_ns, diff, selected, starts_ns, ends_ns, min_used: int = 
             median[i] = med
         std[i] = np.std(x, axis=0, ddof=1) if n_used[i] > 1 else 0.0
         mad[i] = normal_mad(x, axis=0)
-        se[i] = batch_standard_error(t_use[lo[i]:hi[i]], x)
+        se[i], dof[i] = batch_error_and_dof(t_use[lo[i]:hi[i]], x)
         reasons.append("")
     with np.errstate(invalid="ignore", divide="ignore"):
         frac = np.where(n_av > 0, n_used / np.maximum(n_av, 1), np.nan)
-    return {"median": median, "std": std, "mad": mad, "se": se, "n_used": n_used.astype(np.int64),
+    return {"median": median, "std": std, "mad": mad, "se": se, "dof": dof,
+            "n_used": n_used.astype(np.int64),
             "n_available": n_av.astype(np.int64), "fraction_used": frac, "reason": reasons}
 
 
@@ -280,11 +288,10 @@ def batch_standard_error(t_ns, x, batch_ns: int = DAY_NS, min_batches: int = 3,
     earlier ones; ``sqrt(1 + 2 r1)`` (the first lag alone, unbiased) held the truth in
     75 % of 28-day windows whose miss had a 2-day correlation time (now 91 %). Days
     holding under ``min_fraction`` of the fullest day's samples are left out; fewer than
-    ``min_batches`` days give NaN. Measured over 200 seeded windows of an AR(1) miss of
-    3 nT plus 0.5 nT white noise, 70 % of samples quiet: the 95 % interval (1.96 se)
-    held the true offset in 94 % (tau 6 h), 92 % (tau 12 h), 91 % (tau 2 days), 93 % with
-    a week missing and 92 % with 8 scattered days (the rest is the normal quantile on
-    8-28 batches).
+    ``min_batches`` days give NaN. The standard error is itself estimated from a few
+    batches, so an interval needs Student's t on :func:`batch_error_and_dof`'s degrees
+    of freedom, not the normal 1.96 (which held the truth in 87-94 % of the windows
+    measured there).
 
     Parameters
     ----------
@@ -305,18 +312,75 @@ def batch_standard_error(t_ns, x, batch_ns: int = DAY_NS, min_batches: int = 3,
     >>> batch_standard_error(t, x).round(3)
     array([4.173])
     """
+    return batch_error_and_dof(t_ns, x, batch_ns, min_batches, min_fraction)[0]
+
+
+def batch_error_and_dof(t_ns, x, batch_ns: int = DAY_NS, min_batches: int = 3,
+                        min_fraction: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`batch_standard_error` and the degrees of freedom its interval needs.
+
+    ``n_batches`` correlated batch values hold about ``n_eff = n_batches (1 - r) /
+    (1 + r)`` independent ones (the same AR(1) factor), and the standard error's own
+    scatter is that of a variance estimated on ``n_eff - 1`` degrees of freedom (at
+    least :data:`DOF_FLOOR`). The 95 % interval ``offset +- t(0.975, dof) se``
+    (:func:`magcal.stats.student_interval`) is what OFFSETS.csv's ``*_dof`` columns
+    serve. Measured over 200 seeded 28-day windows of an AR(1) model miss of 3 nT plus
+    0.5 nT white noise, 70 % of samples quiet, three components each (600 intervals per
+    case, binomial sd 0.9 %): the share of 95 % intervals holding the true offset, with
+    their median half-width in brackets (nT; the last column is 1.96 times the actual
+    RMS error, what an interval that knew the error's size would take):
+
+    ===========================  ===============  ===============  =======
+    miss                         1.96 se          t(dof) se        1.96 rms
+    ===========================  ===============  ===============  =======
+    tau 1 h                      93.2 % (0.35)    94.2 % (0.37)    0.35
+    tau 6 h                      92.7 % (0.80)    94.3 % (0.85)    0.82
+    tau 12 h                     92.5 % (1.15)    94.0 % (1.26)    1.15
+    tau 2 days                   91.5 % (2.32)    95.5 % (3.37)    2.23
+    tau 5 days                   87.3 % (3.11)    93.3 % (6.77)    3.28
+    tau 6 h, a week missing      94.2 % (0.93)    95.3 % (1.01)    0.89
+    tau 2 days, a week missing   90.2 % (2.34)    93.2 % (3.68)    2.32
+    tau 6 h, 8 scattered days    93.7 % (1.42)    96.7 % (1.84)    1.36
+    tau 2 days, 8 scattered      86.8 % (2.27)    92.3 % (3.18)    2.72
+    ===========================  ===============  ===============  =======
+
+    The rest of the shortfall is the lag correlation's own scatter over 8-28 batches,
+    which ``n_eff`` does not count.
+
+    Returns
+    -------
+    se : ndarray, shape (m,)
+        NaN where :func:`batch_standard_error` gives NaN.
+    dof : ndarray, shape (m,)
+        NaN where ``se`` is.
+
+    Examples
+    --------
+    Days alternating -1, +1 are anti-correlated (``r`` clipped to 0), so all 28 count:
+    27 degrees of freedom. Ten days climbing 0, 1, ..., 9 (``r`` = 0.9, see
+    :func:`batch_standard_error`) hold about half a day's worth: the floor, 2.
+
+    >>> t = np.arange(28 * 24) * (DAY_NS // 24)
+    >>> se, dof = batch_error_and_dof(t, np.repeat(np.tile([-1.0, 1.0], 14), 24))
+    >>> float(dof[0])
+    27.0
+    >>> t = np.arange(10 * 24) * (DAY_NS // 24)
+    >>> float(batch_error_and_dof(t, np.repeat(np.arange(10.0), 24))[1][0])
+    2.0
+    """
     t = np.asarray(t_ns, dtype=np.int64)
     x = np.asarray(x, dtype=float)
     x = x[:, None] if x.ndim == 1 else x
+    nan = np.full(x.shape[1], np.nan)
     if t.size == 0:
-        return np.full(x.shape[1], np.nan)
+        return nan, nan.copy()
     day = (t - t[0]) // int(batch_ns)
     edges = np.flatnonzero(np.diff(day)) + 1
     groups = np.split(np.arange(t.size), edges)
     sizes = np.array([g.size for g in groups])
     good = [g for g, s in zip(groups, sizes) if s >= min_fraction * sizes.max()]
     if len(good) < min_batches:
-        return np.full(x.shape[1], np.nan)
+        return nan, nan.copy()
     b = np.array([np.median(x[g], axis=0) for g in good])
     nb = b.shape[0]
     sd = np.std(b, axis=0, ddof=1)
@@ -325,4 +389,6 @@ def batch_standard_error(t_ns, x, batch_ns: int = DAY_NS, min_batches: int = 3,
         r1 = np.sum(c[1:] * c[:-1], axis=0) / np.sum(c ** 2, axis=0)
     r1 = np.nan_to_num(r1)
     r = np.clip(r1 + (1.0 + 3.0 * np.clip(r1, 0.0, None)) / nb, 0.0, 0.9)
-    return sd / np.sqrt(nb) * np.sqrt((1.0 + r) / (1.0 - r))
+    se = sd / np.sqrt(nb) * np.sqrt((1.0 + r) / (1.0 - r))
+    dof = np.maximum(nb * (1.0 - r) / (1.0 + r) - 1.0, DOF_FLOOR)
+    return se, np.where(np.isfinite(se), dof, np.nan)

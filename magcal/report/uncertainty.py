@@ -366,17 +366,22 @@ def offsets_section(root: Path, budget: list) -> tuple:
                        "windows. The standard error (se) is how well a window's offset is "
                        "known (correlated residuals accounted for); the spread (std) is that "
                        "of the selected samples, shown apart: it is not the offset's error.")]
+    half = table.interval95()
     rows = []
     for k in np.flatnonzero(ok):
         rows.append((str(np.datetime64(table.center[k], "s")),
                      *[float(v) for v in table.offset_nT[k]],
                      *[float(v) if np.isfinite(v) else "not computed" for v in se[k]],
+                     *[float(v) if np.isfinite(v) else "not computed" for v in half[k]],
                      *[float(v) for v in table.std_nT[k]], int(table.n_used[k])))
     items.append(Table.from_records(
-        ["centre", "Hp (nT)", "He (nT)", "Hn (nT)", "Hp se", "He se", "Hn se", "Hp spread",
-         "He spread", "Hn spread", "n used"],
-        rows or [("no window with an offset",) + ("-",) * 10], caption="Offsets per window (median estimator), 1-sigma standard errors and "
-                      "the spread (std) of the selected samples (nT).",
+        ["centre", "Hp (nT)", "He (nT)", "Hn (nT)", "Hp se", "He se", "Hn se", "Hp 95 %",
+         "He 95 %", "Hn 95 %", "Hp spread", "He spread", "Hn spread", "n used"],
+        rows or [("no window with an offset",) + ("-",) * 13],
+        caption="Offsets per window (median estimator), 1-sigma standard errors, "
+                "half-widths of the 95 % intervals (Student's t on the standard "
+                "error's degrees of freedom, the `*_dof` columns; 1.96 where a file "
+                "has none) and the spread (std) of the selected samples (nT).",
         source=_rel(main, root), fmt="{:.2f}"))
     if not ok.all():
         reason = np.asarray(table.reason if table.reason is not None and len(table.reason)
