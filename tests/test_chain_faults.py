@@ -149,6 +149,7 @@ def test_any_mix_of_faults_ends_0_or_3_named_and_leaves_other_days_alone(clean, 
         mine, ref = _corrected(work / "out", day), _corrected(clean / "clean" / "out", day)
         assert mine is not None and ref is not None, day
         np.testing.assert_allclose(mine[1], ref[1], rtol=0, atol=2.5e-6, err_msg=day)
-        np.testing.assert_array_equal(mine[2] & ~16, ref[2] & ~16, err_msg=day)
+        # the offset bits (16 held, 64 bridged) follow which windows a fault left valid
+        np.testing.assert_array_equal(mine[2] & ~80, ref[2] & ~80, err_msg=day)
         if same_offsets:
             assert mine[0].read_bytes() == ref[0].read_bytes(), day

@@ -67,17 +67,18 @@ def test_netcdf_is_cf_with_flag_variable_and_provenance(tmp_path):
             np.testing.assert_array_equal(ds[c].values, f[c].to_numpy())  # NaN where NaN
         q = ds["quality"]
         assert q.attrs["standard_name"] == "quality_flag"
-        # the bits of magcal.qc (CONTRACTS 7.1 and magcal's implausible-vs-model bit)
-        assert list(q.attrs["flag_masks"]) == [1, 2, 4, 8, 16, 32]
+        # the bits of magcal.qc (CONTRACTS 7.1, magcal's implausible-vs-model and
+        # offset-bridged bits)
+        assert list(q.attrs["flag_masks"]) == [1, 2, 4, 8, 16, 32, 64]
         assert q.attrs["flag_meanings"].split() == list(qcflags.FLAG_NAMES.values())
         _assert_flags_decode(q.values, q.attrs["flag_masks"], q.attrs["flag_meanings"])
         assert q.attrs["flag_masks"].dtype == q.dtype
         np.testing.assert_array_equal(q.values, f["quality"].to_numpy())
         np.testing.assert_array_equal(ds["offset_flag"].values, f["offset_flag"].to_numpy())
-        o = ds["offset_flag"]  # a CF flag variable of values (CONTRACTS §2 codes 0-3)
-        assert list(o.attrs["flag_values"]) == [0, 1, 2, 3]
+        o = ds["offset_flag"]  # a CF flag variable of values (codes 0-3, and 4 bridged)
+        assert list(o.attrs["flag_values"]) == [0, 1, 2, 3, 4]
         assert o.attrs["flag_values"].dtype == o.dtype
-        assert len(o.attrs["flag_meanings"].split()) == 4
+        assert len(o.attrs["flag_meanings"].split()) == 5
 
 
 def test_cdf_is_istp_with_tt2000_and_support_data(tmp_path):
@@ -104,8 +105,8 @@ def test_cdf_is_istp_with_tt2000_and_support_data(tmp_path):
     assert cdf.varattsget("quality")["VAR_TYPE"] == "support_data"
     assert cdf.varattsget("offset_flag")["VAR_TYPE"] == "support_data"
     qa = cdf.varattsget("quality")
-    assert qa["VALIDMIN"] == 0 and qa["VALIDMAX"] == 63
-    assert list(qa["FLAG_MASKS"]) == [1, 2, 4, 8, 16, 32]
+    assert qa["VALIDMIN"] == 0 and qa["VALIDMAX"] == 127
+    assert list(qa["FLAG_MASKS"]) == [1, 2, 4, 8, 16, 32, 64]
     assert qa["FLAG_MEANINGS"].split() == list(qcflags.FLAG_NAMES.values())
     assert "32 implausible vs model" in qa["VAR_NOTES"]
     _assert_flags_decode(cdf.varget("quality"), qa["FLAG_MASKS"], qa["FLAG_MEANINGS"])

@@ -134,6 +134,12 @@ def test_apply_treats_fill_and_nonfinite_offsets_as_missing_windows(tmp_path, ca
     mid = got["time"] == "2019-11-03T12:00:00"
     assert_allclose(got.loc[mid, "Hp"], 100.0 - 25.0)
     assert got["offset_flag"].tolist() == want["offset_flag"].tolist()
+    # and every sample between those centres says its offset bridged the skipped ones
+    t = pd.to_datetime(got["time"])
+    inner = (t > "2019-11-02") & (t < "2019-11-05")
+    assert (got.loc[inner, "offset_flag"] == 4).all()
+    assert not (got.loc[~inner, "offset_flag"] == 4).any()
+    assert f"bridged over a window without an offset {int(inner.sum())}" in err
     from magcal.offsets import read_offsets_csv
 
     table = read_offsets_csv(fill)

@@ -714,7 +714,7 @@ def _bracket_key(table, day: str, partition_keys) -> str:
     hi = np.searchsorted(c, t1, side="left")
     rows = valid[max(lo, 0):min(hi, len(valid) - 1) + 1] if len(valid) else valid
     return digest({"partitions": sorted(partition_keys), "centers": c[np.isin(valid, rows)],
-                   "offsets": table.offset_nT[rows], "flag_meaning": "v2 quality"})[:24]
+                   "offsets": table.offset_nT[rows], "flag_meaning": "v3 bridged"})[:24]
 
 
 def write_corrected_day(task: DayTask) -> dict:
@@ -722,7 +722,7 @@ def write_corrected_day(task: DayTask) -> dict:
     from magcal.chain.daily_csv import write_day_csv
     from magcal.offsets import apply_offsets
     from magcal.provenance import file_sha256
-    from magcal.qc.flags import OFFSET_HELD
+    from magcal.offsets.apply import FLAG_MEANING, quality_bits
     from magcal.qc.flags import counts as flag_counts
 
     try:
@@ -736,7 +736,7 @@ def write_corrected_day(task: DayTask) -> dict:
         else:
             corr, flag = hpen.copy(), np.full(len(t), 3, dtype=np.int8)
         flag = np.asarray(flag, dtype=int)
-        quality = data.quality[day] | np.where(flag != 0, OFFSET_HELD, 0).astype(np.uint16)
+        quality = data.quality[day] | quality_bits(flag)
         if task.fmt == "csv":
             write_day_csv(Path(task.path), times, corr, HPEN, flag, extra={"quality": quality},
                           provenance=task.provenance or None)
@@ -747,7 +747,7 @@ def write_corrected_day(task: DayTask) -> dict:
                               {**dict(zip(HPEN, corr.T)), "offset_flag": flag,
                                "quality": quality},
                               provenance=task.provenance or None)
-        counts = np.bincount(flag, minlength=4)[:4]
+        counts = np.bincount(flag, minlength=len(FLAG_MEANING))[:len(FLAG_MEANING)]
         return {"day": task.day, "status": "ok", "sha256": file_sha256(task.path),
                 "n": len(times), "flags": counts.tolist(), "quality": flag_counts(quality)}
     except Exception as exc:  # noqa: BLE001 - one day must not stop the others
@@ -803,7 +803,10 @@ def corrected_stage(run, table, records, cfg: ChainConfig, engine):
     for d in sorted(done):
         run.add_entry(out / corrected_name(d, fmt), "corrected", inputs[d],
                       done[d]["sha256"])
-    counts = np.sum([done[d]["flags"] for d in done], axis=0) if done else np.zeros(4, int)
+    n_flags = len(FLAG_MEANING)
+    # a day written before a flag value existed has fewer counts: none of that value
+    counts = (np.sum([np.pad(done[d]["flags"], (0, n_flags - len(done[d]["flags"])))
+                      for d in done], axis=0) if done else np.zeros(n_flags, int))
     n = int(sum(done[d]["n"] for d in done))
     failed = [f"{r['day']}: {r['reason']}" for r in results if r["status"] != "ok"]
     valid = bool(np.isfinite(table.offset_nT).all(axis=1).any())
@@ -812,12 +815,13 @@ def corrected_stage(run, table, records, cfg: ChainConfig, engine):
         for name, k in done[d].get("quality", {}).items():
             quality[name] = quality.get(name, 0) + k
     summary = {"n_samples": n, "n_files": len(done),
-               "flags": {FLAG_MEANING[k]: int(counts[k]) for k in range(4)},
+               "flags": {FLAG_MEANING[k]: int(counts[k]) for k in range(n_flags)},
                "quality": {"bits": {str(b): name for b, name in FLAG_NAMES.items()},
                            "counts": quality},
                "failed_days": failed}
     lines = (f"{n} samples in {len(done)} daily files ({len(tasks) - len(failed)} rewritten); "
-             f"interpolated {counts[0]}, held {counts[1] + counts[2]}, no offset {counts[3]}",
+             f"interpolated {counts[0]}, held {counts[1] + counts[2]}, no offset {counts[3]}"
+             + (f", bridged over a window without an offset {counts[4]}" if counts[4] else ""),
              "quality column: " + (", ".join(f"{k} {v}" for k, v in quality.items())
                                    or "every sample good"))
     warnings = (() if valid else

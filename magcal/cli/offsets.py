@@ -52,7 +52,9 @@ def register(subparsers) -> None:
                          description="CORRECTED.csv = DATA - offsets interpolated linearly "
                                      "between window centres (end values held); column "
                                      "offset_flag: 0 interpolated, 1 held before the first "
-                                     "centre, 2 held after the last, 3 no valid offset.")
+                                     "centre, 2 held after the last, 3 no valid offset, 4 "
+                                     "interpolated across a window without a valid "
+                                     "offset.")
     app.add_argument("input", help="DATA.csv: time,Hp,He,Hn")
     app.add_argument("--offsets", required=True, help="OFFSETS.csv from 'offsets fit'")
     add_output(app, help_text="CORRECTED.csv (time,Hp,He,Hn,offset_flag)")
@@ -117,7 +119,9 @@ def run_apply(args) -> int:
         print(f"magcal offsets apply: warning: {outside} of {len(out)} samples lie in no "
               "valid window (offset held or interpolated from windows that never saw them)",
               file=sys.stderr)
-    counts = np.bincount(flag, minlength=4)
+    counts = np.bincount(flag, minlength=5)
+    bridged = (f", bridged over a window without an offset {counts[4]}" if counts[4]
+               else "")
     print(f"magcal offsets apply: {len(out)} samples; interpolated {counts[0]}, held "
-          f"{counts[1] + counts[2]}, no offset {counts[3]}", file=sys.stderr)
+          f"{counts[1] + counts[2]}, no offset {counts[3]}{bridged}", file=sys.stderr)
     return 0

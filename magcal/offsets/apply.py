@@ -11,10 +11,15 @@ FLAG_INTERPOLATED = 0
 FLAG_HELD_BEFORE = 1
 FLAG_HELD_AFTER = 2
 FLAG_NO_OFFSET = 3
+#: Interpolated between two valid window centres with a window without a valid offset
+#: between them: the line spans twice the step or more, and any drift of the offset
+#: that the skipped window would have seen is not in it.
+FLAG_BRIDGED = 4
 FLAG_MEANING = {FLAG_INTERPOLATED: "interpolated between window centres",
                 FLAG_HELD_BEFORE: "before the first window centre: first offset held",
                 FLAG_HELD_AFTER: "after the last window centre: last offset held",
-                FLAG_NO_OFFSET: "no valid offset: data left NaN"}
+                FLAG_NO_OFFSET: "no valid offset: data left NaN",
+                FLAG_BRIDGED: "interpolated across a window without a valid offset"}
 
 
 def interpolate_offsets(times, centers, offsets_nT):
@@ -42,6 +47,14 @@ def interpolate_offsets(times, centers, offsets_nT):
     >>> off, flag = interpolate_offsets(t, c, [[10.0], [17.0]])
     >>> off[:, 0], flag
     (array([10. , 13.5, 17. ]), array([1, 0, 2], dtype=int8))
+
+    A window without an offset between two valid ones: the samples between those two
+    centres are bridged (4), not plainly interpolated.
+
+    >>> c3 = np.array(["2019-11-08", "2019-11-15", "2019-11-22"], dtype="datetime64[ns]")
+    >>> t3 = np.array(["2019-11-09", "2019-11-20", "2019-11-23"], dtype="datetime64[ns]")
+    >>> interpolate_offsets(t3, c3, [[10.0], [np.nan], [24.0]])[1]
+    array([4, 4, 2], dtype=int8)
     """
     t = np.asarray(times).astype("datetime64[ns]").astype(np.int64).astype(float)
     c = np.asarray(centers).astype("datetime64[ns]").astype(np.int64).astype(float)
@@ -50,6 +63,7 @@ def interpolate_offsets(times, centers, offsets_nT):
     if off.shape[0] != c.size:
         raise InputError(f"{off.shape[0]} offsets for {c.size} window centres")
     ok = np.all(np.isfinite(off), axis=1)
+    skipped_c = c[~ok]
     c, off = c[ok], off[ok]
     if c.size > 1 and np.any(np.diff(c) <= 0):
         raise InputError("window centres must be strictly increasing")
@@ -60,9 +74,36 @@ def interpolate_offsets(times, centers, offsets_nT):
     for j in range(off.shape[1]):
         out[:, j] = np.interp(t, c, off[:, j])
     flag[:] = FLAG_INTERPOLATED
+    if skipped_c.size and c.size > 1:
+        # each sample's bracketing pair of valid centres, and whether a skipped centre
+        # lies strictly between them
+        k = np.clip(np.searchsorted(c, t, side="right") - 1, 0, c.size - 2)
+        between = (np.searchsorted(skipped_c, c[k + 1], side="left")
+                   - np.searchsorted(skipped_c, c[k], side="right"))
+        # a sample at a valid centre takes that window's own offset
+        flag[(between > 0) & (t > c[k]) & (t < c[k + 1])] = FLAG_BRIDGED
     flag[t < c[0]] = FLAG_HELD_BEFORE
     flag[t > c[-1]] = FLAG_HELD_AFTER
     return out, flag
+
+
+def quality_bits(flag) -> np.ndarray:
+    """The ``quality`` bits (:mod:`magcal.qc.flags`) that ``offset_flag`` values set:
+    16 (``offset_held_or_extrapolated``) for a held or missing offset (1, 2, 3), 64
+    (``offset_bridged_over_missing_window``) for one bridged across a window without an
+    offset (4), none for a plain interpolation (0).
+
+    Examples
+    --------
+    >>> quality_bits([0, 1, 2, 3, 4]).tolist()
+    [0, 16, 16, 16, 64]
+    """
+    from magcal.qc.flags import OFFSET_BRIDGED, OFFSET_HELD
+
+    flag = np.asarray(flag)
+    held = np.isin(flag, (FLAG_HELD_BEFORE, FLAG_HELD_AFTER, FLAG_NO_OFFSET))
+    return (np.where(held, OFFSET_HELD, 0)
+            | np.where(flag == FLAG_BRIDGED, OFFSET_BRIDGED, 0)).astype(np.uint16)
 
 
 def apply_offsets(times, data_hpen, table):

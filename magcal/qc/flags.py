@@ -29,6 +29,9 @@ TIME = np.uint16(8)
 OFFSET_HELD = np.uint16(16)
 #: Field magnitude implausible against the model field.
 IMPLAUSIBLE = np.uint16(32)
+#: The offset applied was interpolated across a window without a valid offset
+#: (``offset_flag`` 4): a line over twice the window step or more.
+OFFSET_BRIDGED = np.uint16(64)
 
 #: Bit -> name, in bit order (the CF flag_masks / flag_meanings of every product).
 FLAG_NAMES = {
@@ -38,10 +41,11 @@ FLAG_NAMES = {
     int(TIME): "time_anomaly",
     int(OFFSET_HELD): "offset_held_or_extrapolated",
     int(IMPLAUSIBLE): "implausible_vs_model",
+    int(OFFSET_BRIDGED): "offset_bridged_over_missing_window",
 }
 
 #: Bits that keep a sample out of every fit, average and statistic (all but the offset
-#: bit, which describes the correction applied, not the measurement).
+#: bits, which describe the correction applied, not the measurement).
 EXCLUDE = np.uint16(int(SPIKE) | int(STUCK) | int(FILL) | int(TIME) | int(IMPLAUSIBLE))
 
 
