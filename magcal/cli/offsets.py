@@ -22,7 +22,10 @@ def register(subparsers) -> None:
                          description="Write OFFSETS.csv: one row per window "
                                      "(center,start,end,Hp,He,Hn,Hp_std,He_std,Hn_std,"
                                      "n_used,fraction_used, then Hp_mad,He_mad,Hn_mad,"
-                                     "n_available,reason).")
+                                     "n_available,reason,days_covered,lt_hours_covered,"
+                                     "Hp_se,He_se,Hn_se (1-sigma standard errors, nT),"
+                                     "Hp_dof,He_dof,Hn_dof (their degrees of freedom: "
+                                     "95 % interval = offset +- t(0.975, dof) se)).")
     fit.add_argument("input", help="DATA: CSV time,Hp,He,Hn (AC-cleaned, any cadence), GOES-R "
                                    "MAG L2 netCDF or ISTP CDF (format detected)")
     add_model_arguments(fit)
