@@ -76,7 +76,8 @@ def test_spin_tone_below_ambient_noise_after(galileo, galileo_fit):
     t, b, p = _arrays(galileo)
     err_sc = cal.calibrate(b) - ((b - galileo.truth.offsets_nT) @ galileo.truth.coupling.T)
     tone = spin_tone(t, err_sc, p)
-    assert np.all(tone.amplitude_nT < np.array([cal.spin_tone_noise_nT[c] for c in ("BX", "BY", "BZ")]))
+    floor = np.array([cal.spin_tone_noise_nT[c] for c in ("BX", "BY", "BZ")])
+    assert np.all(tone.amplitude_nT < floor)
 
 
 def test_wrong_priors_give_equivalent_calibration(galileo):
@@ -188,11 +189,14 @@ def _z_scores(config, seeds):
 def test_stated_errors_cover_as_claimed_and_are_not_wasteful():
     """100 seeded Galileo-like records with a 1 nT red natural field (power-law index 2)
     and 0.05 nT noise: the 95 % intervals hold the truth in 93-99 % of the 800 cases, and
-    the errors' spread is 0.75-1.25 of the stated std in every parameter. On the
-    Galileo-like records (0.2 nT field) the median spread is at least half the stated
-    std. One cluster per spin in the sandwich (before) gave spreads of 0.47-0.88 and
-    0.11-0.51 there: the natural field's block residuals cancel between consecutive
-    spins, which that sandwich counted in full (intervals 2-9x too wide)."""
+    the errors' spread is 0.75-1.25 of the stated std in every parameter.
+
+    On the Galileo-like records (0.2 nT field and two waves) the stated std is a root
+    mean square error, random part plus the waves' errors-in-variables bias: the RMS of
+    error / std is 0.8-1.25 in every parameter, the median spread about the mean error
+    at least 0.75, and 93-99 % coverage. The 10-spin cluster sandwich (before) gave
+    RMS 0.50-1.36 and median spread 0.61 there (waves' residuals counted, their bias
+    not); one cluster per spin, spreads of 0.11-0.51 (intervals 2-9x too wide)."""
     import dataclasses
 
     red = dataclasses.replace(SpinningConfig.galileo_like(), turbulence_rms_nT=1.0,
@@ -201,5 +205,32 @@ def test_stated_errors_cover_as_claimed_and_are_not_wasteful():
     assert 0.93 <= np.mean(np.abs(z) <= 1.96) <= 0.99, np.mean(np.abs(z) <= 1.96)
     assert np.all((z.std(axis=0) >= 0.75) & (z.std(axis=0) <= 1.25)), z.std(axis=0)
     z = _z_scores(SpinningConfig.galileo_like(), range(1000, 1060))
-    assert np.median(z.std(axis=0)) >= 0.5, z.std(axis=0)
-    assert np.mean(np.abs(z) <= 1.96) >= 0.93
+    rms = np.sqrt(np.mean(z ** 2, axis=0))
+    assert np.all((rms >= 0.8) & (rms <= 1.25)), rms
+    assert np.median(z.std(axis=0)) >= 0.75, z.std(axis=0)
+    assert 0.93 <= np.mean(np.abs(z) <= 1.96) <= 0.99, np.mean(np.abs(z) <= 1.96)
+
+
+@pytest.mark.slow
+def test_stated_errors_hold_on_short_white_noise_records():
+    """A case not tuned for: 1-hour records (180 spins) with white instrument noise only
+    (no natural field, no waves), 100 seeds: 92-99 % coverage and spreads 0.75-1.25."""
+    cfg = SpinningConfig.galileo_like(duration_s=3600.0, turbulence_rms_nT=0.0, waves=())
+    z = _z_scores(cfg, range(1000, 1100))
+    assert 0.92 <= np.mean(np.abs(z) <= 1.96) <= 0.99, np.mean(np.abs(z) <= 1.96)
+    assert np.all((z.std(axis=0) >= 0.75) & (z.std(axis=0) <= 1.25)), z.std(axis=0)
+
+
+def test_long_run_variance_ignores_tones_above_its_band():
+    """The cosine estimate of the scores' long-run variance: n sigma^2 for white scores,
+    and a tone at 0.27 cycle per block ten times their amplitude (a natural wave's
+    residual) leaves it so; a per-block sum of squares would count the tone in full."""
+    from magcal.spin.ripple import _cosine_long_run
+
+    rng = np.random.default_rng(5)
+    n = 900
+    white = rng.standard_normal((n, 2))
+    tone = 10 * np.sin(2 * np.pi * 0.27 * np.arange(n) + 0.3)[:, None] * [1.0, -0.5]
+    lrv = np.diag(_cosine_long_run(white + tone, n // 5))
+    assert_allclose(lrv, n * np.ones(2), rtol=0.3)
+    assert np.all(np.sum((white + tone) ** 2, axis=0) > 10 * n)
