@@ -169,9 +169,12 @@ class SpinCalibration:
     fixed : tuple of str
         Parameters held at their prior values.
     std : dict
-        Standard deviation of each determined parameter.
+        Root mean square error of each determined parameter: the random part's standard
+        deviation and the estimated errors-in-variables bias in quadrature
+        (:func:`solve_ripple`).
     covariance : ndarray
-        Covariance of the determined parameters, in the order of ``determined``.
+        Error covariance of the determined parameters, in the order of ``determined``:
+        the random covariance plus the outer product of the estimated bias.
     spin_tone_before_nT, spin_tone_after_nT, spin_tone_noise_nT : dict
         ``{"BX": [1x, 2x], "BY": [...], "BZ": [...]}`` with the prior parameters, with
         the fitted ones, and the ambient noise floor at those frequencies.
