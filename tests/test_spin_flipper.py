@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
@@ -97,3 +99,26 @@ def test_changing_spin_plane_field_does_not_bias_o3():
     assert_allclose(res.O3_raw - 0.45, leak, rtol=0.05)
     assert abs(res.O3 - 0.45) < 1e-4
     assert_allclose(res.field_change_correction_nT, leak, rtol=0.05)
+
+
+@pytest.mark.parametrize("turbulence_nT", [0.2, 1.0])
+def test_o3_unbiased_and_covered_over_seeds(turbulence_nT):
+    # 80 seeded 2-h Galileo-like records (waves, slow field, red turbulence) with a
+    # one-hour flip, z = (O3 - truth) / O3_std. The plain spin average gave z mean
+    # +0.99 / +0.92, z sd 0.07 / 0.32 (std from the scatter of the spins, which the
+    # waves dominate) and 100 % coverage; now z mean +0.05 / +0.04, z sd 0.89 / 0.90,
+    # coverage 96.3 % / 96.3 %.
+    cfg = SpinningConfig.galileo_like(duration_s=2 * 3600.0, coupling=tuple(map(tuple, TILTED)),
+                                      flip_intervals_s=((3600.0, 7200.0),))
+    cfg = dataclasses.replace(cfg, turbulence_rms_nT=turbulence_nT)
+    z = []
+    for seed in range(300, 380):
+        sim = simulate_spinning(cfg, rng=np.random.default_rng(seed))
+        t, b, p, f = _cols(sim)
+        res = flipper_offset(t, b, p, f, coupling=sim.truth.coupling,
+                             offsets=sim.truth.offsets_nT)
+        z.append((res.O3 - sim.truth.offsets_nT[2]) / res.O3_std)
+    z = np.array(z)
+    assert abs(z.mean()) < 0.3
+    assert 0.7 < z.std() < 1.3
+    assert np.mean(np.abs(z) <= 1.96) >= 0.9
