@@ -1,6 +1,8 @@
-"""Flipper: O3 from the spin average of the flipped sensor, and completion of C, O."""
+"""Flipper: O3 from the flipped sensor in the spin plane, and completion of C, O."""
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 import pytest
@@ -12,6 +14,10 @@ from magcal.spin.flipper import complete_with_flipper, flipper_offset
 from magcal.spin.ripple import fit_spin_ripple
 
 
+#: Coupling of the tests: sensor 3 tilted by 0.23 deg towards sensor 1.
+TILTED = np.array([[1.0012, 0.0, 0.0021], [0.0017, 0.9981, -0.0013], [0.004, -0.0024, 0.9993]])
+
+
 def _cols(res):
     d = res.data
     return (res.truth.t_s, d[["b1", "b2", "b3"]].to_numpy(), d["phase"].to_numpy(),
@@ -21,8 +27,7 @@ def _cols(res):
 @pytest.fixture(scope="module")
 def flipped():
     # sensor 3 tilted by 0.23 deg towards sensor 1: 0.14 nT of the 35 nT Bz leaks in
-    c = np.array([[1.0012, 0.0, 0.0021], [0.0017, 0.9981, -0.0013], [0.004, -0.0024, 0.9993]])
-    cfg = SpinningConfig.galileo_like(duration_s=4 * 3600.0, coupling=tuple(map(tuple, c)),
+    cfg = SpinningConfig.galileo_like(duration_s=4 * 3600.0, coupling=tuple(map(tuple, TILTED)),
                                       flip_intervals_s=((10800.0, 14400.0),))
     return simulate_spinning(cfg, rng=np.random.default_rng(77))
 
@@ -74,3 +79,46 @@ def test_flipper_bad_input(flipped):
         flipper_offset(t, b, p, g)
     with pytest.raises(InputError, match="0 or 1"):
         flipper_offset(t, b, p, f * 2)
+
+
+def test_changing_spin_plane_field_does_not_bias_o3():
+    # The plain spin average of a spin-plane sensor picks up -(S / 2 pi) dBY/dt from a
+    # despun field that changes during the spin: -0.0065 nT here (10 nT over 15000 s,
+    # one-hour flip), the whole bias the old estimator had (z mean -0.83).
+    cfg = SpinningConfig.galileo_like(
+        duration_s=4 * 3600.0, coupling=tuple(map(tuple, np.eye(3))),
+        flip_intervals_s=((10800.0, 14400.0),), waves=(), turbulence_rms_nT=0.0,
+        noise_nT=0.0, slow_amplitude_nT=(0.0, 10.0, 0.0))
+    sim = simulate_spinning(cfg, rng=np.random.default_rng(1))
+    t, b, p, f = _cols(sim)
+    res = flipper_offset(t, b, p, f, coupling=sim.truth.coupling, offsets=sim.truth.offsets_nT)
+    tf = t[f == 1]
+    dby = 10.0 * 2 * np.pi / 15000.0 * np.cos(2 * np.pi * tf / 15000.0)
+    leak = -cfg.spin_period_s / (2 * np.pi) * dby.mean()
+    assert leak < -0.006
+    assert_allclose(res.O3_raw - 0.45, leak, rtol=0.05)
+    assert abs(res.O3 - 0.45) < 1e-4
+    assert_allclose(res.field_change_correction_nT, leak, rtol=0.05)
+
+
+@pytest.mark.parametrize("turbulence_nT", [0.2, 1.0])
+def test_o3_unbiased_and_covered_over_seeds(turbulence_nT):
+    # 80 seeded 2-h Galileo-like records (waves, slow field, red turbulence) with a
+    # one-hour flip, z = (O3 - truth) / O3_std. The plain spin average gave z mean
+    # +0.99 / +0.92, z sd 0.07 / 0.32 (std from the scatter of the spins, which the
+    # waves dominate) and 100 % coverage; now z mean +0.05 / +0.04, z sd 0.89 / 0.90,
+    # coverage 96.3 % / 96.3 %.
+    cfg = SpinningConfig.galileo_like(duration_s=2 * 3600.0, coupling=tuple(map(tuple, TILTED)),
+                                      flip_intervals_s=((3600.0, 7200.0),))
+    cfg = dataclasses.replace(cfg, turbulence_rms_nT=turbulence_nT)
+    z = []
+    for seed in range(300, 380):
+        sim = simulate_spinning(cfg, rng=np.random.default_rng(seed))
+        t, b, p, f = _cols(sim)
+        res = flipper_offset(t, b, p, f, coupling=sim.truth.coupling,
+                             offsets=sim.truth.offsets_nT)
+        z.append((res.O3 - sim.truth.offsets_nT[2]) / res.O3_std)
+    z = np.array(z)
+    assert abs(z.mean()) < 0.3
+    assert 0.7 < z.std() < 1.3
+    assert np.mean(np.abs(z) <= 1.96) >= 0.9
