@@ -45,6 +45,9 @@ def test_spincal_and_flipper(files, sim, capsys):
                  "--complete", str(full), "-o", str(flip)]) == 0
     fl = json.loads(flip.read_text())
     assert abs(fl["O3"] - 0.45) < 0.05 and fl["O3_std"] > 0
+    # CAL.json's covariance reaches O3's error: the two parts in quadrature
+    assert fl["O3_std_calibration"] > 0 and fl["O3_std_data"] > 0
+    assert_allclose(fl["O3_std"], np.hypot(fl["O3_std_data"], fl["O3_std_calibration"]))
     done = json.loads(full.read_text())
     assert "O3" in done["determined"] and done["offsets"][2] == fl["O3"]
 

@@ -69,11 +69,14 @@ def _flipper(cal_doc: dict, cfg: ChainConfig, files):
 
     data = load_spin_data(files[0], cfg["spin"]["spin_period_s"], require_flip=True)
     product = flipper(data, coupling=cal_doc["coupling"], offsets=cal_doc["offsets"],
+                      covariance=cal_doc.get("covariance"),
+                      determined=cal_doc.get("determined", ()),
                       provenance=make_provenance("flipper", cfg["spin"], inputs=files))
     flip = product.to_json()
     full = complete_calibration(cal_doc, product.result.O3, product.result.O3_std,
                                 str(files[0]))
-    line = f"flipper O3 = {flip['O3']:.3f} +- {flip['O3_std']:.3f} nT"
+    line = (f"flipper O3 = {flip['O3']:.3f} +- {flip['O3_std']:.3f} nT (data "
+            f"{flip['O3_std_data']:.3f}, calibration {flip['O3_std_calibration']:.3f})")
     return full, StageProduct(stage="spin", summary={"O3": flip["O3"],
                                                      "O3_std": flip["O3_std"]},
                               lines=(line,), documents={"FLIP.json": flip,

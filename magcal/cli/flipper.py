@@ -9,10 +9,12 @@ from magcal.errors import InputError
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "flipper", help="spin-axis offset from flipper measurements",
-        description="Estimate the offset O3 of the spin-axis sensor from the spin average "
-                    "of sensor 3 while the flipper (column flip = 1) turns it into the spin "
-                    "plane. With --cal (CAL.json of flip position 0) the leak of the "
-                    "spin-axis field through the sensor's tilt is removed, and the completed "
+        description="Estimate the offset O3 of the spin-axis sensor while the flipper "
+                    "(column flip = 1) turns it into the spin plane: the spin-frequency "
+                    "tone of the despun sensors 3 and 2. With --cal (CAL.json of flip "
+                    "position 0) the tone's direction and the leak of the spin-axis field "
+                    "through the sensor's tilt come from that calibration, its covariance "
+                    "goes into O3_std (O3_std_calibration), and the completed "
                     "12-parameter calibration can be written with --complete.")
     p.add_argument("input", help="CSV time,b1,b2,b3,flip[,phase]")
     add_spin_arguments(p)
@@ -46,6 +48,8 @@ def run(args) -> int:
     try:
         product = flipper(data, coupling=None if cal_doc is None else cal_doc["coupling"],
                           offsets=None if cal_doc is None else cal_doc["offsets"],
+                          covariance=None if cal_doc is None else cal_doc.get("covariance"),
+                          determined=() if cal_doc is None else cal_doc.get("determined", ()),
                           provenance=make_provenance("flipper", params, inputs=inputs))
         done = None if not args.complete else complete_calibration(
             cal_doc, product.result.O3, product.result.O3_std, args.input)

@@ -42,7 +42,7 @@ from magcal.errors import InputError
 from magcal.io.jsonio import product_dict
 from magcal.spin.despin import TWO_PI, despin
 from magcal.spin.harmonics import block_harmonics, spin_blocks
-from magcal.spin.ripple import SpinCalibration
+from magcal.spin.ripple import PARAM_NAMES, SpinCalibration
 from magcal.stats import student_interval
 
 #: Flipper position 1 turns the triad so that sensor readings are C^-1 F B_sc + O.
@@ -75,9 +75,10 @@ class FlipperResult:
     Attributes
     ----------
     O3, O3_std : float
-        Offset of sensor 3 (nT) and its standard deviation, scaled by
+        Offset of sensor 3 (nT) and its standard deviation: the data's part scaled by
         ``t_0.975(O3_dof) / 1.96`` so that ``O3 -/+ 1.96 O3_std`` is the Student 95 %
-        interval (1.08 for a one-hour Galileo flip, 1.31 for ten minutes).
+        interval (1.08 for a one-hour Galileo flip, 1.31 for ten minutes), and the
+        calibration's part in quadrature.
     O3_raw : float
         Plain spin average of sensor 3 in position 1 (before any correction).
     tilt_correction_nT : float
@@ -87,7 +88,11 @@ class FlipperResult:
         the spins (and the taper weighting) put into the plain average.
     n_spins_flipped, n_spins_unflipped : int
     O3_dof : int
-        Degrees of freedom of ``O3_std`` (sine tapers over all flip intervals - 1).
+        Degrees of freedom of ``O3_std_data`` (sine tapers over all flip intervals - 1).
+    O3_std_data, O3_std_calibration : float
+        The parts of ``O3_std``, in quadrature: the data's (the tapers', scaled as
+        above) and the position-0 calibration's, propagated from its covariance
+        (0 when none is given; :func:`flipper_offset`).
     provenance : dict
     """
 
@@ -99,6 +104,8 @@ class FlipperResult:
     n_spins_unflipped: int
     field_change_correction_nT: float = 0.0
     O3_dof: int = 0
+    O3_std_data: float = float("nan")
+    O3_std_calibration: float = 0.0
     provenance: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
@@ -233,6 +240,7 @@ def _taper_mean(x, pos, run):
 
 
 def flipper_offset(t_s, b, phase_rad, flip, *, coupling=None, offsets=None,
+                   covariance=None, determined=(),
                    max_gap_rad: float = np.pi / 4, min_spins: int = 3,
                    provenance: dict | None = None) -> FlipperResult:
     """Estimate ``O3`` from intervals in both flipper positions.
@@ -273,6 +281,16 @@ def flipper_offset(t_s, b, phase_rad, flip, *, coupling=None, offsets=None,
         Position-0 calibration (e.g. from :func:`~magcal.spin.ripple.fit_spin_ripple`).
         With them the leak of ``Bz`` into the flipped sensor is removed; without a
         coupling the triad is taken as ideal (identity; ``O1, O2`` zero unless given).
+    covariance, determined : array_like, sequence of str, optional
+        The calibration's error covariance and the names (:data:`PARAM_NAMES`) of the
+        parameters it covers (``SpinCalibration.covariance``, ``.determined``). ``O3``
+        depends on the coupling (the tone's direction, the ``Bz`` leak) and ``O1, O2``:
+        their errors move it, and the data's error does not say so. The derivative of
+        ``O3`` by each parameter (central difference over one standard deviation) and
+        the covariance give ``O3_std_calibration``, added in quadrature. With a
+        calibration fitted by the ripple fit on the same record (Galileo-like, 4 h, a
+        one-hour flip; 40 seeded records each) the data's part alone held the truth in
+        82 % (0.2 nT red turbulence) and 80 % (1 nT) of the 95 % intervals.
     min_spins : int
         Fewest whole spins needed in position 1.
 
@@ -331,10 +349,45 @@ def flipper_offset(t_s, b, phase_rad, flip, *, coupling=None, offsets=None,
     run = np.cumsum(np.r_[True, on[1:] != on[:-1]])[on]
     x, pos, run_b = _spin_tone(t[on], bb[on], p[on], run, coupling, offsets, max_gap_rad)
     o3, o3_std, dof = _taper_mean(x, pos, run_b)
-    return FlipperResult(O3=o3, O3_std=o3_std, O3_raw=raw, tilt_correction_nT=tilt,
+    std_cal = 0.0
+    if covariance is not None and len(determined):
+        std_cal = _calibration_std(lambda c_, o_: _taper_mean(
+            *_spin_tone(t[on], bb[on], p[on], run, c_, o_, max_gap_rad))[0],
+            coupling, offsets, covariance, determined)
+    return FlipperResult(O3=o3, O3_std=float(np.hypot(o3_std, std_cal)), O3_raw=raw,
+                         tilt_correction_nT=tilt,
                          n_spins_flipped=int(means.size), n_spins_unflipped=n_off,
                          field_change_correction_nT=raw - tilt - o3, O3_dof=dof,
+                         O3_std_data=o3_std, O3_std_calibration=std_cal,
                          provenance=dict(provenance or {}))
+
+
+def _calibration_std(estimate, coupling, offsets, covariance, determined) -> float:
+    """Standard deviation that a calibration's errors give ``estimate(coupling, offsets)``:
+    ``sqrt(g^T S g)`` with ``g`` its central differences over one standard deviation of
+    each parameter in ``determined`` and ``S`` their ``covariance``."""
+    cov = np.atleast_2d(np.asarray(covariance, dtype=float))
+    names = list(determined)
+    if cov.shape != (len(names), len(names)):
+        raise InputError(f"calibration covariance of shape {cov.shape} for {len(names)} "
+                         "determined parameters", column="covariance")
+    theta = np.concatenate([np.eye(3).ravel() if coupling is None
+                            else np.asarray(coupling, dtype=float).ravel(),
+                            np.zeros(3) if offsets is None
+                            else np.asarray(offsets, dtype=float)])
+    grad = np.zeros(len(names))
+    for k, name in enumerate(names):
+        h = float(np.sqrt(max(cov[k, k], 0.0)))
+        if name not in PARAM_NAMES or not np.isfinite(h) or h == 0.0:
+            continue
+        j = PARAM_NAMES.index(name)
+        vals = []
+        for sign in (1.0, -1.0):
+            th = theta.copy()
+            th[j] += sign * h
+            vals.append(estimate(th[:9].reshape(3, 3), th[9:]))
+        grad[k] = (vals[0] - vals[1]) / (2.0 * h)
+    return float(np.sqrt(max(grad @ np.nan_to_num(cov) @ grad, 0.0)))
 
 
 def complete_with_flipper(cal: SpinCalibration, flip: FlipperResult) -> SpinCalibration:

@@ -204,9 +204,12 @@ class FlipperProduct:
         return product_dict(out)
 
 
-def flipper(data: SpinData, *, coupling=None, offsets=None,
+def flipper(data: SpinData, *, coupling=None, offsets=None, covariance=None, determined=(),
             provenance: dict | None = None) -> FlipperProduct:
     """Spin-axis offset ``O3`` from the flipper intervals of a checked record.
+
+    ``covariance`` and ``determined`` (CAL.json's) carry the calibration's errors into
+    ``O3_std`` (:func:`magcal.spin.flipper.flipper_offset`).
 
     Raises
     ------
@@ -225,9 +228,13 @@ def flipper(data: SpinData, *, coupling=None, offsets=None,
     if coupling is not None:
         coupling = _numbers(coupling, (3, 3), "coupling")
         offsets = None if offsets is None else _numbers(offsets, (3,), "offsets")
+    determined = tuple(determined or ())
+    if determined:
+        covariance = _numbers(covariance, (len(determined), len(determined)), "covariance")
     try:
         res = flipper_offset(data.t_s, data.b, data.phase, data.flip, coupling=coupling,
-                             offsets=offsets, provenance=provenance)
+                             offsets=offsets, covariance=covariance if determined else None,
+                             determined=determined, provenance=provenance)
     except InputError as exc:
         raise InputError(exc.message, file=data.source, column=exc.column) from None
     return FlipperProduct(result=res, spin_phase=data.phase_record(), screened=data.screened)
