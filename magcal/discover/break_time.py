@@ -31,7 +31,7 @@ it) the ratio's 95 % quantile at the true time was 3.5-4.1 for correlation times
 2 h, 4.4-5.0 for 6-12 h, 6.5-6.9 for a day and 8.7 for two days, so 3.84 held the truth
 in 83-97 % of the records and 7.35 in 93.5-100 % (wider than needed where the noise is
 nearly white: 99-100 %). The simulated value follows the colour. With the noise taken
-as known it held the truth in 89-91 % for correlation times of one and two days: the
+as known it held the truth in 89-93 % for correlation times of one and two days: the
 fitted correlation time comes out short in the very records whose wander misplaced the
 break. The degrees-of-freedom term is what brings those to 93-97 %; the numbers per
 case are in :func:`break_time_interval` (``benchmarks/bench_break_time.py``).
@@ -41,9 +41,11 @@ squares on hourly means scaled by each component's long-run variance) at 3.84 he
 truth in 66-96 %; re-running the whole procedure in each of 100 simulated records
 (re-naming the break and refitting the noise) for a two-day correlation time: 90 % of
 52 records, no better than the noise taken as known; whitening with the longest
-correlation time within 0.5 of the best restricted log-likelihood: 94.5 %, but 263 h
-wide where the delivered interval is 190-290 h; ``nu`` the whole effective count less
-three (instead of half of it): 92-98.5 % (92.2 % for a day's correlation time).
+correlation time within 0.5 of the best restricted log-likelihood: as often as the
+delivered interval for two days' correlation (94.5 %, 263 h against 264 h on seeds
+0-199 / 0-399) and wider for a day's (130 h against 114 h), at the cost of a search of
+the noise likelihood per component; ``nu`` the whole effective count less three
+(instead of half of it): 92-98.5 % (92.2 % for a day's correlation time).
 """
 
 from __future__ import annotations
@@ -118,8 +120,9 @@ def noise_dof(fit, times_s) -> float:
     :data:`N_COEF`, at least 1.
 
     The half is calibrated by simulation (see the module's notes): with the whole count,
-    records with a correlation time of one or two days (30 days long) held the true
-    break time in 92-93 % of 400; with half, in 94-95 %.
+    30-day records with a correlation time of one or two days held the true break time
+    in 93.2 and 92.7 % of 400 (seeds 0-399) and 92.2 and 93.0 % (seeds 1000-1399); with
+    half, 94.8 and 94.5 % (seeds 0-399) and 93.5 and 93.2 % held out (seeds 2000-2399).
 
     Examples
     --------
