@@ -87,7 +87,12 @@ def products(tmp_path_factory):
                      "parameters": {"time": "2019-12-12T00:02:30+00:00",
                                     "time_ci95": ["2019-12-11T23:02:30+00:00",
                                                   "2019-12-12T01:02:30+00:00"]},
-                     "rms_before_nT": 1.25, "rms_after_nT": 0.875, "evidence": {}}]})
+                     "rms_before_nT": 1.25, "rms_after_nT": 0.875, "evidence": {}},
+                    {"name": "drift", "components": ["Hn"],
+                     "parameters": {"break_time": "2019-12-14T09:00:00+00:00",
+                                    "time_ci95": ["2019-12-13T20:00:00+00:00",
+                                                  "2019-12-15T03:00:00+00:00"]},
+                     "rms_before_nT": 0.875, "rms_after_nT": 0.75, "evidence": {}}]})
     return root
 
 
@@ -112,6 +117,8 @@ def test_report_holds_the_product_numbers_and_embeds_every_figure(products, tmp_
         assert v in text
     # the step's time with its 95 % interval
     assert "2019-12-12 00:02 (95 %: after 2019-12-11 23:02, by 2019-12-12 01:02 UTC)" in text
+    # and a drift's break with its own
+    assert "2019-12-14 09:00 (95 %: after 2019-12-13 20:00, by 2019-12-15 03:00 UTC)" in text
     assert "Not available: no alignment/*conjunction*.json" in text
     # plan disagreement above 0.1 mHz: 0.05 x the 30 s wave of amplitude 2 -> rms 0.0707
     x_rms = 0.05 * 2.0 / np.sqrt(2.0)

@@ -10,7 +10,8 @@ until no candidate earns its parameters.
 Modules: :mod:`~magcal.discover.effects` (vocabulary and regressors),
 :mod:`~magcal.discover.selection` (blocked cross-validation),
 :mod:`~magcal.discover.scan` (step and period scans),
-:mod:`~magcal.discover.step_time` (a named step time's interval), :mod:`~magcal.discover.gap`
+:mod:`~magcal.discover.step_time` (a named step time's interval),
+:mod:`~magcal.discover.break_time` (a drift break's), :mod:`~magcal.discover.gap`
 (where the residual concentrates), :mod:`~magcal.discover.loop` (the loop and its
 result), :mod:`~magcal.discover.account` (text), :mod:`~magcal.discover.plots`.
 """

@@ -11,8 +11,8 @@ import numpy as np
 
 
 def step_interval_text(parameters) -> str:
-    """`` (95 %: after <lo>, by <hi> UTC)`` for a step's parameters with ``time_ci95``
-    (ISO times, shown to the minute), else ``""``.
+    """`` (95 %: after <lo>, by <hi> UTC)`` for a step's or a drift break's parameters
+    with ``time_ci95`` (ISO times, shown to the minute), else ``""``.
 
     Examples
     --------
@@ -20,10 +20,31 @@ def step_interval_text(parameters) -> str:
     ...                                   "2019-12-12T01:02:30+00:00"]})
     ' (95 %: after 2019-12-11 23:02, by 2019-12-12 01:02 UTC)'
     """
+    words = _interval_words(parameters)
+    return f" (95 %: {words})" if words else ""
+
+
+def break_interval_text(parameters) -> str:
+    """``, 95 %: after <lo>, by <hi> UTC`` for a drift break's parameters with
+    ``time_ci95``, else ``""``: inside the drift's own parentheses.
+
+    Examples
+    --------
+    >>> break_interval_text({"time_ci95": ["2019-11-12T20:00:00+00:00",
+    ...                                    "2019-11-14T03:00:00+00:00"]})
+    ', 95 %: after 2019-11-12 20:00, by 2019-11-14 03:00 UTC'
+    >>> break_interval_text({})
+    ''
+    """
+    words = _interval_words(parameters)
+    return f", 95 %: {words}" if words else ""
+
+
+def _interval_words(parameters) -> str:
     if "time_ci95" not in parameters:
         return ""
     lo, hi = (t[:16].replace("T", " ") for t in parameters["time_ci95"])
-    return f" (95 %: after {lo}, by {hi} UTC)"
+    return f"after {lo}, by {hi} UTC"
 
 
 def _comps(components) -> str:
@@ -86,7 +107,7 @@ def _what(fe) -> str:
     if name == "step":
         return f"step at {p['time']}{step_interval_text(p)}"
     if name == "drift" and "break_time" in p:
-        return f"drift (rate change at {p['break_time']})"
+        return f"drift (rate change at {p['break_time']}{break_interval_text(p)})"
     if name == "rotation":
         angles = ", ".join(f"{v:+.2f}" for v in p["angles_deg"].values())
         return f"rotation ({angles} deg)"

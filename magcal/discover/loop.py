@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from magcal.discover.break_time import break_time_interval
 from magcal.discover.effects import (
     DAY_S, EFFECT_NAMES, Activity, Diurnal, Drift, Effect, EffectInputs, Offset, Periodic,
     Rotation, Scale, SpinTone, Step, Temperature, available, make_activity)
@@ -133,8 +134,10 @@ class FittedEffect:
         blocks is itself scattered and the normal 1.96 covers less often than 95 %.
     time_ci95_s : tuple of float or None
         A step's 95 % confidence interval for its time, ``(after, at or before)`` in
-        seconds since 1970 (:func:`magcal.discover.step_time.step_time_interval`): the
-        report's ``parameters.time_ci95`` (ISO times) and ``time_ci95_s``.
+        seconds since 1970 (:func:`magcal.discover.step_time.step_time_interval`), or a
+        drift break's for the time of its rate change
+        (:func:`magcal.discover.break_time.break_time_interval`): the report's
+        ``parameters.time_ci95`` (ISO times) and ``time_ci95_s``.
     """
 
     effect: Effect
@@ -660,10 +663,15 @@ class _Loop:
         for eff, cols, rb, ra, ev, gb in effects_log:
             q = len(cols)
             when = None
+            own = [self.inputs.components.index(c) for c in eff.components]
             if isinstance(eff, Step):  # how well the data place it in time
-                own = [self.inputs.components.index(c) for c in eff.components]
                 when = step_time_interval(self.inputs.times_s, residual[:, own], eff.t_step_s,
                                           base.beta[k:k + q])
+            elif isinstance(eff, Drift) and eff.t_break_s is not None:  # and a drift's break
+                change = [b for (_, lab), b in zip(eff.labels(), base.beta[k:k + q])
+                          if lab == "rate_change_nT_per_day"]
+                when = break_time_interval(self.inputs.times_s, residual[:, own],
+                                           eff.t_break_s, change)
             fitted.append(FittedEffect(eff, base.beta[k:k + q], base.beta_std[k:k + q],
                                        rb, ra, ev, gb, beta_dof=dof[k:k + q],
                                        time_ci95_s=when))

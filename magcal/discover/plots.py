@@ -9,9 +9,10 @@ def plot_gap(result, path=None, max_points: int = 20000):
     """Plot the residual before and after the added effects.
 
     One row per component: left, residual against time (before in grey, after in
-    black), with each named step that holds the component marked at its time (dashed)
-    and its 95 % time interval shaded; right, hourly means against local time (when a
-    longitude was known).
+    black), with each named step that holds the component marked at its time (dashed,
+    red) and each drift's rate change at its break (dotted, blue), their 95 % time
+    intervals shaded; right, hourly means against local time (when a longitude was
+    known).
 
     Parameters
     ----------
@@ -47,14 +48,15 @@ def plot_gap(result, path=None, max_points: int = 20000):
         ax.plot(t_days[::step], before[::step, i], color="0.7", lw=0.5, label="before")
         ax.plot(t_days[::step], after[::step, i], color="k", lw=0.5, label="after")
         for fe in result.effects:
-            if fe.name != "step" or c not in fe.components:
+            when = _named_time(fe)
+            if when is None or c not in fe.components:
                 continue
-            ax.axvline((fe.effect.t_step_s - t0) / 86400.0, color="tab:red", lw=0.8, ls="--",
-                       label="step")
+            label, t_named, colour, style = when
+            ax.axvline((t_named - t0) / 86400.0, color=colour, lw=0.8, ls=style, label=label)
             if fe.time_ci95_s is not None:
                 lo, hi = ((v - t0) / 86400.0 for v in fe.time_ci95_s)
-                ax.axvspan(lo, hi, color="tab:red", alpha=0.15, lw=0,
-                           label="step time, 95 %")
+                ax.axvspan(lo, hi, color=colour, alpha=0.15, lw=0,
+                           label=f"{label} time, 95 %")
         ax.set_ylabel(f"{c} residual (nT)")
         if i == len(comps) - 1:
             ax.set_xlabel("days since start")
@@ -78,3 +80,13 @@ def plot_gap(result, path=None, max_points: int = 20000):
             fig.savefig(tmp, format=str(path).rsplit(".", 1)[-1], dpi=110)
         plt.close(fig)
     return fig
+
+
+def _named_time(fe):
+    """``(label, time s, colour, line style)`` of a named step or drift break, else None."""
+    eff = fe.effect
+    if fe.name == "step":
+        return "step", eff.t_step_s, "tab:red", "--"
+    if fe.name == "drift" and getattr(eff, "t_break_s", None) is not None:
+        return "rate change", eff.t_break_s, "tab:blue", ":"
+    return None

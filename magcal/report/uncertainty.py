@@ -639,7 +639,7 @@ def discover_section(root: Path) -> tuple:
             return "not computed (REPORT.json written before amplitudes existed)"
         return ", ".join(f"{c} {amp[c]:.3f} +- {se.get(c, float('nan')):.3f}" for c in amp)
 
-    def when(e):  # a step's time and its 95 % interval; a drift's break
+    def when(e):  # a step's or a drift break's time and its 95 % interval
         p = e.get("parameters") or {}
         for key in ("time", "break_time"):
             if key in p:
@@ -655,8 +655,8 @@ def discover_section(root: Path) -> tuple:
                                 "rms after (nT)",
                                 "amplitude (rms over the record, nT) +- standard error"],
                                rows, caption="Effects in the order they were added; "
-                               "a step's time with its 95 % interval (it happened after the "
-                               "first time, by the second), a drift's break time; "
+                               "a step's time or a drift's break time with its 95 % "
+                               "interval (it happened after the first time, by the second); "
                                "standard errors under the OU + white noise model fitted to "
                                "the final residual (discover/REPORT.json amplitude_noise).",
                                source=_rel(path, root), fmt="{:.3f}"))
