@@ -18,7 +18,7 @@ interval's recipe: least squares on hourly means scaled by the long-run variance
 3.84).
 
 Run: ``python benchmarks/bench_break_time.py [n_records] [first_seed] [case ...]``
-(development seeds 0-399, held out 1000-1399).
+(development seeds 0-399 and 1000-1399, held out 2000-2399).
 """
 
 from __future__ import annotations
