@@ -78,7 +78,8 @@ def test_bad_input_messages(files, tmp_path, capsys):
     assert main(["flipper", str(files / "no_flip.csv"), "-o", str(out)]) == 2
     assert "flipper intervals missing" in capsys.readouterr().err
     short = tmp_path / "short.csv"
-    res = simulate_spinning(SpinningConfig.galileo_like(duration_s=90.0), rng=np.random.default_rng(1))
+    res = simulate_spinning(SpinningConfig.galileo_like(duration_s=90.0),
+                            rng=np.random.default_rng(1))
     write_csv_frame(short, res.data, float_format=None)
     assert main(["spincal", str(short), "-o", str(out)]) == 2
     assert "complete spins usable" in capsys.readouterr().err

@@ -17,7 +17,8 @@ result), :mod:`~magcal.discover.account` (text), :mod:`~magcal.discover.plots`.
 """
 
 from magcal.discover.effects import EFFECT_NAMES
-from magcal.discover.loop import DiscoveryResult, DiscoverySettings, FittedEffect, discover, discover_gap
+from magcal.discover.loop import (DiscoveryResult, DiscoverySettings, FittedEffect, discover,
+                                  discover_gap)
 
 __all__ = ["EFFECT_NAMES", "DiscoveryResult", "DiscoverySettings", "FittedEffect", "discover",
            "discover_gap"]

@@ -591,7 +591,8 @@ class _Loop:
             cands += self._dynamic(residual, base)
             rounds.append({"round": len(rounds) + 1, "candidates": [
                 {"name": c.name, "components": list(c.effect.components),
-                 "n_params": len(c.columns), "trials": c.trials, "log_p_corrected": c.log_p_corrected,
+                 "n_params": len(c.columns), "trials": c.trials,
+                 "log_p_corrected": c.log_p_corrected,
                  **({"implausible": c.implausible} if c.implausible else {}),
                  **c.effect.hyper(), **c.comparison.as_dict()}
                 for c in sorted(cands, key=lambda c: -c.comparison.gain)]})

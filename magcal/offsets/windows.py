@@ -2,8 +2,8 @@
 
 Windows of ``window_days`` stepped by ``step_days`` (28 and 7 in the SOSMAG paper). Per
 window and component: median (the offset), standard deviation, and the median absolute
-deviation scaled to a standard deviation (scipy's ``scale="normal"``), over the selected (quiet) samples
-in ``[start, end)``. The times are sorted once and every window is a pair of
+deviation scaled to a standard deviation (scipy's ``scale="normal"``), over the selected
+(quiet) samples in ``[start, end)``. The times are sorted once and every window is a pair of
 ``searchsorted`` bounds, so a year of 1-min data takes a fraction of a second.
 """
 
