@@ -96,6 +96,15 @@ def test_negative_sense_recovers_the_turned_truth(files, sim, cal_pos):
     assert_allclose(jn["coupling"], R @ np.asarray(jp["coupling"]) @ R, atol=1e-9)
     assert_allclose(jn["coupling"], R @ tr.coupling @ R, atol=5e-3)
     assert max(jn["spin_tone_after_nT"]["BX"]) < 0.05
+    # the waves' bias record is turned into the file's frame like the parameters
+    from magcal.spin.product import _PARAM_SIGN
+    from magcal.spin.ripple import PARAM_NAMES
+
+    sign = dict(zip(PARAM_NAMES, _PARAM_SIGN))
+    for key in ("bias_estimate", "bias_correction"):
+        assert jn[key].keys() == jp[key].keys()
+        assert_allclose([jn[key][n] for n in jp[key]],
+                        [sign[n] * jp[key][n] for n in jp[key]], rtol=1e-6, atol=1e-12)
 
 
 def test_wrong_sense_is_refused(files, tmp_path, capsys):

@@ -138,6 +138,8 @@ def _unflip(cal: SpinCalibration) -> SpinCalibration:
         cal, coupling=SENSE_FLIP @ cal.coupling @ SENSE_FLIP,
         offsets_nT=SENSE_FLIP @ cal.offsets_nT,
         covariance=np.asarray(cal.covariance) * np.outer(cov_sign, cov_sign),
+        bias_correction={n: sign[n] * v for n, v in cal.bias_correction.items()},
+        bias_estimate={n: sign[n] * v for n, v in cal.bias_estimate.items()},
         notes=tuple(cal.notes) + (note,))
 
 
