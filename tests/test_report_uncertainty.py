@@ -74,9 +74,13 @@ def products(tmp_path_factory):
     write_json(root / "spin" / "CAL.json", {
         "coupling": np.eye(3).tolist(), "offsets": [0.1, 0.2, 0.3],
         "determined": ["O1", "O2"], "fixed": ["O3"],
+        "std": {"O1": 0.00125, "O2": 0.0025}, "bias_correction": {"O1": 0.0, "O2": 0.000375},
         "spin_tone_before_nT": {"BX": [1.25, 0.5], "BY": [1.5, 0.25], "BZ": [0.75, 0.125]},
         "spin_tone_after_nT": {"BX": [0.0125, 0.005], "BY": [0.015, 0.0025],
                                "BZ": [0.0075, 0.00125]}})
+    write_json(root / "spin" / "FLIP.json", {
+        "O3": 0.4498, "O3_std": 0.000977, "O3_std_data": 0.000737,
+        "O3_std_calibration": 0.000642, "O3_dof": 26})
     (root / "discover").mkdir()
     write_json(root / "discover" / "REPORT.json", {
         "gap_initial": {"rms_nT": 5.125}, "gap_final": {"rms_nT": 1.25},
@@ -115,6 +119,11 @@ def test_report_holds_the_product_numbers_and_embeds_every_figure(products, tmp_
         assert v in text
     for v in ("5.125", "1.250", "diurnal", "1.2500", "0.0125"):  # discover and spin
         assert v in text
+    # the spin parameters with their errors (O2: 0.2 +- 1.96 x 0.0025, bias 0.000375 nT)
+    # and the flipper's O3 with its two parts
+    for v in ("0.0025", "0.0049", "0.000375", "0.4498", "0.000977", "0.00191492", "0.000737",
+              "0.000642", "26"):
+        assert v in text, v
     # the step's time with its 95 % interval
     assert "2019-12-12 00:02 (95 %: after 2019-12-11 23:02, by 2019-12-12 01:02 UTC)" in text
     # and a drift's break with its own
@@ -136,8 +145,9 @@ def test_report_holds_the_product_numbers_and_embeds_every_figure(products, tmp_
         assert base64.b64decode(src.split(",", 1)[1])[:8] == b"\x89PNG\r\n\x1a\n"
     # PDF: one page per figure after the text pages
     n_pages = len(re.findall(rb"/Type\s*/Page\b", pdf.read_bytes()))
-    # 3 text pages: about 100 lines at 62 a page, plus long table rows wrapped in two
-    assert n_pages == len(imgs) + 3
+    # 4 text pages: about 130 lines at 62 a page (the spin parameters' and the
+    # flipper's tables among them), plus long table rows wrapped in two
+    assert n_pages == len(imgs) + 4
 
 
 def test_missing_products_are_reported_not_errors(tmp_path):

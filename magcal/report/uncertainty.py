@@ -85,9 +85,11 @@ def _require(doc: dict, keys, path: Path, kind=None) -> dict:
     for key in keys:
         if key not in doc:
             raise InputError(f"missing key {key!r}", file=path)
-        if kind is not None and not isinstance(doc[key], kind):
+        if kind is not None and (not isinstance(doc[key], kind)
+                                 or isinstance(doc[key], bool)):
+            kinds = kind if isinstance(kind, tuple) else (kind,)
             raise InputError(f"key {key!r} is a {type(doc[key]).__name__}, expected a "
-                             f"{kind.__name__}", file=path)
+                             f"{' or '.join(k.__name__ for k in kinds)}", file=path)
     return doc
 
 
@@ -670,11 +672,58 @@ def spin_section(root: Path) -> tuple:
                    kind=dict)
     before, after = doc["spin_tone_before_nT"], doc["spin_tone_after_nT"]
     rows = [(k, *[float(x) for x in before[k]], *[float(x) for x in after[k]]) for k in before]
-    return (Paragraph("Spin calibration: determined " + ", ".join(doc.get("determined", []))
-                      + "; held at priors: " + (", ".join(doc.get("fixed", [])) or "none")),
-            Table.from_records(["axis", "1x before (nT)", "2x before", "1x after", "2x after"],
-                               rows, caption="Spin-tone amplitudes before and after.",
-                               source=_rel(path, root), fmt="{:.4f}"))
+    items = [Paragraph("Spin calibration: determined " + ", ".join(doc.get("determined", []))
+                       + "; held at priors: " + (", ".join(doc.get("fixed", [])) or "none")),
+             Table.from_records(["axis", "1x before (nT)", "2x before", "1x after", "2x after"],
+                                rows, caption="Spin-tone amplitudes before and after.",
+                                source=_rel(path, root), fmt="{:.4f}")]
+    params = _spin_parameter_rows(doc)
+    if params:
+        items.append(Table.from_records(
+            ["parameter", "value", "std", "95 % half-width", "bias correction"], params,
+            caption="Determined parameters (coupling c_ij, dimensionless; offsets O_i, nT) "
+                    "with their stated errors: the std is a root mean square error where "
+                    "the natural waves' estimated bias is left in, and the bias "
+                    "correction is what was subtracted from the least-squares value "
+                    "(magcal.spin.ripple.solve_ripple).",
+            source=_rel(path, root), fmt="{:.6g}"))
+    flip = root / "spin" / "FLIP.json"
+    if flip.is_file():
+        fd = _require(_read_json(flip), ("O3", "O3_std"), flip, kind=(int, float))
+        parts = [float(fd.get(k, float("nan"))) for k in ("O3_std_data", "O3_std_calibration")]
+        items.append(Table.from_records(
+            ["O3 (nT)", "std", "95 % half-width", "data's part", "calibration's part",
+             "dof (data)"],
+            [(float(fd["O3"]), float(fd["O3_std"]), 1.96 * float(fd["O3_std"]), *parts,
+              str(fd.get("O3_dof", "not computed")))],
+            caption="Spin-axis offset from the flipper: the std is the data's part (sine "
+                    "multitapers, scaled to Student's t on its degrees of freedom) and the "
+                    "position-0 calibration's part (its covariance carried through) in "
+                    "quadrature.", source=_rel(flip, root), fmt="{:.6g}"))
+    return tuple(items)
+
+
+def _spin_parameter_rows(doc: dict) -> list:
+    """Rows (name, value, std, 1.96 std, bias correction) of a CAL.json's determined
+    parameters; [] when it states no errors.
+
+    Examples
+    --------
+    >>> _spin_parameter_rows({"coupling": [[1, 0, 0], [0.5, 1, 0], [0, 0, 1]],
+    ...                       "offsets": [1.0, 2.0, 3.0], "determined": ["c21", "O2"],
+    ...                       "std": {"c21": 0.1, "O2": 0.5}, "bias_correction": {"c21": 0.0}})
+    [('c21', 0.5, 0.1, 0.196, 0.0), ('O2', 2.0, 0.5, 0.98, nan)]
+    """
+    std = doc.get("std") or {}
+    names = [n for n in doc.get("determined", []) if n in std]
+    if not names:
+        return []
+    names12 = [f"c{i}{j}" for i in (1, 2, 3) for j in (1, 2, 3)] + ["O1", "O2", "O3"]
+    values = dict(zip(names12, [float(v) for v in np.ravel(doc["coupling"])]
+                      + [float(v) for v in doc["offsets"]]))
+    bias = doc.get("bias_correction") or {}
+    return [(n, values.get(n, float("nan")), float(std[n]), round(1.96 * float(std[n]), 12),
+             float(bias.get(n, float("nan")))) for n in names]
 
 
 def build_uncertainty_report(products_dir, title: str = "magcal uncertainty report"
