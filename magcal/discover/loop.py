@@ -664,20 +664,23 @@ class _Loop:
         for eff, cols, rb, ra, ev, gb in effects_log:
             q = len(cols)
             when = None
-            own = [self.inputs.components.index(c) for c in eff.components]
             if isinstance(eff, Step):  # how well the data place it in time
-                when = step_time_interval(self.inputs.times_s, residual[:, own], eff.t_step_s,
-                                          base.beta[k:k + q])
+                when = step_time_interval(self.inputs.times_s, self._own(residual, eff),
+                                          eff.t_step_s, base.beta[k:k + q])
             elif isinstance(eff, Drift) and eff.t_break_s is not None:  # and a drift's break
                 change = [b for (_, lab), b in zip(eff.labels(), base.beta[k:k + q])
                           if lab == "rate_change_nT_per_day"]
-                when = break_time_interval(self.inputs.times_s, residual[:, own],
+                when = break_time_interval(self.inputs.times_s, self._own(residual, eff),
                                            eff.t_break_s, change)
             fitted.append(FittedEffect(eff, base.beta[k:k + q], base.beta_std[k:k + q],
                                        rb, ra, ev, gb, beta_dof=dof[k:k + q],
                                        time_ci95_s=when))
             k += q
         return fitted, residual, stopped, rounds
+
+    def _own(self, residual: np.ndarray, eff) -> np.ndarray:
+        """The columns of ``residual`` of the effect's own components."""
+        return residual[:, [self.inputs.components.index(c) for c in eff.components]]
 
     def _restate(self, log: list, n_valid: int) -> list:
         """The RMS before and after each kept effect, recomputed without the dropped ones."""

@@ -116,8 +116,7 @@ class OffsetTable:
         n = len(self)
         se = np.full((n, 3), np.nan) if self.se_nT is None else np.asarray(self.se_nT, float)
         dof = np.full((n, 3), np.nan) if self.dof is None else np.asarray(self.dof, float)
-        lo, _ = student_interval(np.zeros_like(se), se, np.where(np.isfinite(dof), dof, np.inf))
-        return -lo
+        return student_interval(0.0, se, np.where(np.isfinite(dof), dof, np.inf))[1]
 
     def to_frame(self) -> pd.DataFrame:
         """The product as a DataFrame with the CSV columns (times as datetime64)."""

@@ -718,8 +718,9 @@ def _spin_parameter_rows(doc: dict) -> list:
     names = [n for n in doc.get("determined", []) if n in std]
     if not names:
         return []
-    names12 = [f"c{i}{j}" for i in (1, 2, 3) for j in (1, 2, 3)] + ["O1", "O2", "O3"]
-    values = dict(zip(names12, [float(v) for v in np.ravel(doc["coupling"])]
+    from magcal.spin.ripple import PARAM_NAMES
+
+    values = dict(zip(PARAM_NAMES, [float(v) for v in np.ravel(doc["coupling"])]
                       + [float(v) for v in doc["offsets"]]))
     bias = doc.get("bias_correction") or {}
     return [(n, values.get(n, float("nan")), float(std[n]), round(1.96 * float(std[n]), 12),

@@ -330,7 +330,8 @@ def flipper_offset(t_s, b, phase_rad, flip, *, coupling=None, offsets=None,
     if on.all():
         raise InputError("no rows with flip = 0: the spin-axis field needs data in both "
                          "flipper positions", column="flip")
-    means, blocks = _spin_means(t[on], bb[on, 2], p[on], max_gap_rad)
+    t_on, b_on, p_on = t[on], bb[on], p[on]
+    means, blocks = _spin_means(t_on, b_on[:, 2], p_on, max_gap_rad)
     if means.size < min_spins:
         raise InputError(f"only {means.size} whole spins with flip = 1 "
                          f"(need at least {min_spins})", column="flip")
@@ -344,16 +345,18 @@ def flipper_offset(t_s, b, phase_rad, flip, *, coupling=None, offsets=None,
         c = np.asarray(coupling, dtype=float)
         o = np.zeros(3) if offsets is None else np.asarray(offsets, dtype=float)
         g = np.linalg.solve(c, FLIP_MATRIX @ np.array([0.0, 0.0, 1.0]))
-        m1, _ = _spin_means(t[on], bb[on, 0], p[on], max_gap_rad)
+        m1, _ = _spin_means(t_on, b_on[:, 0], p_on, max_gap_rad)
         tilt = float(np.mean(g[2] * (m1 - o[0]) / g[0]))
     run = np.cumsum(np.r_[True, on[1:] != on[:-1]])[on]
-    x, pos, run_b = _spin_tone(t[on], bb[on], p[on], run, coupling, offsets, max_gap_rad)
-    o3, o3_std, dof = _taper_mean(x, pos, run_b)
+
+    def estimate(c_, o_):
+        return _taper_mean(*_spin_tone(t_on, b_on, p_on, run, c_, o_, max_gap_rad))
+
+    o3, o3_std, dof = estimate(coupling, offsets)
     std_cal = 0.0
     if covariance is not None and len(determined):
-        std_cal = _calibration_std(lambda c_, o_: _taper_mean(
-            *_spin_tone(t[on], bb[on], p[on], run, c_, o_, max_gap_rad))[0],
-            coupling, offsets, covariance, determined)
+        std_cal = _calibration_std(lambda c_, o_: estimate(c_, o_)[0],
+                                   coupling, offsets, covariance, determined)
     return FlipperResult(O3=o3, O3_std=float(np.hypot(o3_std, std_cal)), O3_raw=raw,
                          tilt_correction_nT=tilt,
                          n_spins_flipped=int(means.size), n_spins_unflipped=n_off,
@@ -390,6 +393,24 @@ def _calibration_std(estimate, coupling, offsets, covariance, determined) -> flo
     return float(np.sqrt(max(grad @ np.nan_to_num(cov) @ grad, 0.0)))
 
 
+def offsets_with_o3(coupling, offsets, o3: float) -> np.ndarray:
+    """``offsets`` with ``O3`` set to ``o3`` and ``O1, O2`` moved so that ``C (b - O)``
+    stays the same in the spin plane (the ripple fit determined ``C O`` there, not
+    ``O1, O2`` on their own).
+
+    Examples
+    --------
+    >>> c = np.array([[1.0, 0.0, 0.01], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    >>> offsets_with_o3(c, [1.0, 2.0, 0.0], 5.0).tolist()
+    [0.95, 2.0, 5.0]
+    """
+    c = np.asarray(coupling, dtype=float)
+    o = np.array(offsets, dtype=float)
+    o[:2] -= np.linalg.solve(c[:2, :2], c[:2, 2] * (o3 - o[2]))
+    o[2] = o3
+    return o
+
+
 def complete_with_flipper(cal: SpinCalibration, flip: FlipperResult) -> SpinCalibration:
     """Put the flipper's ``O3`` into a ripple calibration (12th parameter).
 
@@ -401,11 +422,7 @@ def complete_with_flipper(cal: SpinCalibration, flip: FlipperResult) -> SpinCali
     --------
     See ``workflows/spin_calibration.py``.
     """
-    c = cal.coupling
-    o = cal.offsets_nT.copy()
-    d_o3 = flip.O3 - o[2]
-    o[:2] -= np.linalg.solve(c[:2, :2], c[:2, 2] * d_o3)
-    o[2] = flip.O3
+    o = offsets_with_o3(cal.coupling, cal.offsets_nT, flip.O3)
     std = dict(cal.std)
     std["O3"] = flip.O3_std
     determined = tuple(cal.determined) + ("O3",)

@@ -251,10 +251,9 @@ def complete_calibration(cal_doc: dict, o3: float, o3_std: float, source: str) -
     o = _numbers(cal_doc["offsets"], (3,), "offsets")
     if abs(np.linalg.det(c[:2, :2])) < 1e-12:
         raise InputError("coupling's spin-plane block is singular", column="coupling")
-    d_o3 = o3 - o[2]
-    o_new = o.copy()
-    o_new[:2] -= np.linalg.solve(c[:2, :2], c[:2, 2] * d_o3)
-    o_new[2] = o3
+    from magcal.spin.flipper import offsets_with_o3
+
+    o_new = offsets_with_o3(c, o, o3)
     done = dict(cal_doc)
     done["offsets"] = o_new.tolist()
     done["determined"] = list(cal_doc.get("determined", [])) + ["O3"]
