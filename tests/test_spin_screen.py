@@ -151,3 +151,26 @@ def test_chain_read_stage_reports_what_was_screened(tmp_path, capsys):
     assert f"screened: {direct['samples']} samples left out" in out.out + out.err
     despun = (tmp_path / "out" / "despun" / "DESPUN.csv").read_text().count("\n") - 1
     assert despun == len(sim.data) - direct["samples"]
+
+
+def test_chain_spin_warning_is_spincals_guard_only(tmp_path):
+    """A record with no ripple to remove (identity coupling, zero offsets, seed 3): the
+    fit moves the largest spin tone within its noise floor (1.2e-3 nT before and after),
+    so spincal's guard delivers the fit without a warning, and the chain must not add
+    one of its own (it did, comparing the largest tones alone)."""
+    cfg = SpinningConfig.galileo_like(duration_s=5400.0, coupling=tuple(map(tuple, np.eye(3))),
+                                      offsets_nT=(0.0, 0.0, 0.0))
+    sim = simulate_spinning(cfg, rng=np.random.default_rng(3))
+    path = _write(sim.data, tmp_path / "quiet.csv")
+    doc = spincal(load_spin_data(path)).to_json()
+    before = max(max(v) for v in doc["spin_tone_before_nT"].values())
+    after = max(max(v) for v in doc["spin_tone_after_nT"].values())
+    assert doc["delivered"] == "fitted" and after > before   # the case the old rule caught
+    assert not tone_worse(doc["spin_tone_before_nT"], doc["spin_tone_after_nT"],
+                          doc["spin_tone_noise_nT"])
+    conf = tmp_path / "SPIN.toml"
+    conf.write_text(f'[input]\nfiles = ["{path.as_posix()}"]\n[spin]\nspin_period_s = 20.0\n'
+                    "flipper = false\n")
+    assert main(["run", str(conf), "-o", str(tmp_path / "out")]) == 0
+    manifest = json.loads((tmp_path / "out" / "MANIFEST.json").read_text())
+    assert not [w for w in manifest["warnings"] if "spin tone" in w], manifest["warnings"]
