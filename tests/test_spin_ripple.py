@@ -311,7 +311,7 @@ def test_stated_errors_cover_with_random_phases():
     intervals hold it in 92.5-97.5 % of the cases of each kind of record (measured
     93.5-95.2 % on these seeds), no parameter below 90 %, and the RMS of error / std is
     0.75-1.25 in every parameter (c31 on 1-hour Galileo-like records is the lowest,
-    0.80: its std is 10-15 % too large there).
+    0.80: the waves' tones make its std 10-15 % too large there).
 
     ELFIN-like passes with white noise only are where the field's curvature within a
     spin biased c31 (:func:`magcal.spin.ripple.curvature_leakage`): without its
