@@ -73,11 +73,13 @@ class SpinningConfig:
     slow_amplitude_nT, slow_period_s : tuple
         Large-scale variation: component ``k`` adds ``A_k sin(2 pi t / P_k)`` (the
         spin-axis field must change over the record to separate spin-plane sensor tilts
-        from offsets).
+        from offsets; with ``random_phases``, ``A_k sin(2 pi t / P_k + phi_k)``).
     turbulence_rms_nT, turbulence_index, turbulence_fmin_hz : float
         Power-law (``f^-index``) ambient fluctuation per component, above ``fmin``.
-    waves : tuple of (amplitude_nT, frequency_hz, (dx, dy, dz))
-        Discrete linearly polarised waves in the despun frame.
+    waves : tuple of (amplitude_nT, frequency_hz, (dx, dy, dz)[, phase_rad])
+        Discrete linearly polarised waves in the despun frame,
+        ``amplitude sin(2 pi frequency t + phase)`` along ``d``; the phase is 0.3 rad
+        when not given.
     noise_nT : float
         White instrument noise per sensor (standard deviation).
     flip_intervals_s : tuple of (start, end)
@@ -89,6 +91,14 @@ class SpinningConfig:
         interval start).
     gaps_s : tuple of (start, end)
         Intervals with no samples.
+    random_phases : bool
+        Add to each wave's phase, each slow-field component's phase and the spin phase
+        at the first sample an independent uniform draw on ``[0, 2 pi)`` from the
+        ``rng`` (drawn before the turbulence and the noise). Off by default, when every
+        record has the same waves and slow field and only the turbulence and noise
+        change with the seed; a real record's phases are arbitrary, and the waves'
+        errors-in-variables bias in a calibration depends on them, so statements about
+        errors over many records need them drawn.
     """
 
     start: str = "1989-10-31T00:00:00"
@@ -114,6 +124,7 @@ class SpinningConfig:
     calcoil_direction_sc: tuple = (0.0, 1.0, 0.0)
     calcoil_intervals_s: tuple = ()
     gaps_s: tuple = ()
+    random_phases: bool = False
 
     @classmethod
     def galileo_like(cls, **changes) -> "SpinningConfig":
@@ -128,7 +139,8 @@ class SpinningConfig:
                    coupling=tuple(map(tuple, rotation_z(-1.5) @ np.array(
                        [[1.003, 0.0, 0.004], [0.006, 0.996, -0.003], [0.002, 0.005, 1.001]]))),
                    offsets_nT=(35.0, -20.0, 12.0), background_nT=(18000.0, -9000.0, 30000.0),
-                   slow_amplitude_nT=(2000.0, 1500.0, 3000.0), slow_period_s=(900.0, 1100.0, 1300.0),
+                   slow_amplitude_nT=(2000.0, 1500.0, 3000.0),
+                   slow_period_s=(900.0, 1100.0, 1300.0),
                    turbulence_rms_nT=2.0, waves=(), noise_nT=0.5)
         return dataclasses.replace(base, **changes)
 
@@ -208,7 +220,9 @@ def simulate_spinning(config: SpinningConfig | None = None, *,
     config : SpinningConfig, optional
         Knobs; default :meth:`SpinningConfig.galileo_like`.
     rng : numpy.random.Generator
-        Source of all randomness (turbulence and noise).
+        Source of all randomness (turbulence and noise, and with
+        ``config.random_phases`` the phases, drawn first: one per wave, then one per
+        slow-field component, then the spin phase).
 
     Returns
     -------
@@ -225,6 +239,13 @@ def simulate_spinning(config: SpinningConfig | None = None, *,
     (270, ['b1', 'b2', 'b3', 'phase', 'flip'])
     """
     cfg = SpinningConfig.galileo_like() if config is None else config
+    n_waves = len(cfg.waves)
+    n_slow = len(cfg.slow_amplitude_nT)
+    if cfg.random_phases:
+        drawn = rng.uniform(0.0, TWO_PI, n_waves + n_slow + 1)
+    else:
+        drawn = np.zeros(n_waves + n_slow + 1)
+    wave_phase, slow_phase, spin_phase = drawn[:n_waves], drawn[n_waves:-1], drawn[-1]
     n_frames = int(np.floor(cfg.duration_s / cfg.frame_s + 1e-9))
     offsets = np.asarray(cfg.sample_offsets_s, dtype=float)
     t = (np.arange(n_frames)[:, None] * cfg.frame_s + offsets[None, :]).ravel()
@@ -238,20 +259,22 @@ def simulate_spinning(config: SpinningConfig | None = None, *,
         phase = TWO_PI * t / p0
     else:
         phase = TWO_PI / rate * np.log1p(rate * t / p0)
-    phase = phase + cfg.phase0_rad
+    phase = phase + (cfg.phase0_rad + spin_phase)
     period = p0 + rate * t
 
     # Ambient field in the despun frame.
     b_i = np.tile(np.asarray(cfg.background_nT, dtype=float), (t.size, 1))
     for k, (amp, per) in enumerate(zip(cfg.slow_amplitude_nT, cfg.slow_period_s)):
         if amp:
-            b_i[:, k] += amp * np.sin(TWO_PI * t / per)
+            b_i[:, k] += amp * np.sin(TWO_PI * t / per + slow_phase[k])
     b_i += _turbulence(t, cfg.turbulence_rms_nT, cfg.turbulence_index,
                        cfg.turbulence_fmin_hz, rng)
-    for amp, freq, direction in cfg.waves:
+    for wave, extra in zip(cfg.waves, wave_phase):
+        amp, freq, direction = wave[:3]
+        phi = (float(wave[3]) if len(wave) > 3 else 0.3) + extra
         d = np.asarray(direction, dtype=float)
         d = d / np.linalg.norm(d)
-        b_i += amp * np.sin(TWO_PI * freq * t + 0.3)[:, None] * d[None, :]
+        b_i += amp * np.sin(TWO_PI * freq * t + phi)[:, None] * d[None, :]
 
     b_sc = spin(b_i, phase)
     coil = np.zeros_like(b_sc)

@@ -140,6 +140,37 @@ def block_harmonics(t_s, phase_rad, signals, blocks: SpinBlocks, *,
     array([[ 2. ,  0. ,  0. , -0.5],
            [ 2. ,  0. ,  0. , -0.5]])
     """
+    coef, _ = _block_fit(t_s, phase_rad, signals, blocks, n_harmonics, trend_degree, extra)
+    return coef[:, trend_degree + 1:, :]
+
+
+def block_levels(t_s, phase_rad, signals, blocks: SpinBlocks, *, n_harmonics: int = 2
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Level of each signal at the mean time of each block, and those times.
+
+    The constant of the same least-squares fit as :func:`block_harmonics` (time measured
+    from the block's mean sample time), so that spin tones do not leak into the level
+    when a block's samples do not cover the spin evenly.
+
+    Returns
+    -------
+    levels : ndarray, shape (n_blocks, m)
+    times : ndarray, shape (n_blocks,)
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> p = np.linspace(0, 4 * np.pi, 400, endpoint=False)
+    >>> levels, times = block_levels(p, p, (5 + p + 2 * np.cos(p))[:, None], spin_blocks(p))
+    >>> bool(np.allclose(levels[:, 0], 5 + times))
+    True
+    """
+    coef, tmean = _block_fit(t_s, phase_rad, signals, blocks, n_harmonics, 1, None)
+    return coef[:, 0, :], tmean
+
+
+def _block_fit(t_s, phase_rad, signals, blocks, n_harmonics, trend_degree, extra):
+    """All coefficients (n_blocks, K, m) of the per-block fit and the blocks' mean times."""
     used = blocks.used
     if blocks.n_blocks == 0:
         raise InputError("no complete spins in the data")
@@ -165,4 +196,4 @@ def block_harmonics(t_s, phase_rad, signals, blocks: SpinBlocks, *,
     gram = np.add.reduceat(a[:, :, None] * a[:, None, :], starts, axis=0)   # (nb, K, K)
     rhs = np.add.reduceat(a[:, :, None] * s[:, None, :], starts, axis=0)    # (nb, K, m)
     coef = np.linalg.solve(gram, rhs)
-    return coef[:, trend_degree + 1:, :]
+    return coef, tmean
