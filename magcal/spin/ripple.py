@@ -459,78 +459,28 @@ def solve_ripple(harm: np.ndarray, coupling0, offsets0, free=DETERMINABLE, *,
     by the equal-weighted cosine estimate (:func:`_cosine_long_run`) with one term per
     :data:`LRV_BLOCKS_PER_TERM` blocks (at least :data:`LRV_MIN_TERMS`, at most all;
     :func:`lrv_terms`). The scores of the random natural field and noise are nearly
-    white, but natural waves leave large oscillating residuals (on Galileo-like records
-    tones at 0.27 and 0.38 cycle per spin, 1.5-9x the random scores' amplitude) that
-    cancel in the sum but not in the 10-spin clusters used before, whose intervals were
-    too wide there (error spread 0.48-0.83 of the std). The estimate with ``K`` terms
-    has ``K`` degrees of freedom, and the covariance is scaled by
-    ``(t_0.975(K) / 1.96)**2`` (:func:`_student_factor`: 1.05 in std for an ELFIN-like
-    pass, 1.035 for 1 hour, 1.007 for 5 hours), so that the std's 95 % interval is
-    Student's. The clusters' factor ``K / (K - p)`` used before overstated the std on
-    short records (1.13 for 1 hour, 1.22 for the ELFIN-like pass): there the error
-    spread 0.79-0.88 of the std in c22, c31 (1 hour) and in every parameter (ELFIN-like,
-    after the curvature correction), intervals covering 97-99 %.
+    white, but natural waves leave large oscillating residuals that cancel in the sum
+    and would not in short clusters of spins; the low cosines keep the first and drop
+    the second. The estimate with ``K`` terms has ``K`` degrees of freedom, so the
+    covariance is scaled by ``(t_0.975(K) / 1.96)**2`` (:func:`_student_factor`) and
+    1.96 std is Student's 95 % interval.
 
     Bias: a natural-field tone enters both the residual and the regressors (the block
     harmonics of ``b``), so the score at the truth has a non-zero mean and the fit a bias
-    that does not shrink with the record (errors in variables). On Galileo-like records
-    it is 0.5-1.3 of the random error in c21, c22, c23, c32 and O2, the same when the
-    waves' phases are random. It is estimated as ``-bread @ sum_b dJ_b^T dr_b``, with the
-    parts of the block harmonics faster than :data:`BIAS_SMOOTH_BLOCKS` blocks as
-    ``dJ, dr``, and subtracted from each parameter whose estimate exceeds
-    :data:`BIAS_CORRECTION_MIN_RATIO` of its random std; the bias of the others stays
-    in the covariance as the outer product (their std is a root mean square error).
-    The estimate's own scatter is 0.01-0.04 of the random std (its long-run variance
-    and its spread over records alike), so a corrected parameter's covariance is the
-    random part alone.
+    that does not shrink with the record (errors in variables). It is estimated as
+    ``-bread @ sum_b dJ_b^T dr_b``, with the parts of the block harmonics faster than
+    :data:`BIAS_SMOOTH_BLOCKS` blocks as ``dJ, dr``, and subtracted from each parameter
+    whose estimate exceeds :data:`BIAS_CORRECTION_MIN_RATIO` of its random std; the bias
+    of the others stays in the covariance as the outer product (their std is a root mean
+    square error). The estimate's own scatter is a few per cent of the random std, so a
+    corrected parameter's covariance is the random part alone.
 
-    The guard: what the correction leaves is the waves' leakage through the ends of
-    the record, linear in the wave and changing with its phase (on 1-hour Galileo-like
-    records the mean error of c31 moves by +-0.5 random std with the phase of the 32 s
-    wave), which is in the uncorrected fit as well and can cancel its bias. Corrected
-    without a guard, 1-hour records with the simulator's wave phases lost 11 % (c23)
-    and 17 % (O2) of RMS error, and up to 17 % at 3 of 36 phase pairs (100 records
-    each); with the guard at most 3 %, and 12 % gained over all phases. A tapered fit,
-    which removes the leakage, measured and refused: the record's end blocks carry the
-    slow field's lever arm (1-hour white-noise records lost 4-10 % in c23, O2, the
-    ELFIN-like pass 3-8 %).
+    The guard: what the correction leaves is the waves' leakage through the ends of the
+    record, linear in the wave and changing with its phase, which is in the uncorrected
+    fit as well and can cancel its bias; a small estimate is therefore left in.
 
-    Error against the truth over 200 held-out seeded records each (seeds 9000-9199),
-    RMS error of the corrected / the uncorrected fit per parameter, and coverage of the
-    95 % intervals before -> after:
-
-    - Galileo-like, 5 h: c21 0.75, c23 0.67, c32 0.93, O2 0.68, the others 1.00;
-      96.2 -> 95.3 % (each parameter 94-97 %). Corrected without the guard: c22 0.93,
-      c32 0.76 as well.
-    - random wave phases, 5 h: c21 0.79, c23 0.64, c32 0.93, O2 0.64; 96.1 -> 95.1 %.
-    - random wave phases, 1 h: c23 0.84, O2 0.86; 96.6 -> 96.8 %.
-    - Galileo-like 1 h (the simulator's wave phases), 1 nT red natural field, white
-      noise (5 h and 1 h), ELFIN-like pass: 1.00 in every parameter (the guard left
-      the fit as it was, or corrected under 2 % of the records); unguarded, the 1-hour
-      records lost 8 % (c23) and 15 % (O2).
-
-    Those numbers predate the curvature correction and the Student scaling. With every
-    phase drawn per record (waves, slow field, spin: ``random_phases`` of the
-    simulator; ``benchmarks/bench_ripple_phases.py``), 200 held-out records each (seeds
-    7000-7199), coverage of the 95 % intervals over the eight parameters, each
-    parameter's range, and the range of RMS(error / std):
-
-    - Galileo-like, 5 h: 95.1 % (93.5-97.5 %), RMS z 0.91-1.07; with a 1 nT red
-      field and 0.05 nT noise 94.8 % (93-97.5 %), 0.91-1.06.
-    - Galileo-like, 1 h: 96.0 % (94.5-98 %), 0.86-1.03 (before: 97.2 %, 0.79-0.95).
-    - ELFIN-like pass: 93.4 % (92.5-95 %), 1.00-1.05 (before: 95.5 %, c31 91 %, RMS z
-      of c31 1.10); with white noise only 93.1 % (90-95.5 %), 0.95-1.19 (before: c31
-      87 %, 1.29).
-
-    Left as found: c22's, c31's and c32's std are 5-15 % too large on Galileo-like
-    records with waves (RMS z 0.86-0.93; without the waves c31's is 1.02): the waves'
-    tones in the scores reach the low cosines through the record's ends. Fitting those
-    tones out of the scores first was measured and refused: the tone's sum over the
-    record is the waves' end leakage, a real error, and without it 1-hour records with
-    the simulator's own phases held c31 in 88 % (RMS z 1.28). The ELFIN-like
-    intervals of c13, c23, O1, O2 are a little short (90-94 %; scaling the std for the
-    fitted scores' loss in the low cosines, an exact 2.5 %, gained 0.5 % there and
-    cost O2 0.9 % of RMS error on 1-hour records through the guard: refused).
+    Coverage and error against the truth, with the variants measured and refused, are
+    in the CHANGELOG (spin-ripple errors) and ``benchmarks/bench_ripple_phases.py``.
     """
     idx = _check_free(free)
     theta = np.concatenate([np.asarray(coupling0, float).ravel(), np.asarray(offsets0, float)])
