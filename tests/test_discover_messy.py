@@ -190,3 +190,33 @@ def test_columns_left_aside_are_named(tmp_path, capsys):
     assert doc["components"] == ["He", "Hn"]
     assert doc["columns_not_used"] == {"measured": ["hp"], "model": ["Hp"], "all_missing": []}
     assert "measured column(s) hp not in the other file" in capsys.readouterr().err
+
+
+def test_a_constant_kp_does_not_hide_a_dst_response():
+    """Kp at one value over the record (a quiet stretch, or a Kp file of one value)
+    beside a varying Dst: the Kp column, referred to its mean, is all zeros. It made the
+    activity term singular and the injected 0.3 nT/nT Dst response was never named
+    (only an offset, 3.4 nT left); now the term takes Dst alone."""
+    meas, model, cov = _record(dst_response=True)
+    assert cov["kp"].nunique() == 1
+    res = discover_gap(meas, model, cov[["kp", "dst"]], longitude_deg=LON)
+    assert "activity" in res.names
+    assert res.effect("activity").parameters["indices"] == ["dst"]
+    assert_allclose(_dst_coefficient(res), DST_COUPLING, atol=0.03)
+
+
+def test_cli_says_what_the_reader_repaired(tmp_path, capsys):
+    """-1e31 fills in MEASURED become NaN in the reader (those samples drop out of the
+    fit): the verb says how many per column and records them in the provenance."""
+    meas, model, _ = _record(days=2)
+    meas.iloc[100:140, 2] = -1e31
+    paths = [tmp_path / n for n in ("m.csv", "model.csv")]
+    write_csv_frame(paths[0], meas)
+    write_csv_frame(paths[1], model)
+    out = tmp_path / "r.json"
+    assert main(["discover", *map(str, paths), "--longitude", str(LON), "--max-effects", "0",
+                 "-o", str(out)]) == 0
+    assert "m.csv: fill value replaced by NaN in Hn (40)" in capsys.readouterr().err
+    doc = json.loads(out.read_text())
+    (done,) = doc["provenance"]["parameters"]["input_repairs"].values()
+    assert done == [{"what": "fill value replaced by NaN", "column": "Hn", "count": 40}]

@@ -834,18 +834,18 @@ def discover_gap(measured, model, covariates=None, longitude_deg=None, max_effec
         (:func:`magcal.discover.inputs.screen_samples`); the result's ``screened`` says
         how many by test and where the first was.
 
+    Returns
+    -------
+    DiscoveryResult
+
     Notes
     -----
     Covariates are checked (:func:`magcal.discover.inputs.prepare_covariates`): values
     outside their physical range are missing; a covariate is not extrapolated beyond its
     span nor bridged over its long holes, and the samples it does not cover are left out
-    (``screened["covariate_unknown"]``), unless it covers fewer than half of them: it is
-    then not used. ``covariates`` and ``columns_not_used`` of the result say what was
-    used.
-
-    Returns
-    -------
-    DiscoveryResult
+    (``screened["covariate_unknown"]``), unless it covers fewer than three quarters of
+    them (:data:`~magcal.discover.inputs.MIN_COVARIATE_SHARE`): it is then not used.
+    ``covariates`` and ``columns_not_used`` of the result say what was used.
 
     Examples
     --------
