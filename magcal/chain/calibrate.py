@@ -290,7 +290,7 @@ def run_discovery(minute: MinuteData, config: ChainConfig):
         raise InputError(f"only {int(ok.sum())} samples with data and model for discovery "
                          "(need 60)", file=config.path)
     cov_path = config.resolve(cfg["covariates"])
-    covariates = pd.DataFrame({"kp": minute.kp, "lon_deg": minute.lon_deg}, index=index)
+    covariates = pd.DataFrame({"kp": minute.kp, "lon_deg": minute.lon_deg}, index=index)[ok]
     inputs, warnings = [], []
     if cov_path is not None:
         from magcal.discover.inputs import COVARIATES
@@ -300,13 +300,17 @@ def run_discovery(minute: MinuteData, config: ChainConfig):
             raise InputError("[discover] covariates: no covariate column (expected any of "
                              f"{', '.join(COVARIATES)}; the file has "
                              f"{', '.join(map(str, raw_cov.columns))})", file=cov_path)
-        extra = raw_cov.reindex(index, method="nearest", tolerance=pd.Timedelta(
-            seconds=max(90.0, interval / 2)))
-        covariates = covariates.join(extra.rename(columns={
-            c: f"{c}_file" for c in extra.columns if c in covariates.columns}))
+        # the file's columns at their own times (their union with the record's): the
+        # discovery interpolates each over its own spacing and knows its holes; taken
+        # to the nearest record sample, an hourly Dst was a value every hour with holes
+        # between
+        extra = raw_cov.rename(columns={c: f"{c}_file" for c in raw_cov.columns
+                                        if c in covariates.columns})
+        covariates = pd.concat([covariates, extra], axis=1).sort_index()
+        covariates.attrs["source"] = [str(cov_path)]
         inputs.append(cov_path)
         warnings += _covariate_holes(raw_cov, index[ok], cov_path)
-    result = discover_gap(measured[ok], model[ok], covariates=covariates[ok],
+    result = discover_gap(measured[ok], model[ok], covariates=covariates,
                           longitude_deg=float(np.nanmedian(minute.lon_deg)),
                           max_effects=cfg["max_effects"])
     warnings += discovery_warnings(result)
