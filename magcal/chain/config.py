@@ -289,7 +289,7 @@ _RANGES = {
     ("model", "cadence_s"): (1e-9, math.inf, "s"),
     ("model", "jobs"): (1, math.inf, "processes"),
     ("alignment", "kp_max"): (0.0, 9.0, "Kp"),
-    ("alignment", "seed"): (0, math.inf, "(a non-negative integer)"),
+    ("alignment", "seed"): (0, math.inf, "the MCMC's random seed"),
     ("discover", "max_effects"): (0, math.inf, "effects"),
 }
 
@@ -303,7 +303,8 @@ def _check_numbers(s: dict, path: Path) -> None:
         if value is None:
             continue
         if not (math.isfinite(value) and lo <= value <= hi):
-            shown = f"{lo:g} to {hi:g}" if hi < math.inf else f"at least {lo:g}"
+            shown = (f"{lo:g} to {hi:g}" if hi < math.inf else "positive" if 0 < lo < 1e-6
+                     else f"at least {lo:g}")
             raise InputError(f"[{section}] {key} must be {shown} ({unit}), got {value!r}",
                              file=path, column=f"{section}.{key}")
     al = s["alignment"]
