@@ -185,7 +185,7 @@ def parse_chain_config(text: str, path: str | Path) -> ChainConfig:
     >>> parse_chain_config('[input]\\nfiles = ["a.csv"]\\nfile = 1\\n', "C.toml")
     Traceback (most recent call last):
     ...
-    magcal.errors.InputError: C.toml: column input.file: [input] unknown key 'file' (known: files, format, target, sensors, frame, simulate, spacecraft)
+    magcal.errors.InputError: C.toml: column input.file: [input] unknown key 'file' (known: ...)
     """
     path = Path(path)
     try:

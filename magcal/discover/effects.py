@@ -269,7 +269,8 @@ class Diurnal(Effect):
         x = 2 * np.pi * np.asarray(lt_h, dtype=float) / 24.0
         out = np.zeros_like(x)
         for k in range(1, self.harmonics + 1):
-            out += beta_component[2 * k - 2] * np.cos(k * x) + beta_component[2 * k - 1] * np.sin(k * x)
+            out += (beta_component[2 * k - 2] * np.cos(k * x)
+                    + beta_component[2 * k - 1] * np.sin(k * x))
         return out
 
     def describe(self, beta, std, dof=None):
