@@ -220,3 +220,25 @@ def test_cli_says_what_the_reader_repaired(tmp_path, capsys):
     doc = json.loads(out.read_text())
     (done,) = doc["provenance"]["parameters"]["input_repairs"].values()
     assert done == [{"what": "fill value replaced by NaN", "column": "Hn", "count": 40}]
+
+
+def test_rows_at_times_the_other_file_lacks_are_counted():
+    """A model at 5 min beside 1-min data: the discovery runs on the common times, and
+    the 4 of every 5 measured rows it leaves out are counted (they were dropped unsaid)."""
+    meas, model, _ = _record(days=2)
+    res = discover_gap(meas, model.iloc[::5], longitude_deg=LON, max_effects=0)
+    assert res.screened["no_common_time"] == {"measured": 2 * 1440 * 4 // 5, "model": 0}
+    assert any("left out 2304 measured and 0 model row(s)" in x for x in res.account())
+
+
+def test_a_covariate_for_two_weeks_of_a_month_is_used_on_them():
+    """Dst for the first 15 days of 30 (half of the samples, but two weeks of data): it is
+    used, the 15 days without it are left out and counted, and its coefficient is the
+    injected one; not used, the storm field would have no regressor."""
+    meas, model, cov = _record(days=30, dst_response=True)
+    hourly = cov[["dst"]].resample("1h").mean().iloc[: 15 * 24]
+    res = discover_gap(meas, model, hourly, longitude_deg=LON, max_effects=3)
+    assert res.covariates["dst"]["used"]
+    # the last hourly value (day 15 minus 1 h) covers its hour: day 15 00:00 is known
+    assert res.screened["covariate_unknown"] == 15 * 1440 - 1
+    assert_allclose(_dst_coefficient(res), DST_COUPLING, atol=0.03)

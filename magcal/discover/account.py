@@ -134,6 +134,10 @@ def account_lines(result) -> list[str]:
             lines.append(f"left out {sum(other.values())} more bad sample(s) before the fit "
                          f"({what})")
         lines[-1] += f" (the first left out at {left_out['first']})"
+    if left_out.get("no_common_time"):
+        n = left_out["no_common_time"]
+        lines.append(f"left out {n['measured']} measured and {n['model']} model row(s) at times "
+                     "the other file lacks")
     if left_out.get("covariate_unknown"):
         lines.append(f"left out {left_out['covariate_unknown']} sample(s) where a covariate "
                      "is unknown (outside its span or in a hole)")

@@ -27,6 +27,13 @@ COVARIATE_RANGES = {"temperature": (-273.15, 1000.0), "kp": (0.0, 9.0),
 #: local-time term and the activity were lost); a shorter hole costs less than a
 #: made-up value.
 MIN_COVARIATE_SHARE = 0.75
+#: ... unless the samples it covers still span this many days of data: then its
+#: unknown samples are left out instead. Covariates for 15 of the sample month's 30
+#: days: not used, the storm field had no regressor (6.72 nT final gap, offset and
+#: diurnal); on the 15 days, offset, activity, diurnal and a drift (2.43 nT, the full
+#: month 1.81). Dst for 7 of 14 days: on 7 days only the offset was beyond chance
+#: (11.4 nT), without Dst four effects (5.93 nT).
+MIN_COVARIATE_DAYS = 14.0
 #: Field magnitudes further apart than this factor (median of |measured| over median
 #: of |model|) are a unit error (nT against pT or uT), not a model gap.
 MAX_UNIT_RATIO = 10.0
@@ -316,7 +323,8 @@ def prepare_covariates(times_s: np.ndarray, covariates, longitude_deg=None):
     fill, a Kp of 99) are missing, not data. A covariate is *unknown* at a sample
     outside its own time span or inside one of its holes (:func:`_unknown`): it is
     never extrapolated or bridged there. A covariate known at fewer than
-    :data:`MIN_COVARIATE_SHARE` of the samples is not used; the others are used, and the
+    :data:`MIN_COVARIATE_SHARE` of the samples and on fewer than
+    :data:`MIN_COVARIATE_DAYS` days of them is not used; the others are used, and the
     samples where one of them is unknown are to be left out of the fit (``unknown``),
     since any value put there would be made up. ``lon_deg`` is not checked when
     ``longitude_deg`` is given (it is then not used).
@@ -376,6 +384,7 @@ def prepare_covariates(times_s: np.ndarray, covariates, longitude_deg=None):
     else:
         raise TypeError("covariates must be a DataFrame or a mapping of arrays")
     span = (_iso(times_s[0]), _iso(times_s[-1])) if times_s.size else (None, None)
+    spacing_s = float(np.median(np.diff(times_s))) if times_s.size > 1 else 0.0
     for name, raw in columns.items():
         if name == "lon_deg" and longitude_deg is not None:
             continue
@@ -389,9 +398,11 @@ def prepare_covariates(times_s: np.ndarray, covariates, longitude_deg=None):
         if known == 0:
             entry["reason"] = (f"no value covers the samples ({span[0]} to {span[1]})"
                                if ok.any() else "no valid value in range")
-        elif known < MIN_COVARIATE_SHARE * times_s.size:
+        elif (known < MIN_COVARIATE_SHARE * times_s.size
+              and known * spacing_s < MIN_COVARIATE_DAYS * 86400.0):
             entry["reason"] = (f"known at only {known} of {times_s.size} samples (fewer "
-                               f"than {MIN_COVARIATE_SHARE:.0%})")
+                               f"than {MIN_COVARIATE_SHARE:.0%}, and under "
+                               f"{MIN_COVARIATE_DAYS:g} days)")
         else:
             entry["used"] = True
             out[name] = _interp_onto(times_s, t_old, v, name)

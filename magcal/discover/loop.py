@@ -844,7 +844,9 @@ def discover_gap(measured, model, covariates=None, longitude_deg=None, max_effec
     outside their physical range are missing; a covariate is not extrapolated beyond its
     span nor bridged over its long holes, and the samples it does not cover are left out
     (``screened["covariate_unknown"]``), unless it covers fewer than three quarters of
-    them (:data:`~magcal.discover.inputs.MIN_COVARIATE_SHARE`): it is then not used.
+    them and less than two weeks of data
+    (:data:`~magcal.discover.inputs.MIN_COVARIATE_SHARE`, ``MIN_COVARIATE_DAYS``): it is
+    then not used.
     ``covariates`` and ``columns_not_used`` of the result say what was used.
 
     Examples
@@ -870,6 +872,12 @@ def discover_gap(measured, model, covariates=None, longitude_deg=None, max_effec
     screened = {}
     if screen:
         meas, screened = screen_samples(meas, mod)
+    # rows of one file at times the other lacks (a 5-min model beside 1-min data) are
+    # not used: counted, not dropped unsaid
+    unmatched = {"measured": int(len(measured.index.difference(meas.index))),
+                 "model": int(len(model.index.difference(meas.index)))}
+    if any(unmatched.values()):
+        screened = dict(screened, no_common_time=unmatched)
     lon = longitude_deg
     cov, unknown, cov_report = prepare_covariates(to_unix_seconds(meas.index), covariates, lon)
     if unknown.any():
