@@ -211,7 +211,9 @@ def mean_record(minute: MinuteData, interval_s: float, cadence_s: float) -> Minu
 def _covariate_holes(raw: pd.DataFrame, index: pd.DatetimeIndex, path) -> list[str]:
     """Warnings naming the holes of each covariate column of a file over the record's
     span (a jump of more than 2.5 of its own median spacing, or a missing start or end):
-    discovery interpolates across them, and a user should know it did."""
+    discovery leaves out the samples there, or does not use a covariate that covers
+    fewer than half of them (:func:`magcal.discover.inputs.prepare_covariates`), and a
+    user should know where."""
     out = []
     t0, t1 = index.as_unit("ns")[0], index.as_unit("ns")[-1]
     for c in raw.columns:
@@ -229,7 +231,39 @@ def _covariate_holes(raw: pd.DataFrame, index: pd.DatetimeIndex, path) -> list[s
             a, b = pd.Timestamp(edges[k]), pd.Timestamp(edges[k + 1])
             out.append(f"{path}: {jumps.size} hole(s) in {c} within the record, the longest "
                        f"{(b - a).total_seconds() / 3600:.1f} h from {a:%Y-%m-%dT%H:%M} to "
-                       f"{b:%Y-%m-%dT%H:%M}; discovery interpolates across them")
+                       f"{b:%Y-%m-%dT%H:%M}; discovery does not bridge them (REPORT.json "
+                       "'covariates' and 'screened')")
+    return out
+
+
+def discovery_warnings(result) -> list[str]:
+    """What the discovery left aside, as warning lines: covariates not used (with the
+    reason), values out of their physical range, samples left out for an unknown
+    covariate or as bad samples.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> r = SimpleNamespace(screened={"samples": 0, "covariate_unknown": 120},
+    ...                     covariates={"dst": {"used": False, "reason": "no valid value"}})
+    >>> for line in discovery_warnings(r):
+    ...     print(line)
+    covariate dst not used: no valid value
+    left out 120 sample(s) where a covariate is unknown (outside its span or in a hole)
+    """
+    out = []
+    for name, cov in result.covariates.items():
+        if not cov.get("used"):
+            out.append(f"covariate {name} not used: {cov.get('reason')}")
+        elif cov.get("out_of_range"):
+            out.append(f"covariate {name}: {cov['out_of_range']} value(s) outside its "
+                       "physical range taken as missing")
+    if result.screened.get("covariate_unknown"):
+        out.append(f"left out {result.screened['covariate_unknown']} sample(s) where a "
+                   "covariate is unknown (outside its span or in a hole)")
+    if result.screened.get("samples"):
+        out.append(f"left out {result.screened['samples']} bad sample(s) "
+                   f"({result.screened.get('by_test')})")
     return out
 
 
@@ -256,19 +290,30 @@ def run_discovery(minute: MinuteData, config: ChainConfig):
         raise InputError(f"only {int(ok.sum())} samples with data and model for discovery "
                          "(need 60)", file=config.path)
     cov_path = config.resolve(cfg["covariates"])
-    covariates = pd.DataFrame({"kp": minute.kp, "lon_deg": minute.lon_deg}, index=index)
+    covariates = pd.DataFrame({"kp": minute.kp, "lon_deg": minute.lon_deg}, index=index)[ok]
     inputs, warnings = [], []
     if cov_path is not None:
+        from magcal.discover.inputs import COVARIATES
+
         raw_cov = read_any(cov_path)
-        extra = raw_cov.reindex(index, method="nearest", tolerance=pd.Timedelta(
-            seconds=max(90.0, interval / 2)))
-        covariates = covariates.join(extra.rename(columns={
-            c: f"{c}_file" for c in extra.columns if c in covariates.columns}))
+        if not set(COVARIATES) & set(raw_cov.columns):
+            raise InputError("[discover] covariates: no covariate column (expected any of "
+                             f"{', '.join(COVARIATES)}; the file has "
+                             f"{', '.join(map(str, raw_cov.columns))})", file=cov_path)
+        # the file's columns at their own times (their union with the record's): the
+        # discovery interpolates each over its own spacing and knows its holes; taken
+        # to the nearest record sample, an hourly Dst was a value every hour with holes
+        # between
+        extra = raw_cov.rename(columns={c: f"{c}_file" for c in raw_cov.columns
+                                        if c in covariates.columns})
+        covariates = pd.concat([covariates, extra], axis=1).sort_index()
+        covariates.attrs["source"] = [str(cov_path)]
         inputs.append(cov_path)
         warnings += _covariate_holes(raw_cov, index[ok], cov_path)
-    result = discover_gap(measured[ok], model[ok], covariates=covariates[ok],
+    result = discover_gap(measured[ok], model[ok], covariates=covariates,
                           longitude_deg=float(np.nanmedian(minute.lon_deg)),
                           max_effects=cfg["max_effects"])
+    warnings += discovery_warnings(result)
     sampling = {"interval_s": interval, "n_samples": int(ok.sum()),
                 "max_samples": DISCOVERY_MAX_SAMPLES,
                 "rule": f"means over the shortest interval of {list(DISCOVERY_INTERVALS_S)} s "

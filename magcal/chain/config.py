@@ -9,6 +9,7 @@ is documented in the README ("Chain configuration") and in :data:`SCHEMA`.
 from __future__ import annotations
 
 import glob
+import math
 import tomllib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -103,6 +104,35 @@ class ChainConfig:
             found += [h for h in hits if h.is_file() and h not in found]
         return found
 
+    def check_paths(self) -> None:
+        """Every file the configuration names must exist (after ``[input] simulate``
+        wrote its ``{outdir}`` files).
+
+        A missing Kp, covariate, truth, plan, reference or driver file is a bad
+        configuration (exit status 2, naming the key), not a stage that fails late
+        (exit 3) after the partitions ran: a typo in ``[discover] covariates`` used to
+        cost the whole run and then fail only discovery.
+
+        Raises
+        ------
+        InputError
+            Naming the TOML file, the key (``column``) and the path.
+        """
+        keys = [("kp", "file"), ("model", "drivers"), ("discover", "covariates"),
+                ("truth", "file"), ("picog", "plan"), ("alignment", "reference")]
+        skip = {("picog", "plan"): ("auto", "none"), ("alignment", "reference"): ("model",)}
+        for section, key in keys:
+            value = self.sections.get(section, {}).get(key)
+            if value is None or value in skip.get((section, key), ()):
+                continue
+            if section in ("discover", "alignment") and not self[section]["enabled"]:
+                continue
+            path = self.resolve(value)
+            if not path.is_file():
+                what = "is a directory" if path.is_dir() else "not found"
+                raise InputError(f"[{section}] {key} = {value!r}: {path} {what}",
+                                 file=self.path, column=f"{section}.{key}")
+
     def as_dict(self) -> dict:
         """The configuration as recorded in provenance (paths as written)."""
         return {"path": str(self.path), "kind": self.kind, **asdict(self)["sections"]}
@@ -155,7 +185,7 @@ def parse_chain_config(text: str, path: str | Path) -> ChainConfig:
     >>> parse_chain_config('[input]\\nfiles = ["a.csv"]\\nfile = 1\\n', "C.toml")
     Traceback (most recent call last):
     ...
-    magcal.errors.InputError: C.toml: column input.file: [input] unknown key 'file' (known: files, format, target, sensors, frame, simulate, spacecraft)
+    magcal.errors.InputError: C.toml: column input.file: [input] unknown key 'file' (known: ...)
     """
     path = Path(path)
     try:
@@ -225,8 +255,10 @@ def _check_values(s: dict, path: Path, kind: str) -> None:
         raise InputError(f"[offsets] method {s['offsets']['method']!r}: use median or "
                          "lt_balanced", file=path)
     for key in ("window_days", "step_days"):
-        if s["offsets"][key] <= 0:
-            raise InputError(f"[offsets] {key} must be positive", file=path)
+        if not 0 < s["offsets"][key] < math.inf:
+            raise InputError(f"[offsets] {key} must be a positive finite number, got "
+                             f"{s['offsets'][key]!r}", file=path, column=f"offsets.{key}")
+    _check_numbers(s, path)
     if s["model"]["name"].upper() not in ("IGRF", "T89", "T96", "T01", "T04"):
         raise InputError(f"[model] name {s['model']['name']!r}: use IGRF, T89, T96, T01 or "
                          "T04", file=path)
@@ -241,6 +273,50 @@ def _check_values(s: dict, path: Path, kind: str) -> None:
     if hp is not None and not (hp in ("estimate", "identity") or _is_matrix(hp)):
         raise InputError("[frames] to_hpen must be \"estimate\", \"identity\" or a 3x3 "
                          "matrix", file=path)
+
+
+#: (section, key) -> (low, high, what): numbers that must be finite and in a range
+#: (inclusive) for the chain to mean anything. A Kp threshold of nan or -1 selects no
+#: quiet sample and a longitude of 500 deg places the spacecraft nowhere: each used to
+#: run to the end (exit 0) or fail a later stage (exit 3) instead of naming the key.
+_RANGES = {
+    ("position", "longitude_deg"): (-360.0, 360.0, "deg east"),
+    ("position", "latitude_deg"): (-90.0, 90.0, "deg"),
+    ("position", "r_re"): (1.0, 1000.0, "Earth radii from the centre"),
+    ("offsets", "kp_max"): (0.0, 9.0, "Kp"),
+    ("offsets", "min_used"): (1, math.inf, "samples"),
+    ("offsets", "cadence_s"): (1e-9, math.inf, "s"),
+    ("model", "cadence_s"): (1e-9, math.inf, "s"),
+    ("model", "jobs"): (1, math.inf, "processes"),
+    ("alignment", "kp_max"): (0.0, 9.0, "Kp"),
+    ("alignment", "seed"): (0, math.inf, "the MCMC's random seed"),
+    ("discover", "max_effects"): (0, math.inf, "effects"),
+}
+
+
+def _check_numbers(s: dict, path: Path) -> None:
+    """Every number of :data:`_RANGES` finite and in its range; the alignment's
+    ``lt_harmonics`` ("auto" or an integer >= 0) and ``window_days`` ("auto" or a
+    positive number of days; 0 for none)."""
+    for (section, key), (lo, hi, unit) in _RANGES.items():
+        value = s[section][key]
+        if value is None:
+            continue
+        if not (math.isfinite(value) and lo <= value <= hi):
+            shown = (f"{lo:g} to {hi:g}" if hi < math.inf else "positive" if 0 < lo < 1e-6
+                     else f"at least {lo:g}")
+            raise InputError(f"[{section}] {key} must be {shown} ({unit}), got {value!r}",
+                             file=path, column=f"{section}.{key}")
+    al = s["alignment"]
+    lt = al["lt_harmonics"]
+    if not (lt == "auto" or (isinstance(lt, int) and not isinstance(lt, bool) and lt >= 0)):
+        raise InputError(f"[alignment] lt_harmonics must be \"auto\" or an integer >= 0, got "
+                         f"{lt!r}", file=path, column="alignment.lt_harmonics")
+    wd = al["window_days"]
+    if not (wd == "auto" or (not isinstance(wd, str) and 0 <= wd < math.inf)):
+        raise InputError(f"[alignment] window_days must be \"auto\" or a number of days >= 0 "
+                         f"(0: no windows), got {wd!r}", file=path,
+                         column="alignment.window_days")
 
 
 def _check_spin(sp: dict, path: Path) -> None:

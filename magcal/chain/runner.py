@@ -281,6 +281,7 @@ def run_chain(config: ChainConfig | str | Path, outdir: str | Path,
             engine.start_workers()
         if cfg["input"]["simulate"]:
             extras["simulated"] = _simulate_input(cfg, out, progress)
+        cfg.check_paths()
         files = cfg.input_files()
         if cfg.kind == "spin":
             run = _Run(out, [{"path": str(p), "sha256": file_sha256(p)} for p in files],
@@ -330,6 +331,38 @@ def remove_partial_files(outdir: Path) -> int:
     return removed
 
 
+def check_kp_coverage(cfg: ChainConfig, records) -> None:
+    """Refuse a Kp file that covers none of the archive's 1-min samples.
+
+    Without Kp the model (T89) is NaN and no sample is a quiet-time candidate: every
+    offset window, the alignment and discovery come out empty, and the run used to end
+    with exit status 3 and one "hole in the Kp file" warning per file, as if a few days
+    were missing. A Kp file of another year is a bad input (exit status 2) naming the
+    file and both spans. A Kp file with holes is left to the per-file warnings.
+
+    Raises
+    ------
+    InputError
+        No 1-min sample of any partition has a Kp value.
+    """
+    kp = cfg["kp"]["file"]
+    total = sum(int(r.get("n_minutes", 0)) for r in records)
+    if kp is None or not total or any(r.get("n_no_kp", 0) < r.get("n_minutes", 0)
+                                      for r in records):
+        return
+    from magcal.indices import read_kp
+
+    path = cfg.resolve(kp)
+    series = read_kp(path)
+    held = (f"its values span {series.index[0]:%Y-%m-%dT%H:%M} to "
+            f"{series.index[-1]:%Y-%m-%dT%H:%M}" if len(series) else "it has no value")
+    start = min(str(r["start"]) for r in records)
+    end = max(str(r["end"]) for r in records)
+    raise InputError(f"[kp] file covers none of the data ({start[:16]} to {end[:16]}; "
+                     f"{held}): no Kp for any of the {total} 1-min samples", file=path,
+                     column="kp.file")
+
+
 def _geostationary_stages(run: _Run, cfg: ChainConfig, files, shas, extras: dict,
                           engine) -> None:
     """Fit phase, partitions on Dask, then the stages on the 1-min record."""
@@ -354,6 +387,7 @@ def _geostationary_stages(run: _Run, cfg: ChainConfig, files, shas, extras: dict
     records, failed, run.partitions = archive.run_partitions(cfg, files, shas, fit, state,
                                                              engine, read)
     del read  # the fit files' frames: not held through the later stages
+    check_kp_coverage(cfg, records)
     archive.prune_partitions(state, records, fit.key)
     pkeys = [r["key"] for r in records]
     # discovery needs only the 1-min record: it starts on a worker now and runs while

@@ -70,14 +70,22 @@ def run(args) -> int:
             raise InputError(exc.message, file=meas_path, row=exc.row,
                              column=exc.column) from None
         raise
+    # what the readers repaired (fill values turned NaN, ...) is said, not only done
+    repairs = {str(path): frame.attrs.get("repairs") for path, frame in
+               zip(inputs, (measured, model, cov)) if frame is not None
+               and frame.attrs.get("repairs")}
     params = {"longitude": args.longitude, "max_effects": args.max_effects,
-              "screen": not args.no_screen}
+              "screen": not args.no_screen, "input_repairs": repairs}
     result = result.with_provenance(make_provenance("discover", params, inputs=inputs))
     if args.plot:
         from magcal.discover.plots import plot_gap
 
         plot_gap(result, args.plot)
     write_json(args.output, result.to_json())
+    for path, done in repairs.items():
+        for rep in done:
+            print(f"{path}: {rep['what']} in {rep.get('column', '?')} ({rep['count']})",
+                  file=sys.stderr)
     for line in result.account():
         print(line, file=sys.stderr)
     return 0

@@ -124,8 +124,36 @@ def account_lines(result) -> list[str]:
     lines = [f"gap: RMS {g0['rms_nT']:.2f} nT over all components ({per} nT)"]
     left_out = result.screened
     if left_out.get("samples"):
-        lines.append(f"left out {left_out['samples']} spike sample(s) of measured - model "
-                     f"before the fit (the first at {left_out['first']})")
+        by = left_out.get("by_test") or {"spike": left_out["samples"]}
+        if by.get("spike"):
+            lines.append(f"left out {by['spike']} spike sample(s) of measured - model "
+                         f"before the fit")
+        other = {k: n for k, n in by.items() if n and k != "spike"}
+        if other:
+            what = ", ".join(f"{k.replace('_', ' ')} {n}" for k, n in other.items())
+            lines.append(f"left out {sum(other.values())} more bad sample(s) before the fit "
+                         f"({what})")
+        lines[-1] += f" (the first left out at {left_out['first']})"
+    if left_out.get("no_common_time"):
+        n = left_out["no_common_time"]
+        lines.append(f"left out {n['measured']} measured and {n['model']} model row(s) at times "
+                     "the other file lacks")
+    if left_out.get("covariate_unknown"):
+        lines.append(f"left out {left_out['covariate_unknown']} sample(s) where a covariate "
+                     "is unknown (outside its span or in a hole)")
+    for name, cov in (getattr(result, "covariates", None) or {}).items():
+        if not cov.get("used"):
+            lines.append(f"covariate {name} not used: {cov.get('reason')}")
+        elif cov.get("out_of_range"):
+            lines.append(f"covariate {name}: {cov['out_of_range']} value(s) outside its "
+                         "physical range taken as missing")
+    unused = getattr(result, "columns_not_used", None) or {}
+    for where in ("measured", "model"):
+        if unused.get(where):
+            lines.append(f"{where} column(s) {', '.join(unused[where])} not in the other file: "
+                         "not used")
+    if unused.get("all_missing"):
+        lines.append(f"component(s) {', '.join(unused['all_missing'])} without any value")
     for fe in result.effects:
         # a slow term (drift) can be highly significant against the day-to-day scatter
         # while the RMS, dominated by fast variability, barely moves: show the change

@@ -269,7 +269,8 @@ class Diurnal(Effect):
         x = 2 * np.pi * np.asarray(lt_h, dtype=float) / 24.0
         out = np.zeros_like(x)
         for k in range(1, self.harmonics + 1):
-            out += beta_component[2 * k - 2] * np.cos(k * x) + beta_component[2 * k - 1] * np.sin(k * x)
+            out += (beta_component[2 * k - 2] * np.cos(k * x)
+                    + beta_component[2 * k - 1] * np.sin(k * x))
         return out
 
     def describe(self, beta, std, dof=None):
@@ -470,12 +471,27 @@ def available(effect_cls: type[Effect], inputs: EffectInputs) -> bool:
     if effect_cls is Rotation and inputs.m != 3:
         return False
     if effect_cls is Activity:
-        return inputs.has("kp") or inputs.has("dst")
+        return bool(_varying_indices(inputs))
     return all(inputs.has(r) for r in effect_cls.requires)
 
 
+def _varying_indices(inputs: EffectInputs) -> tuple[str, ...]:
+    """The activity indices present that vary over the samples. A constant index (a
+    quiet stretch with one Kp, a Kp file of one value) is a column of zeros once
+    referred to its mean: it made the whole activity term singular, and a Dst response
+    of 0.3 nT/nT beside a constant Kp was never named."""
+    out = []
+    for k in ("kp", "dst"):
+        if inputs.has(k):
+            v = np.asarray(inputs.covariates[k], dtype=float)
+            if np.isfinite(v).any() and np.nanmax(v) > np.nanmin(v):
+                out.append(k)
+    return tuple(out)
+
+
 def make_activity(inputs: EffectInputs, components) -> Activity:
-    """An :class:`Activity` term on the indices present, referred to their means."""
-    idx = tuple(k for k in ("kp", "dst") if inputs.has(k))
+    """An :class:`Activity` term on the indices present that vary, referred to their
+    means."""
+    idx = _varying_indices(inputs)
     refs = tuple(float(np.nanmean(inputs.covariates[k])) for k in idx)
     return Activity(components=tuple(components), indices=idx, refs=refs)

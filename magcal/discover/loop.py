@@ -201,8 +201,13 @@ class DiscoveryResult:
     residual_final: np.ndarray = field(default=None, repr=False, compare=False)
     #: Noise model of the effects' amplitude standard errors (OU + white per component).
     amplitude_noise: dict = field(default_factory=dict)
-    #: What :func:`discover_gap` left out as spikes before the loop (empty if not screened).
+    #: What :func:`discover_gap` left out before the loop: spikes and other bad samples
+    #: (``by_test``) and samples where a used covariate is unknown (``covariate_unknown``).
     screened: dict = field(default_factory=dict)
+    #: Per covariate column: used or not and why, samples it covers, values out of range.
+    covariates: dict = field(default_factory=dict)
+    #: Columns of measured and model that are not components, and components without data.
+    columns_not_used: dict = field(default_factory=dict)
 
     @property
     def names(self) -> list[str]:
@@ -230,6 +235,8 @@ class DiscoveryResult:
             "rounds": list(self.rounds),
             "amplitude_noise": self.amplitude_noise,
             "screened": self.screened,
+            "covariates": self.covariates,
+            "columns_not_used": self.columns_not_used,
             "provenance": self.provenance,
         })
 
@@ -822,13 +829,25 @@ def discover_gap(measured, model, covariates=None, longitude_deg=None, max_effec
     settings : DiscoverySettings, optional
         Thresholds; ``max_effects`` overrides its field.
     screen : bool
-        Leave out the spikes of measured - model first
-        (:func:`magcal.discover.inputs.screen_spikes`); the result's ``screened`` says
-        how many and where the first was.
+        Leave out the spikes of measured - model, magnitudes implausible against the
+        model (fills), clipped and stuck runs first
+        (:func:`magcal.discover.inputs.screen_samples`); the result's ``screened`` says
+        how many by test and where the first was.
 
     Returns
     -------
     DiscoveryResult
+
+    Notes
+    -----
+    Covariates are checked (:func:`magcal.discover.inputs.prepare_covariates`): values
+    outside their physical range are missing; a covariate is not extrapolated beyond its
+    span nor bridged over its long holes, and the samples it does not cover are left out
+    (``screened["covariate_unknown"]``), unless it covers fewer than three quarters of
+    them and less than two weeks of data
+    (:data:`~magcal.discover.inputs.MIN_COVARIATE_SHARE`, ``MIN_COVARIATE_DAYS``): it is
+    then not used.
+    ``covariates`` and ``columns_not_used`` of the result say what was used.
 
     Examples
     --------
@@ -845,15 +864,32 @@ def discover_gap(measured, model, covariates=None, longitude_deg=None, max_effec
     """
     import dataclasses
 
-    from magcal.discover.inputs import align_frames, build_inputs, screen_spikes
+    from magcal.discover.inputs import (align_frames, build_inputs, columns_not_used,
+                                        prepare_covariates, screen_samples, to_unix_seconds)
 
     settings = dataclasses.replace(settings or DiscoverySettings(), max_effects=int(max_effects))
     meas, mod, comps = align_frames(measured, model)
     screened = {}
     if screen:
-        meas, screened = screen_spikes(meas, mod)
+        meas, screened = screen_samples(meas, mod)
+    # rows of one file at times the other lacks (a 5-min model beside 1-min data) are
+    # not used: counted, not dropped unsaid
+    unmatched = {"measured": int(len(measured.index.difference(meas.index))),
+                 "model": int(len(model.index.difference(meas.index)))}
+    if any(unmatched.values()):
+        screened = dict(screened, no_common_time=unmatched)
     lon = longitude_deg
-    inputs, _ = build_inputs(meas.index, mod, comps, covariates, lon)
+    cov, unknown, cov_report = prepare_covariates(to_unix_seconds(meas.index), covariates, lon)
+    if unknown.any():
+        # the rows go: a made-up covariate value must not enter any column of any
+        # candidate (their correlations and scans use every row, not only the
+        # finite residuals)
+        had = np.isfinite(meas.to_numpy(dtype=float)).any(axis=1)
+        screened = dict(screened, covariate_unknown=int((unknown & had).sum()))
+        meas, mod = meas[~unknown], mod[~unknown]
+        cov = {name: v[~unknown] for name, v in cov.items()}
+    inputs, _ = build_inputs(meas.index, mod, comps, cov or None, lon)
     result = discover(inputs, meas[list(comps)].to_numpy(dtype=float), settings,
                       longitude_deg=lon)
-    return dataclasses.replace(result, screened=screened)
+    return dataclasses.replace(result, screened=screened, covariates=cov_report,
+                               columns_not_used=columns_not_used(measured, model, comps))
