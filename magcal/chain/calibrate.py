@@ -237,30 +237,11 @@ def _covariate_holes(raw: pd.DataFrame, index: pd.DatetimeIndex, path) -> list[s
 
 
 def discovery_warnings(result) -> list[str]:
-    """What the discovery left aside, as warning lines: covariates not used (with the
-    reason), values out of their physical range, samples left out for an unknown
-    covariate or as bad samples.
+    """What the discovery left aside, as warning lines: its covariates' sentences
+    (:func:`magcal.discover.account.covariate_lines`) and the bad samples left out."""
+    from magcal.discover.account import covariate_lines
 
-    Examples
-    --------
-    >>> from types import SimpleNamespace
-    >>> r = SimpleNamespace(screened={"samples": 0, "covariate_unknown": 120},
-    ...                     covariates={"dst": {"used": False, "reason": "no valid value"}})
-    >>> for line in discovery_warnings(r):
-    ...     print(line)
-    covariate dst not used: no valid value
-    left out 120 sample(s) where a covariate is unknown (outside its span or in a hole)
-    """
-    out = []
-    for name, cov in result.covariates.items():
-        if not cov.get("used"):
-            out.append(f"covariate {name} not used: {cov.get('reason')}")
-        elif cov.get("out_of_range"):
-            out.append(f"covariate {name}: {cov['out_of_range']} value(s) outside its "
-                       "physical range taken as missing")
-    if result.screened.get("covariate_unknown"):
-        out.append(f"left out {result.screened['covariate_unknown']} sample(s) where a "
-                   "covariate is unknown (outside its span or in a hole)")
+    out = covariate_lines(result)
     if result.screened.get("samples"):
         out.append(f"left out {result.screened['samples']} bad sample(s) "
                    f"({result.screened.get('by_test')})")

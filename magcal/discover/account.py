@@ -116,6 +116,35 @@ def _what(fe) -> str:
     return name
 
 
+def covariate_lines(result) -> list[str]:
+    """What the discovery did with its covariates, one sentence each: the samples left
+    out where a used covariate is unknown, the covariates not used (with the reason) and
+    the values taken as missing for being outside their physical range. The account
+    and the chain's warnings both say them.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> r = SimpleNamespace(screened={"samples": 0, "covariate_unknown": 120},
+    ...                     covariates={"dst": {"used": False, "reason": "no valid value"}})
+    >>> for line in covariate_lines(r):
+    ...     print(line)
+    left out 120 sample(s) where a covariate is unknown (outside its span or in a hole)
+    covariate dst not used: no valid value
+    """
+    out = []
+    if result.screened.get("covariate_unknown"):
+        out.append(f"left out {result.screened['covariate_unknown']} sample(s) where a "
+                   "covariate is unknown (outside its span or in a hole)")
+    for name, cov in (getattr(result, "covariates", None) or {}).items():
+        if not cov.get("used"):
+            out.append(f"covariate {name} not used: {cov.get('reason')}")
+        elif cov.get("out_of_range"):
+            out.append(f"covariate {name}: {cov['out_of_range']} value(s) outside its "
+                       "physical range taken as missing")
+    return out
+
+
 def account_lines(result) -> list[str]:
     """Lines of the account of a :class:`~magcal.discover.loop.DiscoveryResult`."""
     g0 = result.gap_initial
@@ -138,15 +167,7 @@ def account_lines(result) -> list[str]:
         n = left_out["no_common_time"]
         lines.append(f"left out {n['measured']} measured and {n['model']} model row(s) at times "
                      "the other file lacks")
-    if left_out.get("covariate_unknown"):
-        lines.append(f"left out {left_out['covariate_unknown']} sample(s) where a covariate "
-                     "is unknown (outside its span or in a hole)")
-    for name, cov in (getattr(result, "covariates", None) or {}).items():
-        if not cov.get("used"):
-            lines.append(f"covariate {name} not used: {cov.get('reason')}")
-        elif cov.get("out_of_range"):
-            lines.append(f"covariate {name}: {cov['out_of_range']} value(s) outside its "
-                         "physical range taken as missing")
+    lines += covariate_lines(result)
     unused = getattr(result, "columns_not_used", None) or {}
     for where in ("measured", "model"):
         if unused.get(where):

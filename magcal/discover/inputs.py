@@ -167,7 +167,7 @@ def screen_samples(measured: pd.DataFrame, model: pd.DataFrame):
 
     The chain's quality checks (:mod:`magcal.qc.checks`, the same defaults as its
     ``[qc]`` section) on what the discovery is given: spikes of measured - model
-    (:func:`screen_spikes`), magnitudes implausible against the model (fill values
+    (:func:`magcal.qc.checks.spike_mask`), magnitudes implausible against the model (fill values
     like 99999 that the readers do not know, a saturated converter at 65535), a
     component clipped at the record's extreme, and stuck readings. One 65535 run of
     two hours in a month is 3500 nT of gap RMS: left in, no effect is beyond chance
@@ -216,49 +216,6 @@ def screen_samples(measured: pd.DataFrame, model: pd.DataFrame):
     first = measured.index[bad][0].isoformat() if bad.any() else None
     return out, {"test": "; ".join(f"{k}: {v}" for k, v in SCREEN_TESTS.items()),
                  "samples": int(bad.sum()), "first": first, "by_test": by_test}
-
-
-def screen_spikes(measured: pd.DataFrame, model: pd.DataFrame):
-    """Leave out the samples of ``measured`` that are spikes of ``measured - model``.
-
-    A spike is a run of at most five samples beyond 8 robust sigmas of an 11-sample
-    running median, with a jump into it and a jump out of it
-    (:func:`magcal.qc.checks.spike_mask`, the test the chain's quality screen uses); a
-    step jumps once and is kept. Tested on the residual, where the model's own
-    variation is gone. A spike of tens of nT in a month of 1-min data is a large share
-    of its variance: left in, it is fitted by whatever effect it happens to
-    correlate with (a scale, a rotation).
-
-    Parameters
-    ----------
-    measured, model : pandas.DataFrame
-        Aligned frames (:func:`align_frames`), the same columns.
-
-    Returns
-    -------
-    (pandas.DataFrame, dict)
-        ``measured`` with the spike samples NaN in every component, and what was left
-        out: ``{"test": ..., "samples": n, "first": ISO time or None}``.
-
-    Examples
-    --------
-    >>> t = pd.date_range("2019-11-01", periods=600, freq="1min", tz="UTC")
-    >>> model = pd.DataFrame({"Hp": np.zeros(600)}, index=t)
-    >>> meas = model + np.random.default_rng(0).normal(0, 1, (600, 1))
-    >>> meas.iloc[[100, 101, 400]] = 80.0
-    >>> clean, left_out = screen_spikes(meas, model)
-    >>> left_out["samples"], int(clean["Hp"].isna().sum())
-    (3, 3)
-    """
-    from magcal.qc.checks import spike_mask
-
-    bad = spike_mask((measured - model).to_numpy(dtype=float))
-    out = measured.copy()
-    out[bad] = np.nan
-    first = measured.index[bad][0].isoformat() if bad.any() else None
-    return out, {"test": "spike: beyond 8 robust sigma of an 11-sample running median of "
-                         "measured - model, with a jump in and a jump out (at most 5 samples)",
-                 "samples": int(bad.sum()), "first": first}
 
 
 def out_of_range(values: np.ndarray, name: str) -> np.ndarray:
