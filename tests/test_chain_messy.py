@@ -57,12 +57,15 @@ def test_the_documented_defaults_pass():
 @pytest.mark.parametrize("section, key, value", [
     ("discover", "covariates", "raw/nodst.csv"), ("truth", "file", "raw/notruth.csv"),
     ("kp", "file", "raw/nokp.csv"), ("alignment", "reference", "noref.csv"),
-    ("picog", "plan", "NOPLAN.toml")])
+    ("picog", "plan", "NOPLAN.toml"), ("discover", "covariates", "raw/empty.csv"),
+    ("kp", "file", "raw/empty.csv")])
 def test_a_named_file_that_does_not_exist_is_exit_2_before_any_partition(
         tmp_path, capsys, section, key, value):
-    """A typo in a path used to fail only its stage (exit 3) after the whole run."""
+    """A typo in a path used to fail only its stage (exit 3) after the whole run; so did
+    an empty covariate file (``raw/empty.csv``, 0 bytes)."""
     raw = tmp_path / "raw"
     raw.mkdir()
+    (raw / "empty.csv").write_text("")
     (raw / "day.csv").write_text("time,fgmo_x,fgmo_y,fgmo_z\n2019-11-01T00:00:00,1,2,3\n")
     cfg = tmp_path / "CHAIN.toml"
     cfg.write_text(MINIMAL + f'[{section}]\n{key} = "{value}"\n')

@@ -105,8 +105,8 @@ class ChainConfig:
         return found
 
     def check_paths(self) -> None:
-        """Every file the configuration names must exist (after ``[input] simulate``
-        wrote its ``{outdir}`` files).
+        """Every file the configuration names must exist and hold something (after
+        ``[input] simulate`` wrote its ``{outdir}`` files).
 
         A missing Kp, covariate, truth, plan, reference or driver file is a bad
         configuration (exit status 2, naming the key), not a stage that fails late
@@ -128,8 +128,9 @@ class ChainConfig:
             if section in ("discover", "alignment") and not self[section]["enabled"]:
                 continue
             path = self.resolve(value)
-            if not path.is_file():
-                what = "is a directory" if path.is_dir() else "not found"
+            if not path.is_file() or path.stat().st_size == 0:
+                what = ("is a directory" if path.is_dir() else "is empty"
+                        if path.is_file() else "not found")
                 raise InputError(f"[{section}] {key} = {value!r}: {path} {what}",
                                  file=self.path, column=f"{section}.{key}")
 
