@@ -598,7 +598,7 @@ def solve_ripple(harm: np.ndarray, coupling0, offsets0, free=DETERMINABLE, *,
     End leakage: a natural wave leaves a tone in the residual harmonics, which the slowly
     varying regressors (the field's level) turn into a tone in the scores. A tone's sum
     does not cancel at the record's ends, so the fit has an error linear in the wave and
-    changing with its phase (about 0.5 random std on 1-hour Galileo-like records), and
+    changing with its phase (0.3-0.7 random std on 1-hour Galileo-like records), and
     the tone reaches the long-run variance's low cosines through the ends (the std of
     c22, c31, c32 came out 5-15 % too large). The tones are fitted to the residual
     harmonics (:func:`wave_tones`); their scores through the slow part of the
