@@ -27,12 +27,15 @@ CASES = {
         random_phases=True, turbulence_rms_nT=1.0, noise_nT=0.05),
     "galileo 1 h": SpinningConfig.galileo_like(duration_s=3600.0, random_phases=True),
     "elfin-like pass": SpinningConfig.elfin_like(random_phases=True),
+    "elfin-like pass, white noise": SpinningConfig.elfin_like(random_phases=True,
+                                                               turbulence_rms_nT=0.0),
 }
 
 
 def errors(config, seeds):
-    """Errors of the corrected fit, its stated std, errors of the plain fit (records x 8)."""
-    err, std, plain = [], [], []
+    """Errors of the corrected fit, its stated std, errors of the plain fit and of the fit
+    with the leakage left in (records x 8)."""
+    err, std, plain, left = [], [], [], []
     for seed in seeds:
         res = simulate_spinning(config, rng=np.random.default_rng(seed))
         tr, d = res.truth, res.data
@@ -45,13 +48,15 @@ def errors(config, seeds):
         truth = np.array([full[PARAM_NAMES.index(n)] for n in DETERMINABLE])
         cal = fit_spin_ripple(*args, coupling0=c0, offsets0=o0)
         raw = fit_spin_ripple(*args, coupling0=c0, offsets0=o0, correct_bias=False)
+        leaky = fit_spin_ripple(*args, coupling0=c0, offsets0=o0, correct_leakage=False)
         err.append([cal.parameter(n) for n in DETERMINABLE] - truth)
         plain.append([raw.parameter(n) for n in DETERMINABLE] - truth)
+        left.append([leaky.parameter(n) for n in DETERMINABLE] - truth)
         std.append([cal.std[n] for n in DETERMINABLE])
-    return np.array(err), np.array(std), np.array(plain)
+    return np.array(err), np.array(std), np.array(plain), np.array(left)
 
 
-def table(err, std, plain) -> str:
+def table(err, std, plain, left) -> str:
     z = err / std
     rows = [f"{'':8s}" + "".join(f"{n:>8s}" for n in DETERMINABLE)]
     for label, values in (
@@ -59,7 +64,8 @@ def table(err, std, plain) -> str:
             ("rms z", np.sqrt(np.mean(z ** 2, axis=0))),
             ("std z", z.std(axis=0)),
             ("mean z", z.mean(axis=0)),
-            ("rms/raw", np.sqrt(np.mean(err ** 2, axis=0) / np.mean(plain ** 2, axis=0)))):
+            ("rms/raw", np.sqrt(np.mean(err ** 2, axis=0) / np.mean(plain ** 2, axis=0))),
+            ("rms/left", np.sqrt(np.mean(err ** 2, axis=0) / np.mean(left ** 2, axis=0)))):
         rows.append(f"{label:8s}" + "".join(f"{v:8.3f}" for v in values))
     rows.append(f"all: coverage {100 * np.mean(np.abs(z) <= 1.96):.1f} %")
     return "\n".join(rows)

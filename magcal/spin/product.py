@@ -140,6 +140,7 @@ def _unflip(cal: SpinCalibration) -> SpinCalibration:
         covariance=np.asarray(cal.covariance) * np.outer(cov_sign, cov_sign),
         bias_correction={n: sign[n] * v for n, v in cal.bias_correction.items()},
         bias_estimate={n: sign[n] * v for n, v in cal.bias_estimate.items()},
+        leakage_correction={n: sign[n] * v for n, v in cal.leakage_correction.items()},
         notes=tuple(cal.notes) + (note,))
 
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import optimize, stats
 
 from magcal.errors import InputError
 from magcal.io.jsonio import product_dict
@@ -51,13 +52,24 @@ LRV_MIN_TERMS = 20
 #: slowly than this many blocks count as the field's signal, faster ones as noise.
 BIAS_SMOOTH_BLOCKS = 45
 #: Bias correction's guard (:func:`solve_ripple`): a parameter's fitted value is corrected
-#: by the estimated bias only when that estimate exceeds this many of its random std.
-#: Smaller estimates are of the size of the waves' leakage through the record's ends
-#: (a term linear in the wave, changing with its phase: its mean over records moves with
-#: the phase by a standard deviation of 0.1-0.4 random std on 1-hour Galileo-like
-#: records), which can cancel the bias; correcting every parameter lost up to 17 % of
-#: RMS error at some wave phases there, this guard at most 3 %.
-BIAS_CORRECTION_MIN_RATIO = 0.75
+#: by the estimated bias only when that estimate exceeds this many of its random std,
+#: where the waves' tones were found and their end leakage taken out (:func:`wave_tones`).
+BIAS_CORRECTION_MIN_RATIO = 0.25
+#: The guard where no wave's tone was found, or the waves' end leakage is left in
+#: (``correct_leakage=False``). The leakage, linear in the wave and changing with its
+#: phase, can cancel the bias: correcting every parameter then lost up to 17 % of RMS
+#: error at some wave phases on 1-hour Galileo-like records, this guard at most 3 %.
+#: Without waves (ELFIN-like passes) the estimates between 0.25 and 0.75 std are mostly
+#: the estimate's own error: correcting them lost 1-2 % of RMS error in c13, c23, O1, O2.
+LEAKY_BIAS_CORRECTION_MIN_RATIO = 0.75
+#: Waves' end leakage (:func:`wave_tones`): tones are sought above this many times the
+#: long-run variance's band (its ``K`` cosines reach ``K / (2 n)`` cycles per block) ...
+TONE_BAND_FACTOR = 1.5
+#: ... at most this many, each kept if the summed whitened periodogram of the residual
+#: harmonics at its peak would be exceeded by white residuals with this probability over
+#: the whole record.
+TONE_MAX = 6
+TONE_FALSE_ALARM = 0.01
 #: Curvature leakage (:func:`curvature_leakage`): the field's second derivative at each
 #: block is that of a quadratic fitted to the levels of this many blocks around it.
 CURVATURE_WINDOW_BLOCKS = 45
@@ -208,6 +220,10 @@ class SpinCalibration:
     std_dof : int
         Degrees of freedom of the random part of ``std`` (the long-run variance's cosine
         terms, :func:`lrv_terms`); 0 for results not from the ripple fit.
+    leakage_correction : dict
+        ``{name: value}`` added to each determined parameter for the natural waves' end
+        leakage (:func:`solve_ripple`); all 0 when no wave's tone was found. Empty for
+        results not from the ripple fit.
     """
 
     coupling: np.ndarray
@@ -230,6 +246,7 @@ class SpinCalibration:
     bias_correction: dict = field(default_factory=dict)
     bias_estimate: dict = field(default_factory=dict)
     std_dof: int = 0
+    leakage_correction: dict = field(default_factory=dict)
 
     def calibrate(self, b) -> np.ndarray:
         """Calibrated spacecraft-frame field ``C (b - O)`` for readings ``b`` (n, 3)."""
@@ -264,6 +281,7 @@ class SpinCalibration:
             "bias_correction": self.bias_correction,
             "bias_estimate": self.bias_estimate,
             "std_dof": self.std_dof,
+            "leakage_correction": self.leakage_correction,
         })
 
 
@@ -364,12 +382,101 @@ def _high_pass(harm: np.ndarray, n_slow: int) -> np.ndarray:
     return (flat - slow @ coef).reshape(harm.shape)
 
 
-def _error_terms(harm: np.ndarray, theta: np.ndarray, idx: list[int], leak: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """Random covariance and estimated bias of the parameters ``idx`` fitted as ``theta``.
+def wave_tones(resid: np.ndarray, n_terms: int) -> tuple[np.ndarray, np.ndarray]:
+    """Natural waves' tones in the residual spin harmonics of the blocks, fitted.
+
+    A natural wave leaves in each block's residual harmonics a tone at its frequency
+    (aliased to the blocks' rate). Its sum over the record does not cancel at the
+    record's ends: through the slowly varying regressors it is an error of the fit,
+    linear in the wave and changing with its phase (:func:`solve_ripple`), and it
+    reaches the low cosines of the long-run variance.
+
+    Tones are sought, one at a time, above :data:`TONE_BAND_FACTOR` times the band of
+    the ``n_terms`` cosines: the peak of the periodogram (padded 8 times) of the
+    whitened residual, less the constant, the band's cosines and the tones found, summed
+    over the columns each normalised by its median, is kept when white residuals would
+    exceed it with probability :data:`TONE_FALSE_ALARM` (a gamma law), its frequency
+    refined, and at most :data:`TONE_MAX` are kept. All are then fitted by least squares
+    together with the constant and the band's cosines.
+
+    Parameters
+    ----------
+    resid : ndarray, shape (n, k)
+        Residual harmonics, one row per block.
+    n_terms : int
+        Cosine terms of the long-run variance (:func:`lrv_terms`).
+
+    Returns
+    -------
+    tones : ndarray, shape (n, k)
+        The fitted tones.
+    freqs : ndarray
+        Their frequencies in cycles per block.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(1)
+    >>> b = np.arange(400)
+    >>> wave = np.cos(2 * np.pi * 0.27 * b + 1.0)[:, None] * [2.0, -1.0]
+    >>> tones, freqs = wave_tones(wave + rng.standard_normal((400, 2)), 80)
+    >>> freqs.round(3), bool(np.abs(tones - wave).max() < 0.5)
+    (array([0.27]), True)
+    """
+    n, k = resid.shape
+    none = (np.zeros_like(resid), np.zeros(0))
+    pad = 8 * n
+    grid = np.arange(pad // 2 + 1) / pad
+    band = grid >= TONE_BAND_FACTOR * n_terms / (2.0 * n)
+    if n < 4 or not band.any():
+        return none
+    dev = resid - resid.mean(axis=0)
+    val, vec = np.linalg.eigh(dev.T @ dev / n)
+    keep = val > 1e-12 * max(val.max(), 1e-300)
+    if not keep.any():
+        return none
+    white = resid @ (vec[:, keep] / np.sqrt(val[keep]))
+    threshold = stats.gamma.isf(TONE_FALSE_ALARM / n, int(keep.sum()))
+    b = np.arange(n)
+    design = np.cos(np.pi * np.outer((b + 0.5) / n, np.arange(n_terms + 1)))
+    freqs = []
+    for _ in range(TONE_MAX):
+        coef, *_ = np.linalg.lstsq(design, white, rcond=None)
+        rest = white - design @ coef
+        power = np.abs(np.fft.rfft(rest, pad, axis=0)[band]) ** 2
+        scale = np.median(power, axis=0) / np.log(2.0)
+        if not np.all(scale > 0):
+            break
+        total = (power / scale).sum(axis=1)
+        j = int(np.argmax(total))
+        if total[j] < threshold:
+            break
+
+        def minus_power(f, rest=rest):
+            return -np.sum(np.abs(np.exp(-2j * np.pi * f * b) @ rest) ** 2)
+
+        f0 = grid[band][j]
+        f = optimize.minimize_scalar(minus_power, bounds=(f0 - 1.0 / pad, f0 + 1.0 / pad),
+                                     method="bounded").x
+        freqs.append(float(f))
+        design = np.column_stack([design, np.cos(2 * np.pi * f * b),
+                                  np.sin(2 * np.pi * f * b)])
+    if not freqs:
+        return none
+    coef, *_ = np.linalg.lstsq(design, resid, rcond=None)
+    m = n_terms + 1
+    return design[:, m:] @ coef[m:], np.array(freqs)
+
+
+def _error_terms(harm: np.ndarray, theta: np.ndarray, idx: list[int], leak: np.ndarray,
+                 correct_leakage: bool = True
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Random covariance, estimated bias and waves' end leakage of the parameters ``idx``.
 
     See :func:`solve_ripple`. The covariance is scaled by :func:`_student_factor`
-    squared for the long-run variance's degrees of freedom.
+    squared for the long-run variance's degrees of freedom. The leakage (zero when
+    ``correct_leakage`` is false or no tone is found) is to be added to ``theta``; the
+    last value is the number of tones found.
     """
     nb = harm.shape[0]
     w, dw = _weights_and_jacobian(theta)
@@ -379,12 +486,23 @@ def _error_terms(harm: np.ndarray, theta: np.ndarray, idx: list[int], leak: np.n
     bread = np.linalg.pinv(np.einsum("bkp,bkq->pq", jac, jac))
     score = np.einsum("bkp,bk->bp", jac, r)
     n_terms = lrv_terms(nb)
+    n_slow = max(1, min(nb // 2, 1 + (2 * nb) // BIAS_SMOOTH_BLOCKS))
+    shift = np.zeros(len(idx))
+    freqs = np.zeros(0)
+    if correct_leakage:
+        tones, freqs = wave_tones(r, n_terms)
+        if freqs.size:
+            # Through the slow regressors only: the tones times the fast ones are the
+            # errors-in-variables bias, estimated below.
+            tone_score = np.einsum("bkp,bk->bp", jac - _high_pass(jac, n_slow), tones)
+            score = score - tone_score
+            shift = bread @ tone_score.sum(axis=0)
     meat = _cosine_long_run(score, n_terms) * _student_factor(n_terms) ** 2
     # Errors in variables: the fast part of the harmonics is in both J and r.
-    fast = _high_pass(harm, max(1, min(nb // 2, 1 + (2 * nb) // BIAS_SMOOTH_BLOCKS)))
+    fast = _high_pass(harm, n_slow)
     gram = np.einsum("bhs,bht->st", fast, fast)
     bias = -bread @ np.einsum("csp,st,ct->p", dw, gram, w)
-    return bread @ meat @ bread, bias
+    return bread @ meat @ bread, bias, shift, int(freqs.size)
 
 
 def curvature_leakage(t_s, b, phase_rad, blocks: SpinBlocks, coupling0, offsets0, *,
@@ -443,14 +561,16 @@ def curvature_leakage(t_s, b, phase_rad, blocks: SpinBlocks, coupling0, offsets0
 
 def solve_ripple(harm: np.ndarray, coupling0, offsets0, free=DETERMINABLE, *,
                  max_iter: int = 20, tol: float = 1e-12, correct_bias: bool = True,
-                 leakage: np.ndarray | None = None
-                 ) -> tuple[np.ndarray, np.ndarray, int, bool, np.ndarray, np.ndarray]:
+                 leakage: np.ndarray | None = None, correct_leakage: bool = True
+                 ) -> tuple[np.ndarray, np.ndarray, int, bool, np.ndarray, np.ndarray,
+                            np.ndarray]:
     """Gauss-Newton solution of the ripple problem on precomputed block harmonics.
 
-    Returns ``theta`` (12 parameters, corrected for the waves' bias, below), the error
-    covariance of the free ones, the number of iterations, whether the step size fell
-    below ``tol``, the estimated bias of the free parameters and the part of it
-    subtracted (zero where the guard, below, or ``correct_bias=False`` left it in).
+    Returns ``theta`` (12 parameters, corrected for the waves' end leakage and bias,
+    below), the error covariance of the free ones, the number of iterations, whether the
+    step size fell below ``tol``, the estimated bias of the free parameters, the part of
+    it subtracted (zero where the guard, below, or ``correct_bias=False`` left it in),
+    and the waves' end leakage added (zero with ``correct_leakage=False``).
     ``leakage`` (n_blocks, 2 H, 3), when given, is subtracted from the despun
     components' harmonics before the fit and its error terms: the part of them that is
     not ripple (:func:`curvature_leakage`).
@@ -475,9 +595,21 @@ def solve_ripple(harm: np.ndarray, coupling0, offsets0, free=DETERMINABLE, *,
     square error). The estimate's own scatter is a few per cent of the random std, so a
     corrected parameter's covariance is the random part alone.
 
-    The guard: what the correction leaves is the waves' leakage through the ends of the
-    record, linear in the wave and changing with its phase, which is in the uncorrected
-    fit as well and can cancel its bias; a small estimate is therefore left in.
+    End leakage: a natural wave leaves a tone in the residual harmonics, which the slowly
+    varying regressors (the field's level) turn into a tone in the scores. A tone's sum
+    does not cancel at the record's ends, so the fit has an error linear in the wave and
+    changing with its phase (0.3-0.7 random std on 1-hour Galileo-like records), and
+    the tone reaches the long-run variance's low cosines through the ends (the std of
+    c22, c31, c32 came out 5-15 % too large). The tones are fitted to the residual
+    harmonics (:func:`wave_tones`); their scores through the slow part of the
+    regressors (the fast part times the tones is the bias, above) are taken out of the
+    scores before the long-run variance, and their sum, mapped through the bread, is
+    added to the parameters (``correct_leakage``).
+
+    The guard: with the waves' tones found and their leakage taken out, a bias estimate
+    larger than :data:`BIAS_CORRECTION_MIN_RATIO` of the random std is subtracted. With
+    no tone found, or the leakage left in (``correct_leakage=False``), where it can
+    cancel the bias, the guard is :data:`LEAKY_BIAS_CORRECTION_MIN_RATIO`.
 
     Coverage and error against the truth, with the variants measured and refused, are
     in the CHANGELOG (spin-ripple errors) and ``benchmarks/bench_ripple_phases.py``.
@@ -499,22 +631,24 @@ def solve_ripple(harm: np.ndarray, coupling0, offsets0, free=DETERMINABLE, *,
         if np.max(np.abs(step)) < tol * max(1.0, np.max(np.abs(theta[idx]))):
             converged = True
             break
-    cov, bias = _error_terms(harm, theta, idx, leak)
+    cov, bias, shift, n_tones = _error_terms(harm, theta, idx, leak, correct_leakage)
+    theta[idx] += shift
     applied = np.zeros_like(bias)
     if correct_bias:
         random_std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-        use = np.abs(bias) > BIAS_CORRECTION_MIN_RATIO * random_std
+        ratio = BIAS_CORRECTION_MIN_RATIO if n_tones else LEAKY_BIAS_CORRECTION_MIN_RATIO
+        use = np.abs(bias) > ratio * random_std
         applied[use] = bias[use]
         theta[idx] -= applied
     left = bias - applied
-    return theta, cov + np.outer(left, left), it, converged, bias, applied
+    return theta, cov + np.outer(left, left), it, converged, bias, applied, shift
 
 
 def fit_spin_ripple(t_s, b, phase_rad, *, coupling0=None, offsets0=None, free=DETERMINABLE,
                     n_harmonics: int = 2, spins_per_block: int = 1,
                     max_gap_rad: float = np.pi / 4, min_spins: int = 10,
                     max_iter: int = 20, correct_bias: bool = True,
-                    correct_curvature: bool = True,
+                    correct_curvature: bool = True, correct_leakage: bool = True,
                     provenance: dict | None = None) -> SpinCalibration:
     """Find ``C`` and ``O`` that minimise the spin tones of the despun field.
 
@@ -549,6 +683,9 @@ def fit_spin_ripple(t_s, b, phase_rad, *, coupling0=None, offsets0=None, free=DE
     correct_curvature : bool
         Take the field's curvature within each spin out of the fitted harmonics
         (:func:`curvature_leakage`); ``False`` fits them as they are.
+    correct_leakage : bool
+        Correct the parameters for the natural waves' tones summed over the record and
+        take the tones out of the long-run variance (:func:`solve_ripple`).
     provenance : dict, optional
         Provenance record to attach.
 
@@ -585,8 +722,9 @@ def fit_spin_ripple(t_s, b, phase_rad, *, coupling0=None, offsets0=None, free=DE
                                      max_gap_rad=max_gap_rad, min_spins=min_spins)
     leak = curvature_leakage(t_s, b, phase_rad, blocks, c0, o0, n_harmonics=n_harmonics) \
         if correct_curvature else None
-    theta, cov, n_it, converged, bias, applied = solve_ripple(
-        harm, c0, o0, free, max_iter=max_iter, correct_bias=correct_bias, leakage=leak)
+    theta, cov, n_it, converged, bias, applied, shift = solve_ripple(
+        harm, c0, o0, free, max_iter=max_iter, correct_bias=correct_bias, leakage=leak,
+        correct_leakage=correct_leakage)
     theta0 = np.concatenate([c0.ravel(), o0])
     before = _tone_from_coefs(np.einsum("bhs,cs->bhc", harm, _weights_and_jacobian(theta0)[0]))
     after = _tone_from_coefs(np.einsum("bhs,cs->bhc", harm, _weights_and_jacobian(theta)[0]))
@@ -609,7 +747,8 @@ def fit_spin_ripple(t_s, b, phase_rad, *, coupling0=None, offsets0=None, free=DE
         converged=converged, notes=tuple(notes), provenance=dict(provenance or {}),
         bias_correction={name: float(a) for name, a in zip(free, applied)},
         bias_estimate={name: float(x) for name, x in zip(free, bias)},
-        std_dof=lrv_terms(blocks.n_blocks))
+        std_dof=lrv_terms(blocks.n_blocks),
+        leakage_correction={name: float(x) for name, x in zip(free, shift)})
 
 
 class SpinRippleCalibrator:
@@ -633,7 +772,7 @@ class SpinRippleCalibrator:
 
     def __init__(self, *, coupling0=None, offsets0=None, free=DETERMINABLE, n_harmonics=2,
                  spins_per_block=1, max_gap_rad=np.pi / 4, min_spins=10, max_iter=20,
-                 correct_bias=True, correct_curvature=True):
+                 correct_bias=True, correct_curvature=True, correct_leakage=True):
         self.coupling0 = coupling0
         self.offsets0 = offsets0
         self.free = free
@@ -644,6 +783,7 @@ class SpinRippleCalibrator:
         self.max_iter = max_iter
         self.correct_bias = correct_bias
         self.correct_curvature = correct_curvature
+        self.correct_leakage = correct_leakage
 
     def fit(self, t_s, b, phase_rad, provenance=None) -> "SpinRippleCalibrator":
         """Fit on readings ``b`` (n, 3) with times and spin phase; return ``self``."""
@@ -653,7 +793,7 @@ class SpinRippleCalibrator:
             spins_per_block=self.spins_per_block, max_gap_rad=self.max_gap_rad,
             min_spins=self.min_spins, max_iter=self.max_iter,
             correct_bias=self.correct_bias, correct_curvature=self.correct_curvature,
-            provenance=provenance)
+            correct_leakage=self.correct_leakage, provenance=provenance)
         self.coupling_ = self.result_.coupling
         self.offsets_ = self.result_.offsets_nT
         return self
