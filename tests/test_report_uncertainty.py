@@ -75,6 +75,7 @@ def products(tmp_path_factory):
         "coupling": np.eye(3).tolist(), "offsets": [0.1, 0.2, 0.3],
         "determined": ["O1", "O2"], "fixed": ["O3"],
         "std": {"O1": 0.00125, "O2": 0.0025}, "bias_correction": {"O1": 0.0, "O2": 0.000375},
+        "leakage_correction": {"O1": -0.000625, "O2": 0.0},
         "spin_tone_before_nT": {"BX": [1.25, 0.5], "BY": [1.5, 0.25], "BZ": [0.75, 0.125]},
         "spin_tone_after_nT": {"BX": [0.0125, 0.005], "BY": [0.015, 0.0025],
                                "BZ": [0.0075, 0.00125]}})
@@ -119,9 +120,10 @@ def test_report_holds_the_product_numbers_and_embeds_every_figure(products, tmp_
         assert v in text
     for v in ("5.125", "1.250", "diurnal", "1.2500", "0.0125"):  # discover and spin
         assert v in text
-    # the spin parameters with their errors (O2: 0.2 +- 1.96 x 0.0025, bias 0.000375 nT)
-    # and the flipper's O3 with its two parts
-    for v in ("0.0025", "0.0049", "0.000375", "0.4498", "0.000977", "0.00191492", "0.000737",
+    # the spin parameters with their errors (O2: 0.2 +- 1.96 x 0.0025, bias 0.000375 nT,
+    # O1's leakage correction -0.000625 nT) and the flipper's O3 with its two parts
+    for v in ("0.0025", "0.0049", "0.000375", "-0.000625",
+              "0.4498", "0.000977", "0.00191492", "0.000737",
               "0.000642", "26"):
         assert v in text, v
     # the step's time with its 95 % interval

@@ -680,12 +680,14 @@ def spin_section(root: Path) -> tuple:
     params = _spin_parameter_rows(doc)
     if params:
         items.append(Table.from_records(
-            ["parameter", "value", "std", "95 % half-width", "bias correction"], params,
+            ["parameter", "value", "std", "95 % half-width", "bias correction",
+             "leakage correction"], params,
             caption="Determined parameters (coupling c_ij, dimensionless; offsets O_i, nT) "
                     "with their stated errors: the std is a root mean square error where "
-                    "the natural waves' estimated bias is left in, and the bias "
-                    "correction is what was subtracted from the least-squares value "
-                    "(magcal.spin.ripple.solve_ripple).",
+                    "the natural waves' estimated bias is left in, the bias correction is "
+                    "what was subtracted from the least-squares value and the leakage "
+                    "correction what was added for the waves' tones leaking through the "
+                    "record's ends (magcal.spin.ripple.solve_ripple).",
             source=_rel(path, root), fmt="{:.6g}"))
     flip = root / "spin" / "FLIP.json"
     if flip.is_file():
@@ -704,15 +706,16 @@ def spin_section(root: Path) -> tuple:
 
 
 def _spin_parameter_rows(doc: dict) -> list:
-    """Rows (name, value, std, 1.96 std, bias correction) of a CAL.json's determined
-    parameters; [] when it states no errors.
+    """Rows (name, value, std, 1.96 std, bias correction, leakage correction) of a
+    CAL.json's determined parameters (NaN where the file has no such key); [] when it
+    states no errors.
 
     Examples
     --------
     >>> _spin_parameter_rows({"coupling": [[1, 0, 0], [0.5, 1, 0], [0, 0, 1]],
     ...                       "offsets": [1.0, 2.0, 3.0], "determined": ["c21", "O2"],
     ...                       "std": {"c21": 0.1, "O2": 0.5}, "bias_correction": {"c21": 0.0}})
-    [('c21', 0.5, 0.1, 0.196, 0.0), ('O2', 2.0, 0.5, 0.98, nan)]
+    [('c21', 0.5, 0.1, 0.196, 0.0, nan), ('O2', 2.0, 0.5, 0.98, nan, nan)]
     """
     std = doc.get("std") or {}
     names = [n for n in doc.get("determined", []) if n in std]
@@ -723,8 +726,10 @@ def _spin_parameter_rows(doc: dict) -> list:
     values = dict(zip(PARAM_NAMES, [float(v) for v in np.ravel(doc["coupling"])]
                       + [float(v) for v in doc["offsets"]]))
     bias = doc.get("bias_correction") or {}
+    leak = doc.get("leakage_correction") or {}
     return [(n, values.get(n, float("nan")), float(std[n]), round(1.96 * float(std[n]), 12),
-             float(bias.get(n, float("nan")))) for n in names]
+             float(bias.get(n, float("nan"))), float(leak.get(n, float("nan"))))
+            for n in names]
 
 
 def build_uncertainty_report(products_dir, title: str = "magcal uncertainty report"
