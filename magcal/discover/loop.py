@@ -40,7 +40,7 @@ from magcal.discover.scan import (change_points, joint_step_time, n_period_trial
                                   scan_periods)
 from magcal.discover.selection import (
     BlockedGram, Comparison, CVScore, compare, delta_bic_eff, wald_test,
-    model_covariance, paired_z, regression_n_eff, time_blocks)
+    model_covariance, orthogonal_share, paired_z, regression_n_eff, time_blocks)
 from magcal.discover.step_time import step_time_interval
 from magcal.io.jsonio import product_dict
 
@@ -86,6 +86,14 @@ class DiscoverySettings:
     max_rotation_deg : float
         Largest rotation angle named as ``rotation``, for the same reason (mounting
         errors are of order a degree; the detectability thresholds are 5-7 deg).
+    min_orthogonal : float
+        Smallest relative norm of the part of a candidate's columns orthogonal to the
+        effects already in (:func:`orthogonal_share`). Below it the candidate adds no
+        direction of its own (a scale on a component whose model field is constant is
+        the offset's column): its joint fit is rank-deficient, its coefficient and
+        significance are set by round-off, and it is skipped, the round's ``skipped``
+        saying so. At ``1e-3`` the coefficient's variance is inflated a million-fold
+        by the collinearity and its distinct signal is a thousandth of its size.
     """
 
     max_effects: int = 8
@@ -101,6 +109,7 @@ class DiscoverySettings:
     vocabulary: tuple[str, ...] = EFFECT_NAMES
     max_scale: float = 0.5
     max_rotation_deg: float = 20.0
+    min_orthogonal: float = 1e-3
 
     def as_dict(self) -> dict:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
@@ -304,6 +313,7 @@ class _Candidate:
     n_eff: float = float("nan")
     trials: float = 1.0
     implausible: str = ""
+    beside: tuple[int, ...] = ()
 
     @property
     def name(self) -> str:
@@ -412,6 +422,8 @@ class _Loop:
                     self.cols[eff] = self.gram.add(eff.columns(inputs))
         self.added: list[tuple[Effect, tuple[int, ...]]] = []
         self.covered: dict[str, set] = {}
+        #: candidates of the current round left out as degenerate (see :meth:`_degenerate`)
+        self.skipped: list[dict] = []
 
     def _compare(self, base: CVScore, score: CVScore, effect: Effect | None = None
                  ) -> Comparison:
@@ -437,6 +449,7 @@ class _Loop:
         comp_cmp = {}
         chosen = []
         tried = []
+        degenerate = set()
         for eff in effects:
             comp = _key(eff)
             if comp == "all":
@@ -444,15 +457,22 @@ class _Loop:
                 continue
             if comp in self.covered.get(family, set()):
                 continue
+            if self._degenerate(eff, base_cols):
+                degenerate.add(comp)
+                continue
             s = self.gram.score(base_cols + list(self.cols[eff]))
             cmp = self._compare(base, s, eff)
+            beside = self._beside(family, eff)
+            if beside:
+                cmp = self._compare_beside(cmp, beside, eff)
             comp_cmp[comp] = cmp.z
             tried.append((eff, cmp))
             if cmp.z >= z_comp:
                 chosen.append(eff)
         if chosen and family == "offset":
             # the level is free in every component: every other term is judged with it
-            chosen = [eff for eff in effects if _key(eff) not in self.covered.get(family, set())]
+            chosen = [eff for eff in effects if _key(eff) not in self.covered.get(family, set())
+                      and _key(eff) not in degenerate]
         if chosen and trials > 1:
             # the scanned hyper-parameter (step time, period) is established by the
             # components that passed the look-elsewhere threshold: the others are tested
@@ -461,11 +481,74 @@ class _Loop:
         if not chosen:
             return None
         cols = tuple(c for e in chosen for c in self.cols[e])
-        score = self.gram.score(base_cols + list(cols))
         merged = _merge(chosen)
-        return _Candidate(merged, cols, score, self._compare(base, score, merged), comp_cmp,
+        if self._degenerate(merged, base_cols, cols):
+            return None
+        score = self.gram.score(base_cols + list(cols))
+        cmp = self._compare(base, score, merged)
+        beside = self._beside(family, merged)
+        if beside:
+            cmp = self._compare_beside(cmp, beside, merged, cols)
+        return _Candidate(merged, cols, score, cmp, comp_cmp,
                           family, z_need, trials=trials,
-                          implausible=self._implausible(merged, score.beta[len(base_cols):]))
+                          implausible=self._implausible(merged, score.beta[len(base_cols):]),
+                          beside=tuple(beside))
+
+    def _degenerate(self, effect: Effect, base_cols, cols=None) -> bool:
+        """Whether the effect's columns add no direction of their own to ``base_cols``
+        (:func:`~magcal.discover.selection.orthogonal_share` below ``min_orthogonal``);
+        if so it is noted in :attr:`skipped` with the share."""
+        cols = list(self.cols[effect] if cols is None else cols)
+        share = orthogonal_share(self.gram, base_cols, cols)
+        if share >= self.settings.min_orthogonal:
+            return False
+        entry = {"name": effect.name, "components": list(effect.components),
+                 **effect.hyper(), "orthogonal_share": share,
+                 "reason": (f"its columns lie in the span of the effects already in (the "
+                            f"part orthogonal to them is {share:.1e} of their norm, below "
+                            f"{self.settings.min_orthogonal:g}): the joint fit cannot tell "
+                            "it from them")}
+        if entry not in self.skipped:
+            self.skipped.append(entry)
+        return True
+
+    def _beside(self, family: str, effect: Effect) -> list[int]:
+        """Columns a model-proportional term (scale, rotation) is judged beside: the
+        local-time (diurnal) field of the components it touches, where not already in.
+        At a fixed position the model field varies mostly with local time, so on a
+        short record ``s * B_model`` is nearly a local-time term and could take the
+        place of a field the model lacks; its significance must be what it adds beyond
+        one (as every term is judged with the level free). Once a diurnal term is in,
+        nothing changes."""
+        if family not in ("scale", "rotation") or "diurnal" not in self.settings.vocabulary:
+            return []
+        comps = (self.inputs.components if isinstance(effect, Rotation)
+                 else effect.components)
+        have = self.covered.get("diurnal", set())
+        out: list[int] = []
+        for fam, variants in self.families:
+            if fam != "diurnal":
+                continue
+            richest = variants[-1]
+            for eff in richest:
+                if eff.components[0] in comps and eff.components[0] not in have:
+                    out += list(self.cols[eff])
+        return out
+
+    def _compare_beside(self, cmp: Comparison, beside: list[int], effect: Effect,
+                        cols=None) -> Comparison:
+        """``cmp`` with its significance (z, log p) that of the effect's coefficients in
+        the fit with the ``beside`` columns free, when that is the smaller."""
+        cols = list(self.cols[effect] if cols is None else cols)
+        base = self.base_cols + list(beside)
+        if orthogonal_share(self.gram, base, cols) < self.settings.min_orthogonal:
+            return dataclasses.replace(cmp, z=0.0, log_p=0.0)
+        b_score = self.gram.score(base)
+        s_score = self.gram.score(base + cols)
+        c2 = self._compare(b_score, s_score, effect)
+        if c2.z >= cmp.z:
+            return cmp
+        return dataclasses.replace(cmp, z=c2.z, log_p=c2.log_p, z_jackknife=c2.z_jackknife)
 
     def _implausible(self, effect: Effect, beta) -> str:
         """Why fitted values are outside what the effect can physically be ('' if not)."""
@@ -591,6 +674,7 @@ class _Loop:
                 stopped = f"max_effects ({s.max_effects}) reached"
                 break
             cands = []
+            self.skipped = []
             for family, variants in self.families:
                 c = self._family(family, variants, base)
                 if c is not None:
@@ -603,6 +687,8 @@ class _Loop:
                  **({"implausible": c.implausible} if c.implausible else {}),
                  **c.effect.hyper(), **c.comparison.as_dict()}
                 for c in sorted(cands, key=lambda c: -c.comparison.gain)]})
+            if self.skipped:
+                rounds[-1]["skipped"] = list(self.skipped)
             passing = [c for c in cands if c.passes]
             if not passing:
                 named = [c for c in cands if c.significant and c.implausible]
@@ -735,6 +821,9 @@ class _Loop:
               "delta_bic_eff": win.delta_bic,
               "component_z": win.component_z,
               "ambiguous": False, "ambiguous_with": [], "preferred_over": {}}
+        if win.beside:
+            # z and log_p are those beside the local-time field (see _beside)
+            ev["judged_beside"] = ["diurnal"]
         others = sorted((c for c in cands if c is not win),
                         key=lambda c: -c.comparison.gain)
         # the best candidate of another effect: the same effect at another step time or
