@@ -86,3 +86,10 @@ def test_a_real_scale_error_is_still_found(sample_month):
     k = fe.components.index("He")
     assert abs(fe.beta[k] - truth) < 3 * fe.beta_std[k], (fe.beta, fe.beta_std)
     assert abs(fe.beta[k] - truth) < 0.003
+
+
+def test_the_account_says_what_was_skipped_once():
+    meas, model = _flat_record(days=8)
+    lines = discover_gap(meas, model, longitude_deg=LON).account()
+    hn = [ln for ln in lines if ln.startswith("skipped scale on Hn")]
+    assert len(hn) == 1 and "span of the effects already in" in hn[0], lines

@@ -700,15 +700,17 @@ def orthogonal_share(gram: BlockedGram, base, columns) -> float:
     cols = list(columns)
     if not cols:
         return 1.0
-    G = gram.G.sum(axis=0)
     base = [b for b in base if b not in cols]
-    S = G[np.ix_(cols, cols)]
+    idx = base + cols
+    G = gram.G[:, idx][:, :, idx].sum(axis=0)
+    nb = len(base)
+    S = G[nb:, nb:]
     norm = np.sqrt(np.diag(S).copy())
     if not np.all(norm > 0):
         return 0.0
     if base:
-        Gbb = G[np.ix_(base, base)]
-        Gbc = G[np.ix_(base, cols)]
+        Gbb = G[:nb, :nb]
+        Gbc = G[:nb, nb:]
         d = np.sqrt(np.diag(Gbb))
         d[d == 0] = 1.0
         # the base scaled to unit diagonal, its null directions (a base already
