@@ -182,8 +182,6 @@ def account_lines(result) -> list[str]:
         line = (f"{_symptom(fe)}; added {_what(fe)} on {_comps(fe.components)}; "
                 f"RMS {fe.rms_before_nT:.{nd}f} -> {fe.rms_after_nT:.{nd}f} nT "
                 f"(z = {fe.evidence['z']:.1f})")
-        if fe.evidence.get("judged_beside"):
-            line += "; judged beside the local-time field"
         amb = fe.evidence.get("ambiguous_with") or []
         if amb:
             line += (f"; ambiguous: {' and '.join(amb)} fit the data as well "

@@ -313,7 +313,6 @@ class _Candidate:
     n_eff: float = float("nan")
     trials: float = 1.0
     implausible: str = ""
-    beside: tuple[int, ...] = ()
 
     @property
     def name(self) -> str:
@@ -462,9 +461,6 @@ class _Loop:
                 continue
             s = self.gram.score(base_cols + list(self.cols[eff]))
             cmp = self._compare(base, s, eff)
-            beside = self._beside(family, eff)
-            if beside:
-                cmp = self._compare_beside(cmp, beside, eff)
             comp_cmp[comp] = cmp.z
             tried.append((eff, cmp))
             if cmp.z >= z_comp:
@@ -485,14 +481,9 @@ class _Loop:
         if self._degenerate(merged, base_cols, cols):
             return None
         score = self.gram.score(base_cols + list(cols))
-        cmp = self._compare(base, score, merged)
-        beside = self._beside(family, merged)
-        if beside:
-            cmp = self._compare_beside(cmp, beside, merged, cols)
-        return _Candidate(merged, cols, score, cmp, comp_cmp,
+        return _Candidate(merged, cols, score, self._compare(base, score, merged), comp_cmp,
                           family, z_need, trials=trials,
-                          implausible=self._implausible(merged, score.beta[len(base_cols):]),
-                          beside=tuple(beside))
+                          implausible=self._implausible(merged, score.beta[len(base_cols):]))
 
     def _degenerate(self, effect: Effect, base_cols, cols=None) -> bool:
         """Whether the effect's columns add no direction of their own to ``base_cols``
@@ -513,13 +504,11 @@ class _Loop:
         return True
 
     def _beside(self, family: str, effect: Effect) -> list[int]:
-        """Columns a model-proportional term (scale, rotation) is judged beside: the
-        local-time (diurnal) field of the components it touches, where not already in.
-        At a fixed position the model field varies mostly with local time, so on a
-        short record ``s * B_model`` is nearly a local-time term and could take the
-        place of a field the model lacks; its significance must be what it adds beyond
-        one (as every term is judged with the level free). Once a diurnal term is in,
-        nothing changes."""
+        """Columns of the local-time (diurnal) field, richest variant, on the components
+        a model-proportional term (scale, rotation) touches and where no diurnal term is
+        in yet: at a fixed position the model field varies mostly with local time, so
+        ``s * B_model`` is largely a local-time term and can stand in for a field the
+        model lacks (or the reverse)."""
         if family not in ("scale", "rotation") or "diurnal" not in self.settings.vocabulary:
             return []
         comps = (self.inputs.components if isinstance(effect, Rotation)
@@ -527,28 +516,22 @@ class _Loop:
         have = self.covered.get("diurnal", set())
         out: list[int] = []
         for fam, variants in self.families:
-            if fam != "diurnal":
-                continue
-            richest = variants[-1]
-            for eff in richest:
-                if eff.components[0] in comps and eff.components[0] not in have:
-                    out += list(self.cols[eff])
+            if fam == "diurnal":
+                out += [c for eff in variants[-1]
+                        if eff.components[0] in comps and eff.components[0] not in have
+                        for c in self.cols[eff]]
         return out
 
-    def _compare_beside(self, cmp: Comparison, beside: list[int], effect: Effect,
-                        cols=None) -> Comparison:
-        """``cmp`` with its significance (z, log p) that of the effect's coefficients in
-        the fit with the ``beside`` columns free, when that is the smaller."""
-        cols = list(self.cols[effect] if cols is None else cols)
+    def _z_beside(self, beside: list[int], cand: _Candidate) -> float:
+        """Significance (z) of the candidate's coefficients in the fit with the
+        ``beside`` columns free too: what it adds beyond a local-time field (0 when its
+        columns lie in their span)."""
+        cols = list(cand.columns)
         base = self.base_cols + list(beside)
         if orthogonal_share(self.gram, base, cols) < self.settings.min_orthogonal:
-            return dataclasses.replace(cmp, z=0.0, log_p=0.0)
-        b_score = self.gram.score(base)
-        s_score = self.gram.score(base + cols)
-        c2 = self._compare(b_score, s_score, effect)
-        if c2.z >= cmp.z:
-            return cmp
-        return dataclasses.replace(cmp, z=c2.z, log_p=c2.log_p, z_jackknife=c2.z_jackknife)
+            return 0.0
+        return self._compare(self.gram.score(base), self.gram.score(base + cols),
+                             cand.effect).z
 
     def _implausible(self, effect: Effect, beta) -> str:
         """Why fitted values are outside what the effect can physically be ('' if not)."""
@@ -821,9 +804,20 @@ class _Loop:
               "delta_bic_eff": win.delta_bic,
               "component_z": win.component_z,
               "ambiguous": False, "ambiguous_with": [], "preferred_over": {}}
-        if win.beside:
-            # z and log_p are those beside the local-time field (see _beside)
-            ev["judged_beside"] = ["diurnal"]
+        beside = self._beside(win.family, win.effect)
+        if beside:
+            # a model-proportional term that adds nothing beyond a local-time field could
+            # be that field: on a short record (the model varies mostly with local time)
+            # or whenever the record cannot separate them. Named by the criterion, but
+            # said to be ambiguous with it
+            z_lt = self._z_beside(beside, win)
+            ev["z_beside_local_time"] = z_lt
+            if z_lt < s.z_min:
+                ev["ambiguous_with"].append("diurnal")
+                ev.setdefault("ambiguous_detail", {})["diurnal"] = {
+                    "z_beside_local_time": z_lt,
+                    "reason": "adds nothing beyond chance to a local-time field fitted "
+                              "beside it"}
         others = sorted((c for c in cands if c is not win),
                         key=lambda c: -c.comparison.gain)
         # the best candidate of another effect: the same effect at another step time or
