@@ -20,8 +20,15 @@ share is also tried at the time they place together
 against the field's own variation (their columns are ``e_j x B_model`` and
 ``B_model,i``). Candidates whose fitted signals are strongly correlated with the winner
 (``|corr| >= confound_corr``) are reported as ``ambiguous_with`` when the data cannot
-tell them apart (paired ``z < z_ambiguous``), and as ``preferred_over`` otherwise. The
-loop stops when no candidate's gain is beyond chance or after ``max_effects`` effects.
+tell them apart (paired ``z < z_ambiguous``), and as ``preferred_over`` otherwise. A
+scale or rotation added before a local-time term on its components is also tested beside
+one (``z_beside_local_time``): at a fixed position the model varies mostly with local
+time, and if it adds nothing beyond chance to that field it is reported ambiguous with
+``diurnal``. A candidate whose columns lie in the span of the effects already in
+(:func:`~magcal.discover.selection.orthogonal_share` below ``min_orthogonal``, such as a
+scale on a component whose model is constant) is not scored but listed in the round's
+``skipped`` with the reason. The loop stops when no candidate's gain is beyond chance or
+after ``max_effects`` effects.
 """
 
 from __future__ import annotations
