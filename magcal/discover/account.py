@@ -195,6 +195,15 @@ def account_lines(result) -> list[str]:
         for d in r.get("dropped", ()):
             lines.append(f"dropped {d['name']} on {_comps(d['components'])} in round "
                          f"{r['round']}: {d['reason']}")
+    said = set()
+    for r in result.rounds:
+        # a degenerate candidate stays so in every later round: said once, at the first
+        for d in r.get("skipped", ()):
+            key = (d["name"], tuple(d["components"]))
+            if key not in said:
+                said.add(key)
+                lines.append(f"skipped {d['name']} on {_comps(d['components'])} from round "
+                             f"{r['round']}: {d['reason']}")
     lines.append(f"final gap: RMS {result.gap_final['rms_nT']:.2f} nT; "
                  f"stopped: {result.stopped_because}")
     return lines

@@ -20,8 +20,15 @@ share is also tried at the time they place together
 against the field's own variation (their columns are ``e_j x B_model`` and
 ``B_model,i``). Candidates whose fitted signals are strongly correlated with the winner
 (``|corr| >= confound_corr``) are reported as ``ambiguous_with`` when the data cannot
-tell them apart (paired ``z < z_ambiguous``), and as ``preferred_over`` otherwise. The
-loop stops when no candidate's gain is beyond chance or after ``max_effects`` effects.
+tell them apart (paired ``z < z_ambiguous``), and as ``preferred_over`` otherwise. A
+scale or rotation added before a local-time term on its components is also tested beside
+one (``z_beside_local_time``): at a fixed position the model varies mostly with local
+time, and if it adds nothing beyond chance to that field it is reported ambiguous with
+``diurnal``. A candidate whose columns lie in the span of the effects already in
+(:func:`~magcal.discover.selection.orthogonal_share` below ``min_orthogonal``, such as a
+scale on a component whose model is constant) is not scored but listed in the round's
+``skipped`` with the reason. The loop stops when no candidate's gain is beyond chance or
+after ``max_effects`` effects.
 """
 
 from __future__ import annotations
@@ -40,7 +47,7 @@ from magcal.discover.scan import (change_points, joint_step_time, n_period_trial
                                   scan_periods)
 from magcal.discover.selection import (
     BlockedGram, Comparison, CVScore, compare, delta_bic_eff, wald_test,
-    model_covariance, paired_z, regression_n_eff, time_blocks)
+    model_covariance, orthogonal_share, paired_z, regression_n_eff, time_blocks)
 from magcal.discover.step_time import step_time_interval
 from magcal.io.jsonio import product_dict
 
@@ -86,6 +93,14 @@ class DiscoverySettings:
     max_rotation_deg : float
         Largest rotation angle named as ``rotation``, for the same reason (mounting
         errors are of order a degree; the detectability thresholds are 5-7 deg).
+    min_orthogonal : float
+        Smallest relative norm of the part of a candidate's columns orthogonal to the
+        effects already in (:func:`orthogonal_share`). Below it the candidate adds no
+        direction of its own (a scale on a component whose model field is constant is
+        the offset's column): its joint fit is rank-deficient, its coefficient and
+        significance are set by round-off, and it is skipped, the round's ``skipped``
+        saying so. At ``1e-3`` the coefficient's variance is inflated a million-fold
+        by the collinearity and its distinct signal is a thousandth of its size.
     """
 
     max_effects: int = 8
@@ -101,6 +116,7 @@ class DiscoverySettings:
     vocabulary: tuple[str, ...] = EFFECT_NAMES
     max_scale: float = 0.5
     max_rotation_deg: float = 20.0
+    min_orthogonal: float = 1e-3
 
     def as_dict(self) -> dict:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
@@ -412,6 +428,8 @@ class _Loop:
                     self.cols[eff] = self.gram.add(eff.columns(inputs))
         self.added: list[tuple[Effect, tuple[int, ...]]] = []
         self.covered: dict[str, set] = {}
+        #: candidates of the current round left out as degenerate (see :meth:`_degenerate`)
+        self.skipped: list[dict] = []
 
     def _compare(self, base: CVScore, score: CVScore, effect: Effect | None = None
                  ) -> Comparison:
@@ -437,12 +455,16 @@ class _Loop:
         comp_cmp = {}
         chosen = []
         tried = []
+        degenerate = set()
         for eff in effects:
             comp = _key(eff)
             if comp == "all":
                 chosen.append(eff)
                 continue
             if comp in self.covered.get(family, set()):
+                continue
+            if self._degenerate(eff, base_cols):
+                degenerate.add(comp)
                 continue
             s = self.gram.score(base_cols + list(self.cols[eff]))
             cmp = self._compare(base, s, eff)
@@ -452,7 +474,8 @@ class _Loop:
                 chosen.append(eff)
         if chosen and family == "offset":
             # the level is free in every component: every other term is judged with it
-            chosen = [eff for eff in effects if _key(eff) not in self.covered.get(family, set())]
+            chosen = [eff for eff in effects if _key(eff) not in self.covered.get(family, set())
+                      and _key(eff) not in degenerate]
         if chosen and trials > 1:
             # the scanned hyper-parameter (step time, period) is established by the
             # components that passed the look-elsewhere threshold: the others are tested
@@ -461,11 +484,61 @@ class _Loop:
         if not chosen:
             return None
         cols = tuple(c for e in chosen for c in self.cols[e])
-        score = self.gram.score(base_cols + list(cols))
         merged = _merge(chosen)
+        if self._degenerate(merged, base_cols, cols):
+            return None
+        score = self.gram.score(base_cols + list(cols))
         return _Candidate(merged, cols, score, self._compare(base, score, merged), comp_cmp,
                           family, z_need, trials=trials,
                           implausible=self._implausible(merged, score.beta[len(base_cols):]))
+
+    def _degenerate(self, effect: Effect, base_cols, cols=None) -> bool:
+        """Whether the effect's columns add no direction of their own to ``base_cols``
+        (:func:`~magcal.discover.selection.orthogonal_share` below ``min_orthogonal``);
+        if so it is noted in :attr:`skipped` with the share."""
+        cols = list(self.cols[effect] if cols is None else cols)
+        share = orthogonal_share(self.gram, base_cols, cols)
+        if share >= self.settings.min_orthogonal:
+            return False
+        entry = {"name": effect.name, "components": list(effect.components),
+                 **effect.hyper(), "orthogonal_share": share,
+                 "reason": (f"its columns lie in the span of the effects already in (the "
+                            f"part orthogonal to them is {share:.1e} of their norm, below "
+                            f"{self.settings.min_orthogonal:g}): the joint fit cannot tell "
+                            "it from them")}
+        if entry not in self.skipped:
+            self.skipped.append(entry)
+        return True
+
+    def _beside(self, family: str, effect: Effect) -> list[int]:
+        """Columns of the local-time (diurnal) field, richest variant, on the components
+        a model-proportional term (scale, rotation) touches and where no diurnal term is
+        in yet: at a fixed position the model field varies mostly with local time, so
+        ``s * B_model`` is largely a local-time term and can stand in for a field the
+        model lacks (or the reverse)."""
+        if family not in ("scale", "rotation") or "diurnal" not in self.settings.vocabulary:
+            return []
+        comps = (self.inputs.components if isinstance(effect, Rotation)
+                 else effect.components)
+        have = self.covered.get("diurnal", set())
+        out: list[int] = []
+        for fam, variants in self.families:
+            if fam == "diurnal":
+                out += [c for eff in variants[-1]
+                        if eff.components[0] in comps and eff.components[0] not in have
+                        for c in self.cols[eff]]
+        return out
+
+    def _z_beside(self, beside: list[int], cand: _Candidate) -> float:
+        """Significance (z) of the candidate's coefficients in the fit with the
+        ``beside`` columns free too: what it adds beyond a local-time field (0 when its
+        columns lie in their span)."""
+        cols = list(cand.columns)
+        base = self.base_cols + list(beside)
+        if orthogonal_share(self.gram, base, cols) < self.settings.min_orthogonal:
+            return 0.0
+        return self._compare(self.gram.score(base), self.gram.score(base + cols),
+                             cand.effect).z
 
     def _implausible(self, effect: Effect, beta) -> str:
         """Why fitted values are outside what the effect can physically be ('' if not)."""
@@ -591,6 +664,7 @@ class _Loop:
                 stopped = f"max_effects ({s.max_effects}) reached"
                 break
             cands = []
+            self.skipped = []
             for family, variants in self.families:
                 c = self._family(family, variants, base)
                 if c is not None:
@@ -603,6 +677,8 @@ class _Loop:
                  **({"implausible": c.implausible} if c.implausible else {}),
                  **c.effect.hyper(), **c.comparison.as_dict()}
                 for c in sorted(cands, key=lambda c: -c.comparison.gain)]})
+            if self.skipped:
+                rounds[-1]["skipped"] = list(self.skipped)
             passing = [c for c in cands if c.passes]
             if not passing:
                 named = [c for c in cands if c.significant and c.implausible]
@@ -735,6 +811,20 @@ class _Loop:
               "delta_bic_eff": win.delta_bic,
               "component_z": win.component_z,
               "ambiguous": False, "ambiguous_with": [], "preferred_over": {}}
+        beside = self._beside(win.family, win.effect)
+        if beside:
+            # a model-proportional term that adds nothing beyond a local-time field could
+            # be that field: on a short record (the model varies mostly with local time)
+            # or whenever the record cannot separate them. Named by the criterion, but
+            # said to be ambiguous with it
+            z_lt = self._z_beside(beside, win)
+            ev["z_beside_local_time"] = z_lt
+            if z_lt < s.z_min:
+                ev["ambiguous_with"].append("diurnal")
+                ev.setdefault("ambiguous_detail", {})["diurnal"] = {
+                    "z_beside_local_time": z_lt,
+                    "reason": "adds nothing beyond chance to a local-time field fitted "
+                              "beside it"}
         others = sorted((c for c in cands if c is not win),
                         key=lambda c: -c.comparison.gain)
         # the best candidate of another effect: the same effect at another step time or

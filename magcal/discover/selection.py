@@ -280,7 +280,8 @@ def _block_mean_square(r: np.ndarray, blocks: np.ndarray, n_blocks: int) -> np.n
     out = np.zeros((n_blocks, r.shape[1]))
     for c in range(r.shape[1]):
         cnt = np.bincount(blocks, weights=ok[:, c].astype(float), minlength=n_blocks)
-        out[:, c] = np.bincount(blocks, weights=v[:, c] ** 2, minlength=n_blocks) / np.maximum(cnt, 1)
+        sq = np.bincount(blocks, weights=v[:, c] ** 2, minlength=n_blocks)
+        out[:, c] = sq / np.maximum(cnt, 1)
     return out
 
 
@@ -670,6 +671,55 @@ class BlockedGram:
         s2 = np.maximum(sse_in_b, 0.0) / np.maximum(self.count, 1)
         block_var = np.maximum(lev, 0.0) * s2[:, None]
         return CVScore(tuple(idx), beta, jack, sse_b, max(sse_in, 0.0), beta_b, block_var)
+
+
+def orthogonal_share(gram: BlockedGram, base, columns) -> float:
+    """Relative norm of the part of ``columns`` orthogonal to the ``base`` columns.
+
+    With ``C`` the candidate's columns and ``X`` the base's (indices in ``gram``), the
+    part of ``C`` that ``X`` cannot reproduce has the Gram matrix (Schur complement)
+    ``S = C'C - C'X (X'X)^+ X'C``. Scaled by the columns' own norms, the square root of
+    the smallest eigenvalue of ``S`` is returned: the relative norm of the least
+    determined direction the candidate adds, 1 for a column orthogonal to the base, 0
+    for one in its span (or a zero column), whatever the columns' units. A candidate
+    with a share near 0 makes the joint design rank-deficient: the data cannot tell its
+    coefficient from the base's.
+
+    Examples
+    --------
+    >>> t = np.arange(1000.0)
+    >>> g = BlockedGram(np.zeros((1000, 1)), time_blocks(t, block_s=100.0))
+    >>> one, = g.add(np.ones((1, 1000, 1)))
+    >>> flat, = g.add(np.full((1, 1000, 1), 50.0))     # a scale on a constant model
+    >>> ramp, = g.add((t / 1000.0)[None, :, None])
+    >>> float(orthogonal_share(g, [one], [flat])) < 1e-6
+    True
+    >>> round(float(orthogonal_share(g, [one], [ramp])), 3)  # 1/sqrt(3) of a ramp's norm
+    0.5
+    """
+    cols = list(columns)
+    if not cols:
+        return 1.0
+    base = [b for b in base if b not in cols]
+    idx = base + cols
+    G = gram.G[:, idx][:, :, idx].sum(axis=0)
+    nb = len(base)
+    S = G[nb:, nb:]
+    norm = np.sqrt(np.diag(S).copy())
+    if not np.all(norm > 0):
+        return 0.0
+    if base:
+        Gbb = G[:nb, :nb]
+        Gbc = G[:nb, nb:]
+        d = np.sqrt(np.diag(Gbb))
+        d[d == 0] = 1.0
+        # the base scaled to unit diagonal, its null directions (a base already
+        # degenerate) left out by the pseudo-inverse
+        proj = np.linalg.pinv(Gbb / np.outer(d, d), rcond=1e-12, hermitian=True)
+        S = S - (Gbc / d[:, None]).T @ proj @ (Gbc / d[:, None])
+    S = S / np.outer(norm, norm)
+    ev = np.linalg.eigvalsh((S + S.T) / 2.0)
+    return float(np.sqrt(max(ev[0], 0.0)))
 
 
 def delta_bic_eff(sse_base: float, sse_cand: float, extra_params: int, n_eff: float) -> float:
