@@ -330,14 +330,7 @@ def prepare_covariates(times_s: np.ndarray, covariates, longitude_deg=None):
         columns = {name: covariates[name].to_numpy(dtype=float) for name in COVARIATES
                    if name in covariates.columns}
     elif isinstance(covariates, Mapping):
-        file, t_old, columns = None, times_s, {}
-        for name in COVARIATES:
-            if name in covariates and covariates[name] is not None:
-                v = np.asarray(covariates[name], dtype=float)
-                if v.shape != times_s.shape:
-                    raise InputError(f"covariate {name} has {v.size} values for "
-                                     f"{times_s.size} times", column=name)
-                columns[name] = v
+        file, t_old, columns = None, times_s, _mapped_columns(covariates, times_s)
     else:
         raise TypeError("covariates must be a DataFrame or a mapping of arrays")
     span = (_iso(times_s[0]), _iso(times_s[-1])) if times_s.size else (None, None)
@@ -378,6 +371,25 @@ def prepare_covariates(times_s: np.ndarray, covariates, longitude_deg=None):
     return out, unknown, report
 
 
+def _mapped_columns(covariates: Mapping, times_s: np.ndarray) -> dict:
+    """The known covariates of a mapping of arrays, one value per time, as floats.
+
+    Raises
+    ------
+    InputError
+        A covariate whose length is not that of ``times_s``.
+    """
+    out = {}
+    for name in COVARIATES:
+        if name in covariates and covariates[name] is not None:
+            v = np.asarray(covariates[name], dtype=float)
+            if v.shape != times_s.shape:
+                raise InputError(f"covariate {name} has {v.size} values for "
+                                 f"{times_s.size} times", column=name)
+            out[name] = v
+    return out
+
+
 def _iso(seconds: float) -> str:
     return pd.Timestamp(float(seconds), unit="s", tz="UTC").isoformat()
 
@@ -414,15 +426,10 @@ def covariates_on(times_s: np.ndarray, covariates) -> dict:
                     out[name] = v
         return out
     if isinstance(covariates, Mapping):
-        for name in COVARIATES:
-            if name in covariates and covariates[name] is not None:
-                v = np.asarray(covariates[name], dtype=float)
-                if v.shape != times_s.shape:
-                    raise InputError(f"covariate {name} has {v.size} values for "
-                                     f"{times_s.size} times", column=name)
-                v = _interp_onto(times_s, times_s, v, name)
-                if v is not None:
-                    out[name] = v
+        for name, v in _mapped_columns(covariates, times_s).items():
+            v = _interp_onto(times_s, times_s, v, name)
+            if v is not None:
+                out[name] = v
         return out
     raise TypeError("covariates must be a DataFrame or a mapping of arrays")
 
