@@ -195,6 +195,10 @@ def account_lines(result) -> list[str]:
         for d in r.get("dropped", ()):
             lines.append(f"dropped {d['name']} on {_comps(d['components'])} in round "
                          f"{r['round']}: {d['reason']}")
+        for d in r.get("retracted", ()):
+            lines.append(f"retracted {d['name']} at {d['time']} on {_comps(d['components'])}: "
+                         f"z = {d['z_joint']:.1f} in the final joint fit, needs "
+                         f"{d['z_needed']:.1f} ({d['reason']})")
     said = set()
     for r in result.rounds:
         # a degenerate candidate stays so in every later round: said once, at the first

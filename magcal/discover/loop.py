@@ -28,7 +28,10 @@ time, and if it adds nothing beyond chance to that field it is reported ambiguou
 (:func:`~magcal.discover.selection.orthogonal_share` below ``min_orthogonal``, such as a
 scale on a component whose model is constant) is not scored but listed in the round's
 ``skipped`` with the reason. The loop stops when no candidate's gain is beyond chance or
-after ``max_effects`` effects.
+after ``max_effects`` effects. Every step is then re-tested in the final joint fit and
+retracted (the last round's ``retracted``) if its Wald z no longer reaches the
+look-elsewhere threshold: in a greedy loop a step can win its round by standing in for a
+drift named after it.
 """
 
 from __future__ import annotations
@@ -741,6 +744,17 @@ class _Loop:
                 rounds[-1]["dropped"] = dropped
         if stopped is None:  # pragma: no cover - the loop always sets it
             stopped = "stopped"
+        retracted = self._retract_steps(base)
+        if retracted:
+            # a step that won its round by standing in for effects added after it (a drift
+            # its components shared, then unmodelled) is not beyond chance beside them
+            keep = {id(e) for e, _ in self.added}
+            effects_log = self._restate(
+                [entry for entry in effects_log if id(entry[0]) in keep], n_valid)
+            base = gram.score(self.base_cols)
+            residual = gram.residual(self.base_cols, base.beta)
+            rounds.append({"round": len(rounds) + 1, "candidates": [],
+                           "retracted": retracted})
         fitted = []
         k = 0
         dof = gram.jackknife_dof(self.base_cols)
@@ -776,6 +790,39 @@ class _Loop:
             out.append((eff, c, rms, after, ev, gb))
             rms = after
         return out
+
+    def _retract_steps(self, base: CVScore) -> list[dict]:
+        """Re-test every added step in the final joint fit, weakest first, and remove
+        those whose Wald z no longer reaches the look-elsewhere threshold they were named
+        at; return what was removed and why.
+
+        The loop is greedy: a step can win its round by absorbing a trend its
+        components still had (a linear drift is half a step's signal), and the drift
+        named a round later then takes that part back. Judged beside everything named,
+        such a step is no longer beyond chance.
+        """
+        out = []
+        span = float(self.inputs.times_s[-1] - self.inputs.times_s[0])
+        z_need = _look_elsewhere(self.settings.z_min, n_step_trials(span))
+        while True:
+            weakest = None
+            k = 0
+            for eff, cols in self.added:
+                q = len(cols)
+                if isinstance(eff, Step):
+                    params = list(range(k, k + q))
+                    z = wald_test(base, params, self._se(base, params))[0]
+                    if z < z_need and (weakest is None or z < weakest[1]):
+                        weakest = (eff, z)
+                k += q
+            if weakest is None:
+                return out
+            eff, z = weakest
+            out.append({"name": eff.name, "components": list(eff.components),
+                        **eff.hyper(), "z_joint": float(z), "z_needed": float(z_need),
+                        "reason": "beside the effects named after it, not beyond chance"})
+            self.added = [(e, c) for e, c in self.added if e is not eff]
+            base = self.gram.score(self.base_cols)
 
     def _drop_implausible(self, base: CVScore) -> list[dict]:
         """Remove added effects whose coefficients in the joint fit ``base`` are outside
