@@ -736,11 +736,7 @@ class _Loop:
                 # a scale or rotation whose value in the joint fit left the plausible
                 # range was standing in for the effect just added (or for one another):
                 # it is taken out and not tried again
-                keep = {id(e) for e, _ in self.added}
-                effects_log = self._restate(
-                    [entry for entry in effects_log if id(entry[0]) in keep], n_valid)
-                base = gram.score(self.base_cols)
-                residual = gram.residual(self.base_cols, base.beta)
+                effects_log, base, residual = self._after_removal(effects_log, n_valid)
                 rounds[-1]["dropped"] = dropped
         if stopped is None:  # pragma: no cover - the loop always sets it
             stopped = "stopped"
@@ -748,11 +744,7 @@ class _Loop:
         if retracted:
             # a step that won its round by standing in for effects added after it (a drift
             # its components shared, then unmodelled) is not beyond chance beside them
-            keep = {id(e) for e, _ in self.added}
-            effects_log = self._restate(
-                [entry for entry in effects_log if id(entry[0]) in keep], n_valid)
-            base = gram.score(self.base_cols)
-            residual = gram.residual(self.base_cols, base.beta)
+            effects_log, base, residual = self._after_removal(effects_log, n_valid)
             rounds.append({"round": len(rounds) + 1, "candidates": [],
                            "retracted": retracted})
         fitted = []
@@ -790,6 +782,15 @@ class _Loop:
             out.append((eff, c, rms, after, ev, gb))
             rms = after
         return out
+
+    def _after_removal(self, effects_log: list, n_valid: int) -> tuple:
+        """The log restated for the effects still in, and their joint fit and residual,
+        once effects were taken out (implausible ones, retracted steps)."""
+        keep = {id(e) for e, _ in self.added}
+        effects_log = self._restate([entry for entry in effects_log if id(entry[0]) in keep],
+                                    n_valid)
+        base = self.gram.score(self.base_cols)
+        return effects_log, base, self.gram.residual(self.base_cols, base.beta)
 
     def _retract_steps(self, base: CVScore) -> list[dict]:
         """Re-test every added step in the final joint fit, weakest first, and remove
