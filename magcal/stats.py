@@ -63,3 +63,21 @@ def student_interval(value, std, dof, level: float = 0.95):
     std = np.asarray(std, dtype=float)
     q = student_t.ppf(0.5 + level / 2.0, np.minimum(np.asarray(dof, dtype=float), 1e7))
     return value - q * std, value + q * std
+
+
+#: Standard normal 0.975 quantile.
+NORMAL_975 = 1.959963984540054
+
+
+def student_scale(dof) -> float:
+    """``t_0.975(dof) / z_0.975``: the factor that makes ``1.96 std`` Student's 95 %
+    interval for a std estimated on ``dof`` degrees of freedom, so that a stated std
+    read with the normal quantile (reports, downstream propagation) covers as claimed.
+
+    Examples
+    --------
+    >>> round(student_scale(20), 4)  # t_0.975(20) = 2.0860
+    1.0643
+    """
+    _, hi = student_interval(0.0, 1.0, dof)
+    return float(hi) / NORMAL_975

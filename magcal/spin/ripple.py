@@ -30,7 +30,7 @@ from magcal.errors import InputError
 from magcal.io.jsonio import product_dict
 from magcal.spin.despin import despin
 from magcal.spin.harmonics import SpinBlocks, block_harmonics, block_levels, spin_blocks
-from magcal.stats import student_interval
+from magcal.stats import student_scale
 
 #: Names of the 12 calibration parameters, in the order used for vectors.
 PARAM_NAMES = ("c11", "c12", "c13", "c21", "c22", "c23", "c31", "c32", "c33", "O1", "O2", "O3")
@@ -38,8 +38,6 @@ PARAM_NAMES = ("c11", "c12", "c13", "c21", "c22", "c23", "c31", "c32", "c33", "O
 DETERMINABLE = ("c13", "c21", "c22", "c23", "c31", "c32", "O1", "O2")
 #: Held at their priors by the ripple fit.
 FIXED_BY_RIPPLE = ("c11", "c12", "c33", "O3")
-#: Standard normal 0.975 quantile (the stated std is scaled by ``t_0.975(dof) / 1.96``).
-NORMAL_975 = 1.959963984540054
 #: Despun component names.
 COMPONENTS = ("BX", "BY", "BZ")
 
@@ -360,18 +358,6 @@ def lrv_terms(n_blocks: int) -> int:
     return max(1, min(n_blocks - 1, max(n_blocks // LRV_BLOCKS_PER_TERM, LRV_MIN_TERMS)))
 
 
-def _student_factor(dof: int) -> float:
-    """``t_0.975(dof) / z_0.975``: the stated std times 1.96 is the Student 95 % interval.
-
-    The equal-weighted cosine estimate with ``K`` terms is a scaled chi-squared on ``K``
-    degrees of freedom, so error / estimated std follows Student's t on ``K``; scaled
-    so, the std's normal 95 % interval is the t interval, and the mean squared error /
-    std is ``K / (K - 2) / factor**2``, within 1 % of one for ``K >= 20``.
-    """
-    _, hi = student_interval(0.0, 1.0, dof)
-    return float(hi) / NORMAL_975
-
-
 def _high_pass(harm: np.ndarray, n_slow: int) -> np.ndarray:
     """``harm`` (n, ...) minus its least-squares fit by the first ``n_slow`` DCT terms."""
     n = harm.shape[0]
@@ -473,10 +459,10 @@ def _error_terms(harm: np.ndarray, theta: np.ndarray, idx: list[int], leak: np.n
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """Random covariance, estimated bias and waves' end leakage of the parameters ``idx``.
 
-    See :func:`solve_ripple`. The covariance is scaled by :func:`_student_factor`
-    squared for the long-run variance's degrees of freedom. The leakage (zero when
-    ``correct_leakage`` is false or no tone is found) is to be added to ``theta``; the
-    last value is the number of tones found.
+    See :func:`solve_ripple`. The covariance is scaled by the square of
+    :func:`magcal.stats.student_scale` for the long-run variance's degrees of freedom.
+    The leakage (zero when ``correct_leakage`` is false or no tone is found) is to be
+    added to ``theta``; the last value is the number of tones found.
     """
     nb = harm.shape[0]
     w, dw = _weights_and_jacobian(theta)
@@ -497,7 +483,9 @@ def _error_terms(harm: np.ndarray, theta: np.ndarray, idx: list[int], leak: np.n
             tone_score = np.einsum("bkp,bk->bp", jac - _high_pass(jac, n_slow), tones)
             score = score - tone_score
             shift = bread @ tone_score.sum(axis=0)
-    meat = _cosine_long_run(score, n_terms) * _student_factor(n_terms) ** 2
+    # the cosine estimate with K terms is a scaled chi-squared on K dof: error / std is
+    # Student's t on K, so the std is scaled for 1.96 std to be its 95 % interval
+    meat = _cosine_long_run(score, n_terms) * student_scale(n_terms) ** 2
     # Errors in variables: the fast part of the harmonics is in both J and r.
     fast = _high_pass(harm, n_slow)
     gram = np.einsum("bhs,bht->st", fast, fast)
@@ -582,8 +570,8 @@ def solve_ripple(harm: np.ndarray, coupling0, offsets0, free=DETERMINABLE, *,
     white, but natural waves leave large oscillating residuals that cancel in the sum
     and would not in short clusters of spins; the low cosines keep the first and drop
     the second. The estimate with ``K`` terms has ``K`` degrees of freedom, so the
-    covariance is scaled by ``(t_0.975(K) / 1.96)**2`` (:func:`_student_factor`) and
-    1.96 std is Student's 95 % interval.
+    covariance is scaled by ``(t_0.975(K) / 1.96)**2``
+    (:func:`magcal.stats.student_scale`) and 1.96 std is Student's 95 % interval.
 
     Bias: a natural-field tone enters both the residual and the regressors (the block
     harmonics of ``b``), so the score at the truth has a non-zero mean and the fit a bias
