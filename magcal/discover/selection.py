@@ -694,7 +694,7 @@ def orthogonal_share(gram: BlockedGram, base, columns) -> float:
     >>> ramp, = g.add((t / 1000.0)[None, :, None])
     >>> float(orthogonal_share(g, [one], [flat])) < 1e-6
     True
-    >>> round(float(orthogonal_share(g, [one], [ramp])), 3)  # 1/sqrt(3) of a ramp's norm
+    >>> round(float(orthogonal_share(g, [one], [ramp])), 3)  # sqrt(1/12) over sqrt(1/3)
     0.5
     """
     cols = list(columns)
