@@ -76,6 +76,28 @@ def test_a_named_file_that_does_not_exist_is_exit_2_before_any_partition(
     assert not (tmp_path / "out" / ".partitions").exists()
 
 
+@pytest.mark.parametrize("text, says", [
+    ("time,dst\n", "no data rows"),
+    ("time,Dst\n2019-11-01T00:00:00,-20\n2019-11-01T01:00:00,-21\n",
+     "no covariate column")])
+def test_a_covariate_file_discovery_cannot_use_is_exit_2_before_any_partition(
+        tmp_path, capsys, text, says):
+    """A header-only covariate file, or one whose column is ``Dst`` instead of ``dst``,
+    used to fail the discovery stage alone (exit 3) after every partition had run."""
+    raw = tmp_path / "raw"
+    raw.mkdir()
+    (raw / "dst.csv").write_text(text)
+    (raw / "day.csv").write_text("time,fgmo_x,fgmo_y,fgmo_z\n2019-11-01T00:00:00,1,2,3\n")
+    cfg = tmp_path / "CHAIN.toml"
+    cfg.write_text(MINIMAL + '[discover]\ncovariates = "raw/dst.csv"\n')
+    assert main(["run", str(cfg), "-o", str(tmp_path / "out"), "--workers", "1",
+                 "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "[discover] covariates" in err[0] and says in err[0]
+    assert "dst.csv" in err[0]
+    assert not (tmp_path / "out" / ".partitions").exists()
+
+
 def test_a_kp_file_of_another_year_is_exit_2_naming_both_spans(tmp_path):
     """Every partition's minutes without Kp: bad input, not a run with no offset, no
     model and exit 3."""

@@ -248,6 +248,46 @@ def discovery_warnings(result) -> list[str]:
     return out
 
 
+def read_covariate_file(path) -> pd.DataFrame:
+    """Read ``[discover] covariates``, refusing a file discovery could not use.
+
+    The chain calls it before the partitions run, so that a file with no data row or
+    no covariate column (a ``Dst`` header where ``dst`` is expected) is a bad
+    configuration (exit status 2, naming the key) instead of a discovery stage that
+    fails (exit status 3) after the whole archive was processed.
+
+    Parameters
+    ----------
+    path : path-like
+        The covariate file (any format :func:`magcal.io.formats.read_any` reads).
+
+    Returns
+    -------
+    pandas.DataFrame
+        The file's columns at its own times.
+
+    Raises
+    ------
+    InputError
+        Unreadable, no data row, or none of
+        :data:`magcal.discover.inputs.COVARIATES` among its columns.
+    """
+    from magcal.discover.inputs import COVARIATES
+    from magcal.io.formats import read_any
+
+    try:
+        raw = read_any(path)
+    except InputError as exc:
+        raise InputError(f"[discover] covariates: {exc}", file=path,
+                         column="discover.covariates") from exc
+    if not set(COVARIATES) & set(raw.columns):
+        raise InputError("[discover] covariates: no covariate column (expected any of "
+                         f"{', '.join(COVARIATES)}; the file has "
+                         f"{', '.join(map(str, raw.columns))})", file=path,
+                         column="discover.covariates")
+    return raw
+
+
 def run_discovery(minute: MinuteData, config: ChainConfig):
     """Model-gap discovery on the cleaned data against the model (CONTRACTS §5).
 
@@ -257,7 +297,6 @@ def run_discovery(minute: MinuteData, config: ChainConfig):
     of samples used.
     """
     from magcal.discover.loop import discover_gap
-    from magcal.io.formats import read_any
 
     cfg = config["discover"]
     cadence = float(config["offsets"]["cadence_s"])
@@ -274,13 +313,7 @@ def run_discovery(minute: MinuteData, config: ChainConfig):
     covariates = pd.DataFrame({"kp": minute.kp, "lon_deg": minute.lon_deg}, index=index)[ok]
     inputs, warnings = [], []
     if cov_path is not None:
-        from magcal.discover.inputs import COVARIATES
-
-        raw_cov = read_any(cov_path)
-        if not set(COVARIATES) & set(raw_cov.columns):
-            raise InputError("[discover] covariates: no covariate column (expected any of "
-                             f"{', '.join(COVARIATES)}; the file has "
-                             f"{', '.join(map(str, raw_cov.columns))})", file=cov_path)
+        raw_cov = read_covariate_file(cov_path)
         # the file's columns at their own times (their union with the record's): the
         # discovery interpolates each over its own spacing and knows its holes; taken
         # to the nearest record sample, an hourly Dst was a value every hour with holes

@@ -282,6 +282,10 @@ def run_chain(config: ChainConfig | str | Path, outdir: str | Path,
         if cfg["input"]["simulate"]:
             extras["simulated"] = _simulate_input(cfg, out, progress)
         cfg.check_paths()
+        if cfg.kind != "spin" and cfg["discover"]["enabled"] and cfg["discover"]["covariates"]:
+            from magcal.chain.calibrate import read_covariate_file
+
+            read_covariate_file(cfg.resolve(cfg["discover"]["covariates"]))
         files = cfg.input_files()
         if cfg.kind == "spin":
             run = _Run(out, [{"path": str(p), "sha256": file_sha256(p)} for p in files],
