@@ -10,7 +10,7 @@ A configuration such as::
     state = "ela_l1_state_defn_20220112_v01.cdf"
     disturbed = [["2022-01-12T06:30:00", "2022-01-12T06:31:30"]]  # optional, UTC: left
                              # out of every fit (a natural field known from elsewhere)
-    [spin.pipeline]          # optional: magcal.missions.elfin.pipeline.ElfinSettings
+    [spin.pipeline]          # optional: magcal.missions.elfin.settings.ElfinSettings
     vector_step = true
 
 runs :func:`magcal.missions.elfin.pipeline.calibrate_elfin_day` in three stages::
@@ -47,7 +47,7 @@ def elfin_inputs(cfg: ChainConfig, files) -> tuple:
         Not exactly one input file, a missing state file, a ``[truth]`` file (no truth
         is known for real counts) or a bad ``[spin.pipeline]`` table.
     """
-    from magcal.missions.elfin.pipeline import ElfinSettings
+    from magcal.missions.elfin.settings import ElfinSettings
 
     if len(files) != 1:
         raise InputError(f"the ELFIN chain takes one FGS file; [input] files matches "

@@ -14,8 +14,10 @@ The calibration path, in the order the pipeline runs it:
 * :mod:`~magcal.missions.elfin.joint` - one fit across zones (opt-in);
 * :mod:`~magcal.missions.elfin.scalar` - the residual measures (scalar, fast and slow
   parts, spin harmonics) that every step scores itself with;
-* :mod:`~magcal.missions.elfin.pipeline` - :func:`calibrate_elfin_day` and
-  :class:`ElfinSettings`, called by the chain and the workflows;
+* :mod:`~magcal.missions.elfin.settings` - :class:`ElfinSettings`, which steps run
+  and what each trades in natural signal;
+* :mod:`~magcal.missions.elfin.pipeline` - :func:`calibrate_elfin_day` (and
+  :class:`ElfinSettings` again), called by the chain and the workflows;
 * :mod:`~magcal.missions.elfin.detect` and :mod:`~magcal.missions.elfin.disturbed` -
   disturbed intervals located from the counts alone and left out of the fits
   (``detect_disturbed``; finds localized fields across B only);

@@ -100,7 +100,8 @@ def read_elfin_state(path: str | os.PathLike) -> pd.DataFrame:
     for j, axis in enumerate("xyz"):
         cols[f"spin_axis_gei_{axis}"] = interp[:, j]
     sun_name = f"{probe}_sun"
-    sun = np.asarray(data[sun_name], dtype=float) if sun_name in data else np.full(len(index), np.nan)
+    sun = (np.asarray(data[sun_name], dtype=float) if sun_name in data
+           else np.full(len(index), np.nan))
     sun[(sun != 0) & (sun != 1)] = np.nan
     cols["sun"] = sun
     frame = pd.DataFrame(cols, index=index)

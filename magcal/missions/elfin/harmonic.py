@@ -41,7 +41,8 @@ def _over_perp(mag, beta):
 
 def harmonic_vector_correction(t_s, b_body, ref_magnitude_nT, *, fixed=(4,), drifting=(1, 2),
                                drift_degree: int = 3, poly_degree: int = 5,
-                               fixed_power: float = 3.0, n_iter: int = 2, fit_mask=None) -> tuple[np.ndarray, dict]:
+                               fixed_power: float = 3.0, n_iter: int = 2,
+                               fit_mask=None) -> tuple[np.ndarray, dict]:
     """Remove the spin-harmonic part of the scalar residual from body-frame vectors.
 
     Parameters

@@ -589,7 +589,8 @@ def choose_product(scores: dict, candidate: str = "joint", incumbent: str = "har
 
     Examples
     --------
-    >>> a = pd.DataFrame({"vector_rms_nT": [50.0], "scalar_rms_nT": [60.0], "scalar_fast_nT": [6.0]})
+    >>> a = pd.DataFrame({"vector_rms_nT": [50.0], "scalar_rms_nT": [60.0],
+    ...                   "scalar_fast_nT": [6.0]})
     >>> b = a * 2
     >>> choose_product({"joint": b, "harmonic": a})[0]
     'harmonic'

@@ -879,7 +879,7 @@ def calibrate_elfin(fgs: pd.DataFrame, state: pd.DataFrame, *, min_gap_s: float 
             data[f"spin_axis_gei_{c}"] = ax[:, j]
         frames.append(pd.DataFrame(data, index=pd.DatetimeIndex(idx, name="time")))
     params = {"min_gap_s": min_gap_s, "time_shift_s": time_shift_s,
-              "repair_times": repair_times, "check_times": check_times, **{k: v for k, v in fit_kw.items()}}
+              "repair_times": repair_times, "check_times": check_times, **dict(fit_kw)}
     if prior is not None:
         params["axis_prior"] = {**prior, "weight": axis_prior_weight,
                                 "zones": [label[inputs[i]["k"]] for i in prior["from_zones"]]}

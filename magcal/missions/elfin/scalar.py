@@ -289,7 +289,8 @@ def fit_spin_harmonics(t_s, residual, psi, *, fixed=(4,), drifting=(1, 2),
     w = lstsq(design, r)
     n0 = poly_degree + 1
     var = np.sum((r - design @ w) ** 2) / max(len(r) - design.shape[1], 1)
-    cov_fixed = var * np.linalg.pinv(design.T @ design)[n0:n0 + 2 * len(fixed), n0:n0 + 2 * len(fixed)]
+    tones = slice(n0, n0 + 2 * len(fixed))
+    cov_fixed = var * np.linalg.pinv(design.T @ design)[tones, tones]
     fixed_amp, coefs, fixed_std = {}, {}, {}
     for i, k in enumerate(fixed):
         a, b = w[n0 + 2 * i], w[n0 + 2 * i + 1]

@@ -91,8 +91,8 @@ def vector_harmonic_correction(t_s, b_body, ref_body, *, plane=(-1, 3), axial=(1
         Drift as cubic B-splines with knots every ``knot_s`` seconds instead of the
         polynomial (:func:`drift_basis`). On ELFIN-A the spin-axis 1x coefficient moves
         along one body direction and changes sign every ~100 s in the eclipse zones
-        (:func:`magcal.missions.elfin.diagnostics.evidence.axial_coupling_line`), faster than a cubic
-        follows; 30 s knots keep it far (> 10x) from the slow band where reference,
+        (:func:`magcal.missions.elfin.diagnostics.evidence.axial_coupling_line`), faster
+        than a cubic follows; 30 s knots keep it far (> 10x) from the slow band where reference,
         attitude and natural fields live.
     fit_mask : array_like of bool, optional
         Samples used in the fit (default all); the correction is applied to all.

@@ -396,7 +396,8 @@ def evidence_verdict(table: pd.DataFrame, *, target: float = 1.5,
                      "zones_within": int(np.sum(v <= target)), "zones": int(np.sum(np.isfinite(v)))}
     drift = np.abs(np.vstack(table["tilt_drift_deg"]))
     # the angle at the zone's ends: constant + linear part
-    ends = np.maximum(np.abs(drift[:, 0]) + np.abs(drift[:, 2]), np.abs(drift[:, 1]) + np.abs(drift[:, 3]))
+    ends = np.maximum(np.abs(drift[:, 0]) + np.abs(drift[:, 2]),
+                      np.abs(drift[:, 1]) + np.abs(drift[:, 3]))
     out["tilt_drift_max_deg"] = float(ends.max())
     out["zones_beyond_attitude"] = int(np.sum(ends > attitude_deg))
     out["target"] = target
