@@ -112,6 +112,10 @@ def test_picog_says_what_it_removes_and_never_delivers_worse(goes_run):
             ac["product"] in ("ground", "band_limited") and ground["worse_than_raw"] == []
             and ground["delivered"] == ac["product"]), (ac["delivered"], ac.get("product"))
         assert any("worse than raw" in w for w in ac["warnings"])
+        if ac["delivered"] != "raw":
+            # said of the product delivered, not only of the constant matrices (the line
+            # read "13 band/component(s) worse than raw" for a product worse in none)
+            assert ac["n_bands_worse_delivered"] == 0
 
 
 def test_minutes_cannot_give_a_28_day_offset_and_the_products_say_so(goes_run):

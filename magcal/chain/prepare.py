@@ -271,9 +271,10 @@ def run_ac(data: CommonFrameData, config: ChainConfig) -> tuple[CleanedData, Sta
         cleaned, params, ground = _picog(data, kind, plan, opts, plan_files, config)
         documents["PARAMS.json"] = params
         summary.update(_ac_metrics(raw, cleaned, data, params), delivered="cleaned")
-        lines.append(f"PiCoG ({kind}): correction removed {summary['removed_rms_nT']:.3f} nT "
-                     f"rms (AC) from {data.target}; {summary['n_bands_worse']} band/component(s) "
-                     f"worse than raw; |sum M - I| = {summary['identity_error']:.1e}")
+        lines.append(f"PiCoG ({kind}): the constant matrices removed "
+                     f"{summary['removed_rms_nT']:.3f} nT rms (AC) from {data.target}, worse "
+                     f"than raw in {summary['n_bands_worse']} band/component(s); "
+                     f"|sum M - I| = {summary['identity_error']:.1e}")
         warnings += [f"PiCoG: {w}" for w in params.get("warnings") or []]
         worse = params.get("worse_than_raw") or []
         if worse and config["picog"]["on_worse"] == "raw":
@@ -288,8 +289,13 @@ def run_ac(data: CommonFrameData, config: ChainConfig) -> tuple[CleanedData, Sta
                 warnings.append(f"PiCoG's constant matrices made {len(worse)} band/component(s) "
                                 f"worse than raw: the {summary['product']} product is delivered "
                                 f"({summary['product_reason']})")
-                lines.append(f"on-board product worse than raw in some band: "
-                             f"{summary['product']} product delivered")
+                check = ground[1].check
+                left = ""
+                if check is not None:
+                    summary["n_bands_worse_delivered"] = len(check.worse_than_raw)
+                    left = f", worse than raw in {len(check.worse_than_raw)} band/component(s)"
+                lines.append(f"delivered instead: the {summary['product']} product, which "
+                             f"removed {summary['removed_rms_nT']:.3f} nT rms (AC){left}")
             else:
                 cleaned, summary["delivered"] = raw, "raw"
                 warnings.append(f"PiCoG made {len(worse)} band/component(s) worse than raw: the "

@@ -234,7 +234,11 @@ def chain_ac_items(root: Path, budget: list) -> tuple:
     if "removed_rms_nT" in summary:
         rows.append(("removed rms (nT)", f"{summary['removed_rms_nT']:.3f}"))
     if "n_bands_worse" in summary:
-        rows.append(("band/components worse than raw", str(summary["n_bands_worse"])))
+        rows.append(("band/components worse than raw (constant matrices)",
+                     str(summary["n_bands_worse"])))
+    if "n_bands_worse_delivered" in summary:
+        rows.append((f"band/components worse than raw ({summary.get('product')} product, "
+                     "delivered)", str(summary["n_bands_worse_delivered"])))
     if "fit_samples" in summary:
         rows.append(("fit samples (flagged left out)",
                      f"{summary['fit_samples']} ({summary.get('fit_samples_flagged', 0)})"))
