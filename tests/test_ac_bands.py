@@ -63,6 +63,14 @@ def test_ground_product_removes_the_tone_and_adds_no_noise(rng):
     doc = model.to_params()
     assert doc["delivered"] == d.kind and doc["ground"]["worse_than_raw"] == []
     assert doc["on_board"]["M"] == doc["M"] and doc["worse_than_raw"]   # on-board's
+    # the warnings say which product is worse than raw: the constant matrices', not the
+    # delivered one (it read "the cleaned o is worse than raw" beside a product that
+    # passes its check)
+    assert model.warnings_[0].startswith(f"delivered product: {d.kind} (")
+    assert model.warnings_[0].endswith("its own band check passes in every band/component")
+    assert any(w.startswith("the constant matrices' product of o is worse than raw")
+               for w in model.warnings_), model.warnings_
+    assert not any(w.startswith("the cleaned o is worse") for w in model.warnings_)
 
 
 def test_apply_enforces_the_rule_and_says_why(rng, tmp_path, capsys):

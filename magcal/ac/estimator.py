@@ -374,10 +374,19 @@ class PiCoG:
             self.delivery_ = deliver(raw, onboard, grid.dt_s,
                                      glitches=(_glitches(data, self.M_, plan.target)
                                                if self.robust else None))
-        self.warnings_ = product_warnings(self.band_check_, self.G_, raw, plan.target)
-        if self.delivery_ is not None and self.delivery_.kind != "on_board":
+        replaced = self.delivery_ is not None and self.delivery_.kind != "on_board"
+        self.warnings_ = product_warnings(
+            self.band_check_, self.G_, raw, plan.target,
+            what=(f"the constant matrices' product of {plan.target}" if replaced else None))
+        if replaced:
+            check = self.delivery_.check
+            left = ("" if check is None or self.delivery_.kind == "raw" else
+                    "; its own band check passes in every band/component"
+                    if not check.worse_than_raw else
+                    f"; it is still worse than raw in {len(check.worse_than_raw)} "
+                    "band/component(s)")
             self.warnings_.insert(0, f"delivered product: {self.delivery_.kind} "
-                                     f"({self.delivery_.reason})")
+                                     f"({self.delivery_.reason}){left}")
         if self.check_bands and self.band_check_ is None:
             self.warnings_.append(f"no band check of the product: the record ({n_grid} "
                                   "samples) is too short to compare spectra")
@@ -525,16 +534,21 @@ def offset_warning(G, target_field: np.ndarray, target: str = "target") -> str |
 
 
 def product_warnings(check: BandCheck | None, G, target_field, target: str, *,
-                     recorded_in: str | None = "PARAMS.json worse_than_raw") -> list[str]:
-    """Warnings of a fitted product: bands worse than raw and a large offset ``G``."""
+                     recorded_in: str | None = "PARAMS.json worse_than_raw",
+                     what: str | None = None) -> list[str]:
+    """Warnings of a fitted product: bands worse than raw and a large offset ``G``.
+
+    ``what`` names the product ``check`` judged (default "the cleaned <target>"): the
+    fit's check is of the constant matrices, which a band-selective delivery replaces.
+    """
     out = []
     if check is not None and check.worse_than_raw:
         worst = sorted(check.worse_than_raw, key=lambda w: w["reduction"])
         listed = ", ".join(f"{w['band_hz'][0]:.3g}-{w['band_hz'][1]:.3g} Hz {w['component']} "
                            f"({1 / w['reduction']:.2f}x the raw power)" for w in worst[:4])
         more = f" and {len(worst) - 4} more" if len(worst) > 4 else ""
-        out.append(f"the cleaned {target} is worse than raw (more power) in {len(worst)} "
-                   f"band/component(s): "
+        out.append(f"{what or f'the cleaned {target}'} is worse than raw (more power) in "
+                   f"{len(worst)} band/component(s): "
                    f"{listed}{more}" + (f" ({recorded_in})" if recorded_in else ""))
     msg = offset_warning(G, target_field, target)
     if msg:

@@ -293,7 +293,10 @@ def run_ac(data: CommonFrameData, config: ChainConfig) -> tuple[CleanedData, Sta
                 left = ""
                 if check is not None:
                     summary["n_bands_worse_delivered"] = len(check.worse_than_raw)
-                    left = f", worse than raw in {len(check.worse_than_raw)} band/component(s)"
+                    left = (", its own band check passing in every band/component"
+                            if not check.worse_than_raw else
+                            f", worse than raw in {len(check.worse_than_raw)} "
+                            "band/component(s)")
                 lines.append(f"delivered instead: the {summary['product']} product, which "
                              f"removed {summary['removed_rms_nT']:.3f} nT rms (AC){left}")
             else:
