@@ -421,7 +421,7 @@ def lrv_dof(jac: np.ndarray, bread: np.ndarray, n_terms: int) -> np.ndarray:
     basis = _cosine_basis(nb, n_terms)
     tr = (basis * basis).sum(axis=0) @ v
     overlap = basis.T @ basis                                 # (n_blocks, n_blocks)
-    tr2 = np.einsum("bp,bc,cp->p", v, overlap * overlap, v)
+    tr2 = np.sum(((overlap * overlap) @ v) * v, axis=0)
     dof = np.full(v.shape[1], float(n_terms))
     ok = tr2 > 0
     dof[ok] = tr[ok] ** 2 / tr2[ok]
