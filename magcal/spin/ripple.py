@@ -194,9 +194,10 @@ class SpinCalibration:
         Parameters held at their prior values.
     std : dict
         Root mean square error of each determined parameter: the random part's standard
-        deviation (scaled by ``t_0.975(std_dof) / 1.96``, so that 1.96 std is Student's
-        95 % interval), and in quadrature the estimated errors-in-variables bias of the
-        parameters not corrected for it (:func:`solve_ripple`).
+        deviation (scaled by ``t_0.975(dof) / 1.96`` for its degrees of freedom in
+        ``std_dof_by_parameter``, so that 1.96 std is Student's 95 % interval), and in
+        quadrature the estimated errors-in-variables bias of the parameters not
+        corrected for it (:func:`solve_ripple`).
     covariance : ndarray
         Error covariance of the determined parameters, in the order of ``determined``:
         the random covariance plus the outer product of the estimated bias left in.
@@ -216,12 +217,18 @@ class SpinCalibration:
         ``{name: value}``: the estimated bias of every determined parameter, corrected or
         not.
     std_dof : int
-        Degrees of freedom of the random part of ``std`` (the long-run variance's cosine
-        terms, :func:`lrv_terms`); 0 for results not from the ripple fit.
+        The long-run variance's cosine terms (:func:`lrv_terms`): the degrees of freedom
+        of the random part of ``std`` where the blocks' influences have one variance; 0
+        for results not from the ripple fit.
     leakage_correction : dict
         ``{name: value}`` added to each determined parameter for the natural waves' end
         leakage (:func:`solve_ripple`); all 0 when no wave's tone was found. Empty for
         results not from the ripple fit.
+    std_dof_by_parameter : dict
+        ``{name: dof}``: the degrees of freedom of the random std of each parameter the
+        ripple fit determined (:func:`lrv_dof`; at most ``std_dof``, fewer where the
+        variance of its blocks' influences changes over the record), for intervals of
+        other levels. Empty for results not from the ripple fit.
     """
 
     coupling: np.ndarray
@@ -245,6 +252,7 @@ class SpinCalibration:
     bias_estimate: dict = field(default_factory=dict)
     std_dof: int = 0
     leakage_correction: dict = field(default_factory=dict)
+    std_dof_by_parameter: dict = field(default_factory=dict)
 
     def calibrate(self, b) -> np.ndarray:
         """Calibrated spacecraft-frame field ``C (b - O)`` for readings ``b`` (n, 3)."""
@@ -280,6 +288,7 @@ class SpinCalibration:
             "bias_estimate": self.bias_estimate,
             "std_dof": self.std_dof,
             "leakage_correction": self.leakage_correction,
+            "std_dof_by_parameter": self.std_dof_by_parameter,
         })
 
 
@@ -346,10 +355,77 @@ def _cosine_long_run(score: np.ndarray, n_terms: int) -> np.ndarray:
     above the band enters, however strong.
     """
     n = score.shape[0]
-    t = (np.arange(n) + 0.5) / n
-    basis = np.sqrt(2.0 / n) * np.cos(np.pi * np.outer(np.arange(1, n_terms + 1), t))
-    lam = basis @ score
+    lam = _cosine_basis(n, n_terms) @ score
     return lam.T @ lam * (n / n_terms)
+
+
+def _cosine_basis(n: int, n_terms: int) -> np.ndarray:
+    """The first ``n_terms`` non-constant type-II DCT cosines on ``n`` points, (n_terms, n),
+    orthonormal."""
+    t = (np.arange(n) + 0.5) / n
+    return np.sqrt(2.0 / n) * np.cos(np.pi * np.outer(np.arange(1, n_terms + 1), t))
+
+
+def lrv_dof(jac: np.ndarray, bread: np.ndarray, n_terms: int) -> np.ndarray:
+    """Effective degrees of freedom of each parameter's long-run variance (Satterthwaite).
+
+    A parameter's variance from the cosine estimate (:func:`_cosine_long_run`) is a sum
+    of ``K = n_terms`` squared projections of its blocks' influences
+    ``g J_b^T r_b`` (``g`` its row of ``bread``). Influences of equal variance make the
+    projections independent and of equal variance, the estimate a scaled chi-squared on
+    ``K`` degrees of freedom. Where their variance changes over the record the projections
+    are correlated and unequal, and the estimate scatters as a chi-squared on fewer:
+    Student's factor on ``K`` then makes the 95 % interval too short. That is the case of
+    the parameters told apart only by the change of the spin-axis field over the record
+    (``c13`` from ``O1``, ``c23`` from ``O2``): a block's influence on them grows with its
+    field's distance from the record's mean, so it is concentrated where the field is
+    furthest from it, often at the record's ends; on a short pass through a strongly
+    changing field they have about half of ``K``.
+
+    The variance of block ``b``'s influence is taken as ``g J_b^T J_b g^T``: that of
+    residual harmonics that are white and of one variance, which sets its shape over the
+    record (the variance's scale cancels). With ``A = Phi diag(v) Phi^T`` over the
+    ``K`` cosines ``Phi``, the degrees of freedom are ``tr(A)**2 / tr(A A)`` (Satterthwaite
+    1946): ``K`` for a constant ``v``, fewer otherwise.
+
+    Parameters
+    ----------
+    jac : ndarray, shape (n_blocks, k, p)
+        Jacobian of the residual harmonics, one block per row.
+    bread : ndarray, shape (p, p)
+        Inverse of the Gauss-Newton normal matrix.
+    n_terms : int
+        Cosine terms of the long-run variance (:func:`lrv_terms`).
+
+    Returns
+    -------
+    ndarray, shape (p,)
+        Degrees of freedom of each parameter, between 1 and ``n_terms`` (``n_terms`` for
+        a parameter without influence).
+
+    Examples
+    --------
+    Influences growing away from the record's middle (a linearly changing field) leave
+    about half the terms:
+
+    >>> import numpy as np
+    >>> x = np.linspace(-1.0, 1.0, 200)
+    >>> jac = np.stack([np.ones_like(x), x], axis=-1)[:, None, :]
+    >>> bread = np.linalg.inv(np.einsum("bkp,bkq->pq", jac, jac))
+    >>> lrv_dof(jac, bread, 40).round(1)
+    array([40. , 22.8])
+    """
+    nb = jac.shape[0]
+    infl = np.einsum("pq,bkq->bkp", bread, jac)
+    v = np.einsum("bkp,bkp->bp", infl, infl)                 # (n_blocks, p)
+    basis = _cosine_basis(nb, n_terms)
+    tr = (basis * basis).sum(axis=0) @ v
+    overlap = basis.T @ basis                                 # (n_blocks, n_blocks)
+    tr2 = np.sum(((overlap * overlap) @ v) * v, axis=0)
+    dof = np.full(v.shape[1], float(n_terms))
+    ok = tr2 > 0
+    dof[ok] = tr[ok] ** 2 / tr2[ok]
+    return np.clip(dof, 1.0, float(n_terms))
 
 
 def lrv_terms(n_blocks: int) -> int:
@@ -456,13 +532,14 @@ def wave_tones(resid: np.ndarray, n_terms: int) -> tuple[np.ndarray, np.ndarray]
 
 def _error_terms(harm: np.ndarray, theta: np.ndarray, idx: list[int], leak: np.ndarray,
                  correct_leakage: bool = True
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, np.ndarray]:
     """Random covariance, estimated bias and waves' end leakage of the parameters ``idx``.
 
-    See :func:`solve_ripple`. The covariance is scaled by the square of
-    :func:`magcal.stats.student_scale` for the long-run variance's degrees of freedom.
-    The leakage (zero when ``correct_leakage`` is false or no tone is found) is to be
-    added to ``theta``; the last value is the number of tones found.
+    See :func:`solve_ripple`. Each parameter's row and column of the covariance are
+    scaled by :func:`magcal.stats.student_scale` for its long-run variance's degrees of
+    freedom (:func:`lrv_dof`), which are returned last. The leakage (zero when
+    ``correct_leakage`` is false or no tone is found) is to be added to ``theta``; the
+    fourth value is the number of tones found.
     """
     nb = harm.shape[0]
     w, dw = _weights_and_jacobian(theta)
@@ -483,14 +560,18 @@ def _error_terms(harm: np.ndarray, theta: np.ndarray, idx: list[int], leak: np.n
             tone_score = np.einsum("bkp,bk->bp", jac - _high_pass(jac, n_slow), tones)
             score = score - tone_score
             shift = bread @ tone_score.sum(axis=0)
-    # the cosine estimate with K terms is a scaled chi-squared on K dof: error / std is
-    # Student's t on K, so the std is scaled for 1.96 std to be its 95 % interval
-    meat = _cosine_long_run(score, n_terms) * student_scale(n_terms) ** 2
+    # the cosine estimate of a parameter's variance is a scaled chi-squared on its dof (K
+    # when its blocks' influences have one variance, fewer when it changes over the
+    # record): error / std is Student's t on them, so each std is scaled for 1.96 std to
+    # be its 95 % interval
+    dof = lrv_dof(jac, bread, n_terms)
+    scale = np.array([student_scale(d) for d in dof])
+    cov = bread @ _cosine_long_run(score, n_terms) @ bread * np.outer(scale, scale)
     # Errors in variables: the fast part of the harmonics is in both J and r.
     fast = _high_pass(harm, n_slow)
     gram = np.einsum("bhs,bht->st", fast, fast)
     bias = -bread @ np.einsum("csp,st,ct->p", dw, gram, w)
-    return bread @ meat @ bread, bias, shift, int(freqs.size)
+    return cov, bias, shift, int(freqs.size), dof
 
 
 def curvature_leakage(t_s, b, phase_rad, blocks: SpinBlocks, coupling0, offsets0, *,
@@ -551,14 +632,15 @@ def solve_ripple(harm: np.ndarray, coupling0, offsets0, free=DETERMINABLE, *,
                  max_iter: int = 20, tol: float = 1e-12, correct_bias: bool = True,
                  leakage: np.ndarray | None = None, correct_leakage: bool = True
                  ) -> tuple[np.ndarray, np.ndarray, int, bool, np.ndarray, np.ndarray,
-                            np.ndarray]:
+                            np.ndarray, np.ndarray]:
     """Gauss-Newton solution of the ripple problem on precomputed block harmonics.
 
     Returns ``theta`` (12 parameters, corrected for the waves' end leakage and bias,
     below), the error covariance of the free ones, the number of iterations, whether the
     step size fell below ``tol``, the estimated bias of the free parameters, the part of
     it subtracted (zero where the guard, below, or ``correct_bias=False`` left it in),
-    and the waves' end leakage added (zero with ``correct_leakage=False``).
+    the waves' end leakage added (zero with ``correct_leakage=False``), and the degrees
+    of freedom of each free parameter's random std (:func:`lrv_dof`).
     ``leakage`` (n_blocks, 2 H, 3), when given, is subtracted from the despun
     components' harmonics before the fit and its error terms: the part of them that is
     not ripple (:func:`curvature_leakage`).
@@ -569,9 +651,12 @@ def solve_ripple(harm: np.ndarray, coupling0, offsets0, free=DETERMINABLE, *,
     :func:`lrv_terms`). The scores of the random natural field and noise are nearly
     white, but natural waves leave large oscillating residuals that cancel in the sum
     and would not in short clusters of spins; the low cosines keep the first and drop
-    the second. The estimate with ``K`` terms has ``K`` degrees of freedom, so the
-    covariance is scaled by ``(t_0.975(K) / 1.96)**2``
-    (:func:`magcal.stats.student_scale`) and 1.96 std is Student's 95 % interval.
+    the second. The estimate with ``K`` terms has ``K`` degrees of freedom where the
+    blocks' influences on a parameter have one variance, and fewer where that changes
+    over the record (:func:`lrv_dof`; ``c13, c23, O1, O2``, told apart by the change of
+    the spin-axis field, on short records). Each parameter's std is scaled by
+    ``t_0.975(dof) / 1.96`` for its own degrees of freedom
+    (:func:`magcal.stats.student_scale`), so 1.96 std is Student's 95 % interval.
 
     Bias: a natural-field tone enters both the residual and the regressors (the block
     harmonics of ``b``), so the score at the truth has a non-zero mean and the fit a bias
@@ -619,7 +704,7 @@ def solve_ripple(harm: np.ndarray, coupling0, offsets0, free=DETERMINABLE, *,
         if np.max(np.abs(step)) < tol * max(1.0, np.max(np.abs(theta[idx]))):
             converged = True
             break
-    cov, bias, shift, n_tones = _error_terms(harm, theta, idx, leak, correct_leakage)
+    cov, bias, shift, n_tones, dof = _error_terms(harm, theta, idx, leak, correct_leakage)
     theta[idx] += shift
     applied = np.zeros_like(bias)
     if correct_bias:
@@ -629,7 +714,7 @@ def solve_ripple(harm: np.ndarray, coupling0, offsets0, free=DETERMINABLE, *,
         applied[use] = bias[use]
         theta[idx] -= applied
     left = bias - applied
-    return theta, cov + np.outer(left, left), it, converged, bias, applied, shift
+    return theta, cov + np.outer(left, left), it, converged, bias, applied, shift, dof
 
 
 def fit_spin_ripple(t_s, b, phase_rad, *, coupling0=None, offsets0=None, free=DETERMINABLE,
@@ -710,7 +795,7 @@ def fit_spin_ripple(t_s, b, phase_rad, *, coupling0=None, offsets0=None, free=DE
                                      max_gap_rad=max_gap_rad, min_spins=min_spins)
     leak = curvature_leakage(t_s, b, phase_rad, blocks, c0, o0, n_harmonics=n_harmonics) \
         if correct_curvature else None
-    theta, cov, n_it, converged, bias, applied, shift = solve_ripple(
+    theta, cov, n_it, converged, bias, applied, shift, dof = solve_ripple(
         harm, c0, o0, free, max_iter=max_iter, correct_bias=correct_bias, leakage=leak,
         correct_leakage=correct_leakage)
     theta0 = np.concatenate([c0.ravel(), o0])
@@ -736,6 +821,7 @@ def fit_spin_ripple(t_s, b, phase_rad, *, coupling0=None, offsets0=None, free=DE
         bias_correction={name: float(a) for name, a in zip(free, applied)},
         bias_estimate={name: float(x) for name, x in zip(free, bias)},
         std_dof=lrv_terms(blocks.n_blocks),
+        std_dof_by_parameter={name: float(x) for name, x in zip(free, dof)},
         leakage_correction={name: float(x) for name, x in zip(free, shift)})
 
 
