@@ -295,7 +295,9 @@ def batch_standard_error(t_ns, x, batch_ns: int = DAY_NS, min_batches: int = 3,
     batch value, and the standard error is ``sd(batches) / sqrt(n_batches)`` inflated by
     ``sqrt((1 + r) / (1 - r))``, the variance factor of the mean of an AR(1) series of
     days, with ``r`` the lag-one correlation of consecutive days' values plus its
-    small-sample bias ``(1 + 3 r) / n_batches`` (Kendall 1954), within [0, 0.9]. A model
+    small-sample bias ``(1 + 3 r) / n_batches`` (Kendall 1954), within [0, 0.9]
+    (:func:`window_statistics` takes the correlation pooled over the record instead when
+    the record holds enough days, :func:`batch_error_and_dof`). A model
     miss that stays correlated over days makes every later day's value follow the
     earlier ones; ``sqrt(1 + 2 r1)`` (the first lag alone, unbiased) held the truth in
     75 % of 28-day windows whose miss had a 2-day correlation time (now 91 %). Days
