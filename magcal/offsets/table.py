@@ -57,7 +57,8 @@ class OffsetTable:
         Record-level warnings (e.g. a record far shorter than the window).
     se_nT : ndarray, shape (k, 3), optional
         1-sigma standard error of each offset, residual correlation accounted for
-        (:func:`magcal.offsets.windows.batch_standard_error`); columns ``Hp_se..`` of
+        (:func:`magcal.offsets.windows.batch_error_and_dof`, with the day correlation
+        pooled over the record when it spans enough days); columns ``Hp_se..`` of
         OFFSETS.csv (CONTRACTS §7.1), NaN where not computed.
     dof : ndarray, shape (k, 3), optional
         Degrees of freedom of ``se_nT`` (:func:`magcal.offsets.windows.batch_error_and_dof`:
