@@ -1,6 +1,7 @@
 """Offset standard errors (issue 21): coverage against truth on correlated model misses."""
 
 import numpy as np
+import pytest
 
 from magcal.alignment.noise import simulate_ou
 from magcal.offsets.table import OffsetTable
@@ -186,3 +187,35 @@ def test_days_apart_are_not_lag_one_and_a_single_window_keeps_its_own_correlatio
     se, dof = batch_error_and_dof(t, x)
     np.testing.assert_allclose(st["se"][0], se)
     np.testing.assert_allclose(st["dof"][0], dof)
+
+
+def test_a_window_holding_a_level_change_keeps_its_own_wider_error():
+    """Six months of independent day values (the pooled correlation near 0) with a 3 nT
+    step on day 100: the windows straddling it have days that follow each other (before
+    low, after high), unlike the record, and keep their own error, wider than the
+    pooled one; windows away from the step take the pooled one."""
+    from magcal.offsets.windows import batch_se_dof, day_batches, pooled_lag_correlation
+
+    rng = np.random.default_rng(5)
+    n_days, per_day = 182, 48
+    t = np.arange(n_days * per_day) * (DAY_NS // per_day)
+    level = np.where(np.arange(n_days) >= 100, 3.0, 0.0)
+    x = (np.repeat(level + 0.5 * rng.standard_normal(n_days), per_day)
+         + 0.2 * rng.standard_normal(t.size))[:, None]
+    starts = np.arange(0, n_days - 27, 7) * DAY_NS
+    ends = starts + 28 * DAY_NS
+    st = window_statistics(t, x, np.ones(t.size, bool), starts, ends, min_used=10)
+    layouts = []
+    for a, b in zip(starts, ends):
+        m = (t >= a) & (t < b)
+        days, batches = day_batches(t[m], x[m])
+        layouts.append((days, batches, int(a // DAY_NS)))
+    pooled = pooled_lag_correlation(layouts)
+    assert pooled is not None and abs(pooled.c1[0, 0]) < 0.5
+    for k, (days, batches, first) in enumerate(layouts):
+        with_pooled = batch_se_dof(days, batches, pooled=pooled)[0][0]
+        own = batch_se_dof(days, batches)[0][0]
+        if first + 5 <= 100 < first + 23:   # the step well inside the window
+            assert own > 1.2 * with_pooled and st["se"][k, 0] == pytest.approx(own), k
+        elif not first <= 100 < first + 28:
+            assert st["se"][k, 0] == pytest.approx(with_pooled), k

@@ -167,6 +167,8 @@ def window_statistics(t_ns, diff, selected, starts_ns, ends_ns, min_used: int = 
               pooled_lag_correlation(list(layouts.values()), pool_min_pairs))
     for i, (days, b, _) in layouts.items():
         se[i], dof[i] = batch_se_dof(days, b, pooled=pooled)
+        if pooled is not None:
+            se[i], dof[i] = _unlike_the_record(days, b, pooled, se[i], dof[i])
     with np.errstate(invalid="ignore", divide="ignore"):
         frac = np.where(n_av > 0, n_used / np.maximum(n_av, 1), np.nan)
     return {"median": median, "std": std, "mad": mad, "se": se, "dof": dof,
@@ -368,15 +370,15 @@ def batch_error_and_dof(t_ns, x, batch_ns: int = DAY_NS, min_batches: int = 3,
     ===========================  ===============  ===============  =======
     miss                         1.96 se          t(dof) se        1.96 rms
     ===========================  ===============  ===============  =======
-    tau 1 h                      94.8 % (0.35)    95.9 % (0.37)    0.33
-    tau 6 h                      93.7 % (0.81)    95.3 % (0.86)    0.81
-    tau 12 h                     92.6 % (1.10)    94.8 % (1.20)    1.16
-    tau 2 days                   90.4 % (2.00)    94.5 % (2.49)    2.17
+    tau 1 h                      95.1 % (0.35)    96.2 % (0.37)    0.33
+    tau 6 h                      94.0 % (0.82)    95.6 % (0.88)    0.81
+    tau 12 h                     92.8 % (1.11)    95.0 % (1.21)    1.16
+    tau 2 days                   90.5 % (2.00)    94.6 % (2.51)    2.17
     tau 5 days                   88.1 % (3.00)    96.2 % (4.86)    3.38
-    tau 6 h, a week missing      93.2 % (0.92)    95.2 % (1.01)    0.94
-    tau 2 days, a week missing   91.3 % (2.32)    96.8 % (3.26)    2.49
-    tau 6 h, 8 scattered days    93.1 % (1.30)    96.9 % (1.74)    1.34
-    tau 2 days, 8 scattered      87.6 % (2.39)    96.9 % (4.64)    2.79
+    tau 6 h, a week missing      93.5 % (0.93)    95.5 % (1.03)    0.94
+    tau 2 days, a week missing   91.4 % (2.32)    96.8 % (3.29)    2.49
+    tau 6 h, 8 scattered days    93.1 % (1.31)    96.9 % (1.75)    1.34
+    tau 2 days, 8 scattered      87.8 % (2.41)    96.9 % (4.68)    2.79
     ===========================  ===============  ===============  =======
 
     Scattered days hold few consecutive pairs, so the pooled correlation is least sure
@@ -493,6 +495,40 @@ def batch_se_dof(days, b, min_batches: int = 3,
     se = sd / np.sqrt(nb) * np.sqrt(factor)
     dof = np.maximum(nb / factor - 1.0, DOF_FLOOR)
     return se, np.where(np.isfinite(se), dof, np.nan)
+
+
+#: A window whose own lag-one correlation exceeds the record's by more than this many of
+#: its standard errors keeps its own standard error where that is larger
+#: (:func:`_unlike_the_record`). 2 left windows straddling a 3 nT step at 80 %
+#: coverage; 0 widened every interval (a 5-day miss's by 6 %, a drifting offset's by 50 %).
+UNLIKE_Z = 1.0
+
+
+def _unlike_the_record(days, b, pooled, se, dof) -> tuple[np.ndarray, np.ndarray]:
+    """The window's own standard error and dof where its days follow each other far
+    more than the record's do, and that error is the larger.
+
+    The pooled correlation describes the model miss over the record; a window whose day
+    values hold a level change (an offset step inside it) or a trend of its own has a
+    lag-one correlation well above it, and there the window median departs from the
+    window's truth by more than the pooled error says. On records of 3-6 months with a
+    3 nT step under a 6-hour miss, the windows straddling the step held their truth in
+    79 % of cases with the pooled error, 83 % with this test and 86 % with their own
+    error alone (the pooled error's other windows: 95 %). The test: the
+    window's lag-one correlation about its mean above the pooled ``c1`` by
+    :data:`UNLIKE_Z` times ``sqrt((1 - c1^2) / pairs)`` (Bartlett)."""
+    days = np.asarray(days, dtype=np.int64)
+    b = np.asarray(b, dtype=float)
+    pairs = int(np.sum(np.diff(days) == 1))
+    if pairs < 2:
+        return se, dof
+    c1 = np.clip(pooled.c1[0], -0.99, 0.99)
+    unlike = window_lag_correlation(days, b) > c1 + UNLIKE_Z * np.sqrt((1 - c1 ** 2) / pairs)
+    if not unlike.any():
+        return se, dof
+    own_se, own_dof = batch_se_dof(days, b)
+    use = unlike & (own_se > se)
+    return np.where(use, own_se, se), np.where(use, own_dof, dof)
 
 
 def window_lag_correlation(days, b) -> np.ndarray:
