@@ -58,7 +58,8 @@ def test_ground_product_removes_the_tone_and_adds_no_noise(rng):
     assert np.all(tone[1:] > 100)                               # removed where it was
     # away from the tone the product is the raw target's 0.01 nT, not the 0.1 nT injected
     away = [(1.0, 30.0)]
-    assert np.all(band_check(o, onboard, 1 / 128, bands_hz=away).reduction[0, 1:] < 0.04)   # 0.027, 0.015
+    # 0.027, 0.015
+    assert np.all(band_check(o, onboard, 1 / 128, bands_hz=away).reduction[0, 1:] < 0.04)
     assert np.all(band_check(o, d.product, 1 / 128, bands_hz=away).reduction[0] > 0.9)
     doc = model.to_params()
     assert doc["delivered"] == d.kind and doc["ground"]["worse_than_raw"] == []
@@ -212,6 +213,49 @@ def test_slow_disturbers_below_the_lowest_band_are_still_removed(kind, size_nT, 
     0.220) plus 10 %; measured 0.404, 0.038, 0.509, 0.215."""
     ratios = np.array([_slow_case(seed, kind, size_nT) for seed in range(20)])
     assert ratios.mean() <= bound, ratios
+
+
+SAMPLES = __import__("pathlib").Path(__file__).resolve().parents[1] / "data_samples"
+
+
+def _quiet_record(truth: pd.DataFrame, seed: int, n: int = 7200):
+    """Two hours of the shipped geostationary sample's ambient field (its fgmo truth) at
+    a seeded start, seen by fgmo and fgmi with independent red plus white noise each
+    (:func:`_red`) and nothing else: nothing to remove. Returns the frame and the
+    ambient truth."""
+    rng = np.random.default_rng(seed)
+    start = int(rng.integers(0, len(truth) - n))
+    amb = truth[["fgmo_x", "fgmo_y", "fgmo_z"]].to_numpy()[start:start + n]
+    o, i = amb + _red(rng, n), amb + _red(rng, n)
+    idx = pd.to_datetime(truth["time"].iloc[start:start + n].to_numpy(), utc=True)
+    cols = [f"{s}_{c}" for s in ("fgmo", "fgmi") for c in "xyz"]
+    return pd.DataFrame(np.hstack([o, i]), index=idx, columns=cols), amb
+
+
+def test_quiet_records_are_not_made_worse_below_the_check():
+    """Quiet 2 h records (the sample's ambient field, independent red and white noise in
+    both fluxgates) cleaned with a fixed pair plan: the pair's weight is fitted on noise,
+    so the correction can lower the error (averaging the two sensors) or raise it.
+    Below the check's lowest band the ambient field dominates raw, and the lowest
+    checked band's full weight, kept there because the correction raised raw's power by
+    less than RISE_TOLERANCE, was passed down to every band below: over these 35 draws
+    12 came out more than 2 % worse than raw against the ambient truth (up to 1.70x),
+    mean 1.010. It is passed down only where the correction significantly lowers the
+    power of the check's lowest two octaves now: measured 5 draws above 1.02, mean
+    0.975 (the rest is the 2-sigma judgement of single low bands)."""
+    from magcal.ac.plan import plan_from_dict
+
+    plan, _ = plan_from_dict({"target": "fgmo", "stage": [
+        {"pair": ["fgmo", "fgmi"], "orders": [{"window_s": 300}, {"window_s": 1800}]}]})
+    truth = pd.read_csv(SAMPLES / "geostationary_3days_truth.csv.gz")
+    ratios = []
+    for seed in range(100, 135):
+        frame, amb = _quiet_record(truth, seed)
+        product = PiCoG(plan).fit(frame).delivery_.product
+        err, err_raw = product - amb, frame.iloc[:, :3].to_numpy() - amb
+        ratios.append(np.std(err - err.mean(0)) / np.std(err_raw - err_raw.mean(0)))
+    ratios = np.array(ratios)
+    assert np.sum(ratios > 1.02) <= 7 and ratios.mean() <= 0.99, np.round(ratios, 3)
 
 
 # ------------------------------------------------------------------- real records

@@ -22,10 +22,16 @@ still resolve octave bands (:func:`low_bands_hz`). The ambient field dominates t
 so there the full correction is kept only where it lowers a band's power beyond the
 scatter of its cross term with the ambient field (slow disturbers, heater cycles and
 steps live there); a band the record cannot judge takes the weight of the band above
-it. (Keeping the full correction there unjudged put the partner's red noise into
-quiet records: 2 h at 1 s with nothing to remove came out up to 1.26x raw's error.)
-These bands are left out when the lowest checked band fails, since their leakage
-reaches it.
+it. The lowest checked band passes its weight down only where the correction
+significantly lowers the power of the check's lowest two octaves (the same test,
+:data:`PASS_DOWN_RATIO`); otherwise the unjudged bands get weight 0. A full weight
+kept because the correction raises raw's power by less than :data:`RISE_TOLERANCE`
+says only that the correction is neutral there, and passed down it put the partner's
+red noise into every band below the check of a quiet record, where the ambient field
+hides it from raw's power but not from the error against the ambient truth. A
+broadband disturber (a step, a drift) shows in the lowest checked octaves and is still
+passed down. These bands are left out when the lowest checked band fails, since their
+leakage reaches it.
 
 **Never worse than raw** (:func:`deliver`): the product is checked against the raw
 target with :func:`magcal.ac.bandcheck.band_check`; a band/component still above
@@ -107,6 +113,11 @@ LOW_MIN_BINS = 4
 #: explain (2 h records: a 2 nT step then leaves 0.51 of raw's error, as the full
 #: correction did (0.50); 3 left 0.60)
 LOW_Z = 2.0
+#: the bands below the check take the weight of the lowest checked band only where the
+#: full correction lowers the power of the check's lowest bands, from the lowest band's
+#: lower edge up to this factor of it (two octaves), beyond :data:`LOW_Z` standard
+#: deviations of its cross term; elsewhere they start from weight 0
+PASS_DOWN_RATIO = 4.0
 
 
 def low_bands_hz(low_hz: float, n: int, dt_s: float) -> list[tuple[float, float]]:
@@ -186,9 +197,25 @@ def select_weights(raw: np.ndarray, onboard: np.ndarray, dt_s: float, bands_hz=N
             w_opt = np.clip(np.where(dd > 0, -cross / dd, 0.0), 0.0, 1.0)
         weights[b] = np.where(helps, 1.0, w_opt)
     if added_low:
-        weights[:len(low) + 1] = _low_weights(r, d, dt_s, bands_hz[:len(low) + 1],
-                                              weights[len(low) + 1])
+        k0 = len(low) + 1
+        lowest = (f >= bands_hz[k0][0]) & (f < PASS_DOWN_RATIO * bands_hz[k0][0])
+        above = np.where(_lowers_power(R[lowest], D[lowest]), weights[k0], 0.0)
+        weights[:k0] = _low_weights(r, d, dt_s, bands_hz[:k0], above)
     return bands_hz, weights
+
+
+def _lowers_power(R: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """Per component: does adding ``D`` lower the power of ``R`` (Fourier coefficients
+    of one band or several, rows) by more than :data:`LOW_Z` standard deviations of the
+    cross term of ``D`` with what of ``R`` it does not explain (the ambient field, the
+    noise)?"""
+    cross = np.real(np.sum(np.conj(R) * D, axis=0))
+    dd = np.sum(np.abs(D) ** 2, axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w_ls = np.where(dd > 0, -cross / dd, 0.0)
+    scatter = LOW_Z * np.sqrt(2.0 * np.sum(np.abs(R + w_ls * D) ** 2 * np.abs(D) ** 2,
+                                           axis=0))
+    return 2 * cross + dd < -scatter
 
 
 def _low_weights(r: np.ndarray, d: np.ndarray, dt_s: float, bands_hz, above) -> np.ndarray:
@@ -196,8 +223,9 @@ def _low_weights(r: np.ndarray, d: np.ndarray, dt_s: float, bands_hz, above) -> 
 
     A band's full correction is kept where it lowers the band's power beyond the
     scatter of the cross term of ``D`` with what of ``R`` it does not explain (the
-    ambient field, the noise; :data:`LOW_Z` standard deviations); any other band takes
-    the weight of the band above it (``above``: the lowest checked band's weights).
+    ambient field, the noise; :data:`LOW_Z` standard deviations,
+    :func:`_lowers_power`); any other band takes the weight of the band above it
+    (``above``: what the lowest checked band passes down, see :func:`select_weights`).
     The ambient field dominates these bands, so a rise cannot be told from its random
     cross term: on simulated geostationary days, lowering a weight where the correction
     seemed to raise the power left a slow disturber in (1233x -> 122x). Keeping every
@@ -214,13 +242,7 @@ def _low_weights(r: np.ndarray, d: np.ndarray, dt_s: float, bands_hz, above) -> 
         sel = (f > 0) & (f >= lo) & (f < hi)
         if not sel.any():
             continue
-        cross = np.real(np.sum(np.conj(R[sel]) * D[sel], axis=0))
-        dd = np.sum(np.abs(D[sel]) ** 2, axis=0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            w_ls = np.where(dd > 0, -cross / dd, 0.0)
-        scatter = LOW_Z * np.sqrt(2.0 * np.sum(np.abs(R[sel] + w_ls * D[sel]) ** 2
-                                               * np.abs(D[sel]) ** 2, axis=0))
-        out[b] = np.where(2 * cross + dd < -scatter, 1.0, np.nan)
+        out[b] = np.where(_lowers_power(R[sel], D[sel]), 1.0, np.nan)
     for b in range(len(bands_hz) - 1, -1, -1):
         above = np.where(np.isfinite(out[b]), out[b], above)
         out[b] = above
