@@ -22,16 +22,17 @@ still resolve octave bands (:func:`low_bands_hz`). The ambient field dominates t
 so there the full correction is kept only where it lowers a band's power beyond the
 scatter of its cross term with the ambient field (slow disturbers, heater cycles and
 steps live there); a band the record cannot judge takes the weight of the band above
-it. The lowest checked band passes its weight down only where the correction
-significantly lowers the power of the check's lowest two octaves (the same test,
-:data:`PASS_DOWN_RATIO`); otherwise the unjudged bands get weight 0. A full weight
-kept because the correction raises raw's power by less than :data:`RISE_TOLERANCE`
-says only that the correction is neutral there, and passed down it put the partner's
-red noise into every band below the check of a quiet record, where the ambient field
-hides it from raw's power but not from the error against the ambient truth. A
-broadband disturber (a step, a drift) shows in the lowest checked octaves and is still
-passed down. These bands are left out when the lowest checked band fails, since their
-leakage reaches it.
+it. The lowest checked band passes its weight down only where the correction lowers
+raw's power over the checked bands as a whole by more than the same :data:`LOW_Z`
+standard deviations of its cross term; otherwise the unjudged bands get weight 0. A
+full weight kept because the correction raises a band's power by less than
+:data:`RISE_TOLERANCE` says only that it is neutral there: passed down on a record
+where the correction removes nothing, it put the partner's red noise into every band
+below the check, where the ambient field hides it from raw's power but not from the
+error against the ambient truth. A correction that removes something (a step or a
+drift, a tone, the pair's own noise averaged out) shows over the checked bands and is
+passed down as before. These bands are left out when the lowest checked band fails,
+since their leakage reaches it.
 
 **Never worse than raw** (:func:`deliver`): the product is checked against the raw
 target with :func:`magcal.ac.bandcheck.band_check`; a band/component still above
@@ -113,11 +114,6 @@ LOW_MIN_BINS = 4
 #: explain (2 h records: a 2 nT step then leaves 0.51 of raw's error, as the full
 #: correction did (0.50); 3 left 0.60)
 LOW_Z = 2.0
-#: the bands below the check take the weight of the lowest checked band only where the
-#: full correction lowers the power of the check's lowest bands, from the lowest band's
-#: lower edge up to this factor of it (two octaves), beyond :data:`LOW_Z` standard
-#: deviations of its cross term; elsewhere they start from weight 0
-PASS_DOWN_RATIO = 4.0
 
 
 def low_bands_hz(low_hz: float, n: int, dt_s: float) -> list[tuple[float, float]]:
@@ -197,9 +193,11 @@ def select_weights(raw: np.ndarray, onboard: np.ndarray, dt_s: float, bands_hz=N
             w_opt = np.clip(np.where(dd > 0, -cross / dd, 0.0), 0.0, 1.0)
         weights[b] = np.where(helps, 1.0, w_opt)
     if added_low:
+        # the lowest checked band's weight goes down only where the correction helps
+        # beyond chance over the checked bands as a whole (module docstring)
         k0 = len(low) + 1
-        lowest = (f >= bands_hz[k0][0]) & (f < PASS_DOWN_RATIO * bands_hz[k0][0])
-        above = np.where(_lowers_power(R[lowest], D[lowest]), weights[k0], 0.0)
+        checked = f >= bands_hz[k0][0]
+        above = np.where(_lowers_power(R[checked], D[checked]), weights[k0], 0.0)
         weights[:k0] = _low_weights(r, d, dt_s, bands_hz[:k0], above)
     return bands_hz, weights
 
