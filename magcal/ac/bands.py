@@ -279,7 +279,10 @@ class Delivery:
                 "worse_factor": WORSE_FACTOR,
                 "rule": "no band/component of the delivered product above worse_factor "
                         "times the raw target's power (log-spaced bands, Welch); below "
-                        "the lowest band the on-board correction is kept"}
+                        "the lowest band the correction is kept where the record shows "
+                        "it lowering the power beyond chance, else it takes the lowest "
+                        "band's weight where the correction lowers the checked bands' "
+                        "power beyond chance, else 0"}
 
 
 def _check(raw, product, dt_s) -> BandCheck | None:
