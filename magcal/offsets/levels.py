@@ -8,18 +8,28 @@ change over weeks. This module looks for such changes on the record's *day value
 median of each UTC day's selected residual, as the windows' standard errors use them).
 
 At each day ``k`` the values of the ``half_width`` days either side are fitted by
-generalised least squares with a straight line plus a step from day ``k`` (plus any
-change already found there): a linear drift is in the line and is never a step, and a
-slow wander (months) is locally close to a line, whose symmetric window leaves no
-curvature in the step. The day values' covariance is the record's pooled day-to-day
-correlation (:func:`magcal.offsets.windows.pooled_lag_correlation`, the same model of
-the model miss the windows' standard errors use), scaled by a variance estimated from
-the local fits. The step's t-statistic is taken at every day, and its largest absolute
-value over days and components is compared with the same maximum simulated under no
-change on the record's own days and correlation (a Monte Carlo look-elsewhere
-correction, fixed seed). Changes are added one at a time, strongest first, each in the
-others' presence; after the first, the correlation is re-estimated with the changes
-taken out (a step in a window reads as day-to-day correlation).
+generalised least squares with a line and a curvature plus a step from day ``k`` (plus
+any change already found there): a linear drift is in the line and is never a step, and
+a slow wander (months) is locally close to a parabola, which in a window symmetric about
+``k`` leaves nothing in the step. The day values' covariance is the record's pooled
+day-to-day correlation (:func:`magcal.offsets.windows.pooled_lag_correlation`, the
+model of the model miss the windows' standard errors use), scaled by a variance taken
+from the local fits without the step (their median, so a change not yet found inflates
+only its own days'). The components' t-statistics at each day are combined as
+``t^T R^-1 t`` (``R`` the components' correlation: the model miss is often shared, and
+a change in several components at once is what a reset or a heater makes), and the
+largest over days is compared with the same maximum simulated under no change on the
+record's own days and correlation (a Monte Carlo look-elsewhere correction with a fixed
+seed, so the result is reproducible). Changes are added one at a time, strongest first,
+each in the others' presence; after each, the correlation is re-estimated with the
+changes taken out (a step inside a window reads as day-to-day correlation).
+
+Why local and not one line through the record: a slow wander of the offset (a 120-day
+swing of a few nT) is no step, and against one line it reads as several. The price is
+power: the step is told from the local line by the days either side alone, so under a
+model miss correlated over hours to days only changes of a few nT are found (the
+CHANGELOG has the measured rates); a change too small to find here is also small against
+the windows' own standard errors.
 
 Each change gets its day (the first day at the new level), a 95 % time interval from
 the likelihood ratio of the split day (Hansen 2000, critical value
@@ -166,19 +176,30 @@ def _factor(corr) -> np.ndarray:
         return np.linalg.cholesky((vec * lam) @ vec.T)
 
 
+def _null_columns(d, k, half_width) -> list:
+    """The local no-change model on days ``d`` about day ``k``: a level, a slope (a drift
+    is never a step) and a curvature. In a window symmetric about ``k`` the curvature is
+    orthogonal to the step and costs it nothing; where the record's end cuts the window
+    short it keeps a slow wander's curvature out of the step."""
+    u = (d - k) / half_width
+    return [np.ones(d.size), u, u ** 2]
+
+
 class _Fits:
-    """GLS fits of a line plus a step at every candidate day, one component."""
+    """GLS fits of the local model (:func:`_null_columns`) plus a step at each candidate
+    day, one component: the step, its variance factor, its weights on the day values
+    (for the Monte Carlo), and the noise variance (the median over the candidate days of
+    the fits without the step, unless given)."""
 
     def __init__(self, days, y, c1, r, candidates, known, half_width, sigma2=None):
-        n = days.size
-        self.k = candidates
         self.weights = []  # (index slice, weight vector of the step on y[slice])
         delta, var, s2, dof = [], [], [], []
         for k in candidates:
             lo = np.searchsorted(days, k - half_width)
             hi = np.searchsorted(days, k + half_width)
             d = days[lo:hi]
-            cols = [np.ones(d.size), (d - k) / half_width, (d >= k).astype(float)]
+            cols = _null_columns(d, k, half_width)
+            cols.insert(2, (d >= k).astype(float))
             cols += [(d >= kk).astype(float) for kk in known
                      if d[0] < kk <= d[-1] and kk != k]
             x = np.stack(cols, axis=1)
@@ -208,7 +229,6 @@ class _Fits:
             nu = float(np.median(dof)) if dof else 1.0
             sigma2 = float(np.median(s2)) * nu / chi2.median(nu) if s2 else np.nan
         self.sigma2 = sigma2
-        self.n = n
 
     @property
     def se(self):
@@ -296,7 +316,7 @@ def _time_interval(days, y, corrs, sigma2, k_hat, known, half_width, comps, leve
         c1, r = corrs[j]
         chol = _factor(np.eye(d.size) + c1 * _lag_shape(d, r))
         yw = np.linalg.solve(chol, y[lo:hi, j])
-        base = [np.ones(d.size), (d - k_hat) / half_width] + [(d >= kk) * 1.0 for kk in others]
+        base = _null_columns(d, k_hat, half_width) + [(d >= kk) * 1.0 for kk in others]
         sse = []
         for k in splits:
             xw = np.linalg.solve(chol, np.stack(base + [(d >= k) * 1.0], axis=1))
@@ -340,8 +360,9 @@ def detect_level_changes(t_ns, x, *, half_width: int = HALF_WIDTH_DAYS,
         In time order.
     info : dict
         ``tested`` (bool: False when the record is too short to pool the day
-        correlation or to split), ``threshold`` (the |t| a change must exceed),
-        ``n_days``, ``why`` (when not tested).
+        correlation or to split), ``threshold`` (the value of ``t^T R^-1 t`` a change
+        must exceed, the first round's), ``n_days``, ``half_width_days``, ``alpha``,
+        ``n_changes``, ``why`` (when not tested).
     """
     t = np.asarray(t_ns, dtype=np.int64)
     x = np.asarray(x, dtype=float)
@@ -383,16 +404,18 @@ def detect_level_changes(t_ns, x, *, half_width: int = HALF_WIDTH_DAYS,
     corrs = [(float(pooled.c1[0, j]), float(pooled.r[0, j])) for j in range(m)]
     for kk in sorted(known):
         rest = [k for k in known if k != kk]
-        cand = np.array([kk])
-        fits = [_Fits(days, y[:, j], *corrs[j], cand, rest, half_width) for j in range(m)]
+        # the record's noise variance (over every candidate day, the others' changes
+        # in), then the change's own fit
+        full = [_Fits(days, y[:, j], *corrs[j], _candidates(days, rest, min_side), rest,
+                      half_width) for j in range(m)]
+        sigma2 = [f.sigma2 for f in full]
+        fits = [_Fits(days, y[:, j], *corrs[j], np.array([kk]), rest, half_width,
+                      sigma2=sigma2[j]) for j in range(m)]
         size = np.array([f.delta[0] for f in fits])
         se = np.array([f.se[0] for f in fits])
         zc = np.abs(size / se)
         comps = [j for j in range(m) if zc[j] >= 2.0] or [int(np.argmax(zc))]
-        sigma2 = [f.sigma2 for f in fits]
         k_lo, k_hi = _time_interval(days, y, corrs, sigma2, kk, rest, half_width, comps)
-        full = [_Fits(days, y[:, j], *corrs[j], _candidates(days, rest, min_side), rest,
-                      half_width) for j in range(m)]
         null = _null_max(days, corrs, full, mix, n_sim, seed)
         stat = float(_statistic(zc * np.sign(size), mix))
         changes.append(LevelChange(
