@@ -25,7 +25,11 @@ def register(subparsers) -> None:
                                      "n_available,reason,days_covered,lt_hours_covered,"
                                      "Hp_se,He_se,Hn_se (1-sigma standard errors, nT),"
                                      "Hp_dof,He_dof,Hn_dof (their degrees of freedom: "
-                                     "95 % interval = offset +- t(0.975, dof) se)).")
+                                     "95 % interval = offset +- t(0.975, dof) se)). "
+                                     "Sudden level changes of the offset found in the "
+                                     "record's day values are named in the warnings, in "
+                                     "the reason of the windows straddling them and in "
+                                     "OFFSETS.csv.provenance.json (level_changes).")
     fit.add_argument("input", help="DATA: CSV time,Hp,He,Hn (AC-cleaned, any cadence), GOES-R "
                                    "MAG L2 netCDF or ISTP CDF (format detected)")
     add_model_arguments(fit)
@@ -57,7 +61,8 @@ def register(subparsers) -> None:
                                      "offset_flag: 0 interpolated, 1 held before the first "
                                      "centre, 2 held after the last, 3 no valid offset, 4 "
                                      "interpolated across a window without a valid "
-                                     "offset.")
+                                     "offset. Samples interpolated across a level change "
+                                     "named by 'offsets fit' are counted.")
     app.add_argument("input", help="DATA.csv: time,Hp,He,Hn")
     app.add_argument("--offsets", required=True, help="OFFSETS.csv from 'offsets fit'")
     add_output(app, help_text="CORRECTED.csv (time,Hp,He,Hn,offset_flag)")
