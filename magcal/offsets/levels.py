@@ -394,8 +394,7 @@ def detect_level_changes(t_ns, x, *, half_width: int = HALF_WIDTH_DAYS,
     m = y.shape[1]
     for _ in range(max_changes + 1):
         corrs = [(float(pooled.c1[0, j]), float(pooled.r[0, j])) for j in range(m)]
-        stepped = y - sum((np.outer(days >= kk, sizes[kk]) for kk in known), np.zeros_like(y))
-        mix = _factor(component_correlation(days, stepped, corrs))
+        mix = _factor(component_correlation(days, _without(days, y, sizes), corrs))
         cand = _candidates(days, known, min_side)
         if cand.size == 0:
             break
@@ -411,12 +410,10 @@ def detect_level_changes(t_ns, x, *, half_width: int = HALF_WIDTH_DAYS,
         known.append(int(cand[i]))
         sizes[known[-1]] = np.array([f.delta[i] for f in fits])
         # the correlation with the changes found taken out of the day values
-        stepped = y - sum(np.outer(days >= kk, sizes[kk]) for kk in known)
-        pooled = record_day_correlation(days, stepped) or pooled
-    stepped = y - sum((np.outer(days >= kk, sizes[kk]) for kk in known), np.zeros_like(y))
+        pooled = record_day_correlation(days, _without(days, y, sizes)) or pooled
     # final sizes, errors and intervals, each change in the others' presence
     corrs = [(float(pooled.c1[0, j]), float(pooled.r[0, j])) for j in range(m)]
-    mix = _factor(component_correlation(days, stepped, corrs))
+    mix = _factor(component_correlation(days, _without(days, y, sizes), corrs))
     for kk in sorted(known):
         rest = [k for k in known if k != kk]
         # the record's noise variance (over every candidate day, the others' changes
@@ -439,6 +436,14 @@ def detect_level_changes(t_ns, x, *, half_width: int = HALF_WIDTH_DAYS,
             z=float(zc.max()), p_value=float((1 + np.sum(null >= stat)) / (1 + n_sim))))
     info["n_changes"] = len(changes)
     return changes, info
+
+
+def _without(days, y, sizes: dict) -> np.ndarray:
+    """Day values ``y`` with the changes ``{first day: size}`` taken out."""
+    out = np.array(y, dtype=float)
+    for kk, size in sizes.items():
+        out -= np.outer(days >= kk, size)
+    return out
 
 
 def _midnight(day: int) -> np.datetime64:
