@@ -11,6 +11,13 @@ local-time hours (see :func:`magcal.offsets.windows.window_coverage`); thinner w
 get NaN and the reason. A record far shorter than the window (less than
 :data:`SHORT_RECORD_FRACTION` of it) is said in every window's reason and in
 ``OffsetTable.warnings``.
+
+Sudden level changes of the offset (a sensor reset, a heater switched) are looked for
+in the used samples' day values (:mod:`magcal.offsets.levels`): each is named in the
+warnings, in the ``reason`` of the valid windows straddling it (``caution: level change
+of ... inside the window``) and in ``OffsetTable.level_changes``; the window medians are
+left as they are (CONTRACTS §2), and ``offsets apply`` flags the samples interpolated
+across a change.
 """
 
 from __future__ import annotations
