@@ -138,8 +138,9 @@ def run_apply(args) -> int:
     if table.level_changes:
         days = ", ".join(str(np.datetime64(c.time, "D")) for c in table.level_changes)
         print(f"magcal offsets apply: warning: {across} of {len(out)} samples interpolated "
-              f"across a level change of the offset ({days}): offset wrong by up to half "
-              "the change there (quality bit offset_interpolated_across_level_change)",
+              f"across a level change of the offset ({days}): their offset mixes both "
+              "levels, off by up to the change (quality bit "
+              "offset_interpolated_across_level_change)",
               file=sys.stderr)
     print(f"magcal offsets apply: {len(out)} samples; interpolated {counts[0]}, held "
           f"{counts[1] + counts[2]}, no offset {counts[3]}{bridged}"

@@ -34,7 +34,7 @@ IMPLAUSIBLE = np.uint16(32)
 OFFSET_BRIDGED = np.uint16(64)
 #: The offset applied was interpolated across a detected level change of the offset (a
 #: sudden step, :mod:`magcal.offsets.levels`), or from a window straddling one: the line
-#: spreads the change over a week or more, so the offset is wrong by up to half of it.
+#: spreads the change over a week or more, so the offset is off by up to the change.
 OFFSET_ACROSS_LEVEL_CHANGE = np.uint16(128)
 
 #: Bit -> name, in bit order (the CF flag_masks / flag_meanings of every product).
