@@ -4,8 +4,8 @@ configurations, and every product is scored against the simulator's truth.
 The geostationary chain simulates a quarter (91 days) of raw two-sensor 10 s daily files
 with a slow drift (0.04/-0.03/0.02 nT/day) and a step (3/-2/1.5 nT on 2019-12-12) in
 the offset, two linearly polarised spacecraft disturbers, the local-time field T89
-lacks and a storm-time field that follows Dst. The spinning chain runs the Galileo-like sample (truth in
-data_samples/spinning_galileo_truth.json).
+lacks and a storm-time field that follows Dst. The spinning chain runs the Galileo-like
+sample (truth in data_samples/spinning_galileo_truth.json).
 """
 
 import json
