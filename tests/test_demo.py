@@ -4,8 +4,8 @@ configurations, and every product is scored against the simulator's truth.
 The geostationary chain simulates a quarter (91 days) of raw two-sensor 10 s daily files
 with a slow drift (0.04/-0.03/0.02 nT/day) and a step (3/-2/1.5 nT on 2019-12-12) in
 the offset, two linearly polarised spacecraft disturbers, the local-time field T89
-lacks and a storm-time field that follows Dst. The spinning chain runs the Galileo-like sample (truth in
-data_samples/spinning_galileo_truth.json).
+lacks and a storm-time field that follows Dst. The spinning chain runs the Galileo-like
+sample (truth in data_samples/spinning_galileo_truth.json).
 """
 
 import json
@@ -88,6 +88,36 @@ def test_offset_product_follows_the_injected_drift_and_step(demo):
     jump = after[["Hp", "He", "Hn"]].iloc[0] - before[["Hp", "He", "Hn"]].iloc[-1]
     expected = np.array([3.0, -2.0, 1.5]) + np.array([0.04, -0.03, 0.02]) * days
     np.testing.assert_allclose(jump.to_numpy(), expected, atol=0.4)
+
+
+@pytest.mark.slow
+def test_the_injected_offset_step_is_named_and_the_samples_across_it_flagged(demo):
+    """The offsets stage names the injected step, and nothing else, at its true time
+    (within its 95 % interval), with sizes within 2.5 standard errors of 3/-2/1.5 nT;
+    the corrected files carry quality bit 128 exactly between the centres of the last
+    window before it and the first after it."""
+    out = demo[1]
+    truth = pd.read_csv(out / "raw" / "truth.csv", parse_dates=["time"])
+    jump = truth["offset_Hp"].diff().abs().to_numpy()
+    t_step = truth["time"].iloc[int(np.nanargmax(jump))]
+    changes = _json(out / "offsets" / "OFFSETS.csv.provenance.json")["level_changes"]
+    assert len(changes) == 1, changes
+    lo, hi = (pd.Timestamp(v) for v in changes[0]["time_ci95"])
+    assert lo <= t_step <= hi
+    size = np.array([changes[0]["size_nT"][c] for c in ("Hp", "He", "Hn")])
+    se = np.array([changes[0]["se_nT"][c] for c in ("Hp", "He", "Hn")])
+    assert np.all(np.abs(size - [3.0, -2.0, 1.5]) <= 2.5 * se), (size, se)
+    at = pd.Timestamp(changes[0]["time"])
+    table = pd.read_csv(out / "offsets" / "OFFSETS.csv", parse_dates=["center", "start", "end"])
+    before = table["center"][table["end"] <= at].iloc[-1]
+    after = table["center"][table["start"] >= at].iloc[0]
+    days = pd.date_range(before.floor("D") - pd.Timedelta(days=2), after + pd.Timedelta(days=2))
+    for day in days:
+        f = pd.read_csv(out / "corrected" / f"CORRECTED_{day:%Y%m%d}.csv",
+                        parse_dates=["time"])
+        t = f["time"].dt.tz_localize(None)
+        inside = ((t > before) & (t < after)).to_numpy()
+        np.testing.assert_array_equal((f["quality"].to_numpy() & 128) > 0, inside)
 
 
 @pytest.mark.slow

@@ -713,8 +713,12 @@ def _bracket_key(table, day: str, partition_keys) -> str:
     lo = np.searchsorted(c, t0, side="right") - 1
     hi = np.searchsorted(c, t1, side="left")
     rows = valid[max(lo, 0):min(hi, len(valid) - 1) + 1] if len(valid) else valid
-    return digest({"partitions": sorted(partition_keys), "centers": c[np.isin(valid, rows)],
-                   "offsets": table.offset_nT[rows], "flag_meaning": "v3 bridged"})[:24]
+    key = {"partitions": sorted(partition_keys), "centers": c[np.isin(valid, rows)],
+           "offsets": table.offset_nT[rows], "flag_meaning": "v3 bridged"}
+    changes = getattr(table, "level_changes", ())
+    if changes:  # the quality bit of samples interpolated across one (keys unchanged without)
+        key["level_changes"] = [str(np.datetime64(ch.time, "s")) for ch in changes]
+    return digest(key)[:24]
 
 
 def write_corrected_day(task: DayTask) -> dict:
@@ -722,7 +726,7 @@ def write_corrected_day(task: DayTask) -> dict:
     from magcal.chain.daily_csv import write_day_csv
     from magcal.offsets import apply_offsets
     from magcal.provenance import file_sha256
-    from magcal.offsets.apply import FLAG_MEANING, quality_bits
+    from magcal.offsets.apply import FLAG_MEANING, across_level_change, quality_bits
     from magcal.qc.flags import counts as flag_counts
 
     try:
@@ -736,7 +740,7 @@ def write_corrected_day(task: DayTask) -> dict:
         else:
             corr, flag = hpen.copy(), np.full(len(t), 3, dtype=np.int8)
         flag = np.asarray(flag, dtype=int)
-        quality = data.quality[day] | quality_bits(flag)
+        quality = data.quality[day] | quality_bits(flag, across_level_change(t, task.table))
         if task.fmt == "csv":
             write_day_csv(Path(task.path), times, corr, HPEN, flag, extra={"quality": quality},
                           provenance=task.provenance or None)

@@ -41,7 +41,8 @@ def run_offsets(minute: MinuteData, config: ChainConfig):
     summary = {"n_windows": int(len(valid)), "n_valid": int(valid.sum()),
                "n_quiet": est.n_quiet_, "span_days": est.span_days_,
                "offsets_nT": {c: table.offset_nT[:, k].tolist() for k, c in enumerate(HPEN)},
-               "reasons": [r for r in table.reason if r]}
+               "reasons": [r for r in table.reason if r],
+               "level_changes": [c.to_dict() for c in table.level_changes]}
     lines = [f"{int(valid.sum())}/{len(valid)} valid {cfg['window_days']:g}-day windows "
              f"({est.n_quiet_} quiet samples at Kp <= {cfg['kp_max']:g})"]
     if valid.any():

@@ -73,6 +73,6 @@ def write_offsets_product(path: str | Path, table, fmt: str) -> Path:
     for c in ("start", "end"):
         frame[c] = pd.DatetimeIndex(frame[c]).tz_localize("UTC")
     payload = {"parameters": table.parameters, "warnings": list(table.warnings),
-               "provenance": table.provenance}
+               "provenance": table.provenance, **table.levels_json()}
     return write_product(path, frame, fmt, provenance=to_jsonable(payload),
                          title="magcal DC offsets per sliding window (data minus model, Hpen)")

@@ -25,7 +25,11 @@ def register(subparsers) -> None:
                                      "n_available,reason,days_covered,lt_hours_covered,"
                                      "Hp_se,He_se,Hn_se (1-sigma standard errors, nT),"
                                      "Hp_dof,He_dof,Hn_dof (their degrees of freedom: "
-                                     "95 % interval = offset +- t(0.975, dof) se)).")
+                                     "95 % interval = offset +- t(0.975, dof) se)). "
+                                     "Sudden level changes of the offset found in the "
+                                     "record's day values are named in the warnings, in "
+                                     "the reason of the windows straddling them and in "
+                                     "OFFSETS.csv.provenance.json (level_changes).")
     fit.add_argument("input", help="DATA: CSV time,Hp,He,Hn (AC-cleaned, any cadence), GOES-R "
                                    "MAG L2 netCDF or ISTP CDF (format detected)")
     add_model_arguments(fit)
@@ -57,7 +61,8 @@ def register(subparsers) -> None:
                                      "offset_flag: 0 interpolated, 1 held before the first "
                                      "centre, 2 held after the last, 3 no valid offset, 4 "
                                      "interpolated across a window without a valid "
-                                     "offset.")
+                                     "offset. Samples interpolated across a level change "
+                                     "named by 'offsets fit' are counted.")
     app.add_argument("input", help="DATA.csv: time,Hp,He,Hn")
     app.add_argument("--offsets", required=True, help="OFFSETS.csv from 'offsets fit'")
     add_output(app, help_text="CORRECTED.csv (time,Hp,He,Hn,offset_flag)")
@@ -87,8 +92,11 @@ def run_fit(args) -> int:
     for warning in table.warnings:
         print(f"magcal offsets fit: warning: {warning}", file=sys.stderr)
     thin = sum(r.startswith("coverage too thin") for r in table.reason)
+    n_changes = len(table.level_changes)
+    changes = (f", {n_changes} level change{'s' if n_changes > 1 else ''} of the offset"
+               if n_changes else "")
     print(f"magcal offsets fit: {len(table)} windows ({int(table.valid.sum())} valid"
-          f"{f', {thin} with coverage too thin to trust' if thin else ''}), "
+          f"{f', {thin} with coverage too thin to trust' if thin else ''}{changes}), "
           f"{np.mean(details['quiet']):.1%} of 1-min samples at Kp <= {args.kp_max:g}",
           file=sys.stderr)
     return 0
@@ -99,7 +107,8 @@ def run_apply(args) -> int:
 
     from magcal.io.csv import write_csv_frame
     from magcal.io.formats import read_any
-    from magcal.offsets import apply_offsets, outside_valid_windows, read_offsets_csv
+    from magcal.offsets import (across_level_change, apply_offsets, outside_valid_windows,
+                                read_offsets_csv)
     from magcal.offsets.apply import skipped_windows_note
     from magcal.provenance import make_provenance
 
@@ -125,6 +134,15 @@ def run_apply(args) -> int:
     counts = np.bincount(flag, minlength=5)
     bridged = (f", bridged over a window without an offset {counts[4]}" if counts[4]
                else "")
+    across = int(across_level_change(times, table).sum())
+    if table.level_changes:
+        days = ", ".join(str(np.datetime64(c.time, "D")) for c in table.level_changes)
+        print(f"magcal offsets apply: warning: {across} of {len(out)} samples interpolated "
+              f"across a level change of the offset ({days}): their offset mixes both "
+              "levels, off by up to the change (quality bit "
+              "offset_interpolated_across_level_change)",
+              file=sys.stderr)
     print(f"magcal offsets apply: {len(out)} samples; interpolated {counts[0]}, held "
-          f"{counts[1] + counts[2]}, no offset {counts[3]}{bridged}", file=sys.stderr)
+          f"{counts[1] + counts[2]}, no offset {counts[3]}{bridged}"
+          f"{f', across a level change {across}' if across else ''}", file=sys.stderr)
     return 0

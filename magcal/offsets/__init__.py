@@ -7,7 +7,10 @@
 * :mod:`magcal.offsets.estimator` - :class:`OffsetEstimator`, :func:`fit_offsets` and
   :func:`fit_offsets_frame` (data minus model, Kp <= kp_max selection, coverage checks);
 * :mod:`magcal.offsets.apply` - :func:`interpolate_offsets`, :func:`apply_offsets`,
-  :func:`outside_valid_windows` (samples no valid window saw);
+  :func:`outside_valid_windows` (samples no valid window saw), :func:`across_level_change`
+  (samples whose interpolation spans a level change);
+* :mod:`magcal.offsets.levels` - :func:`detect_level_changes` (sudden level changes of
+  the offset in the record's day values);
 * :mod:`magcal.offsets.table` - :class:`OffsetTable` and the ``OFFSETS.csv`` reader and
   writer;
 * :mod:`magcal.offsets.diagnostics` - residual versus local time per month (Fig. 19);
@@ -29,6 +32,7 @@ _WHERE = {"FLAG_MEANING": "apply", "apply_offsets": "apply", "interpolate_offset
           "fit_offsets_frame": "estimator", "quiet_mask": "estimator",
           "OffsetTable": "table", "read_offsets_csv": "table", "write_offsets_csv": "table",
           "window_coverage": "windows", "window_grid": "windows",
-          "window_statistics": "windows"}
+          "window_statistics": "windows", "across_level_change": "apply",
+          "detect_level_changes": "levels", "LevelChange": "levels"}
 
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _WHERE, globals())

@@ -87,23 +87,96 @@ def interpolate_offsets(times, centers, offsets_nT):
     return out, flag
 
 
-def quality_bits(flag) -> np.ndarray:
+def quality_bits(flag, across_change=None) -> np.ndarray:
     """The ``quality`` bits (:mod:`magcal.qc.flags`) that ``offset_flag`` values set:
     16 (``offset_held_or_extrapolated``) for a held or missing offset (1, 2, 3), 64
     (``offset_bridged_over_missing_window``) for one bridged across a window without an
-    offset (4), none for a plain interpolation (0).
+    offset (4), none for a plain interpolation (0); and 128
+    (``offset_interpolated_across_level_change``) where ``across_change`` (bool, from
+    :func:`across_level_change`) is True.
 
     Examples
     --------
     >>> quality_bits([0, 1, 2, 3, 4]).tolist()
     [0, 16, 16, 16, 64]
+    >>> quality_bits([0, 0, 4], across_change=[False, True, True]).tolist()
+    [0, 128, 192]
     """
-    from magcal.qc.flags import OFFSET_BRIDGED, OFFSET_HELD
+    from magcal.qc.flags import OFFSET_ACROSS_LEVEL_CHANGE, OFFSET_BRIDGED, OFFSET_HELD
 
     flag = np.asarray(flag)
     held = np.isin(flag, (FLAG_HELD_BEFORE, FLAG_HELD_AFTER, FLAG_NO_OFFSET))
-    return (np.where(held, OFFSET_HELD, 0)
-            | np.where(flag == FLAG_BRIDGED, OFFSET_BRIDGED, 0)).astype(np.uint16)
+    out = (np.where(held, OFFSET_HELD, 0)
+           | np.where(flag == FLAG_BRIDGED, OFFSET_BRIDGED, 0)).astype(np.uint16)
+    if across_change is not None:
+        out |= np.where(np.asarray(across_change, dtype=bool), OFFSET_ACROSS_LEVEL_CHANGE,
+                        0).astype(np.uint16)
+    return out
+
+
+def across_level_change(times, table) -> np.ndarray:
+    """True for samples whose interpolated offset spans a level change of the offset
+    (``table.level_changes``, :mod:`magcal.offsets.levels`).
+
+    That is a sample between the two valid window centres that bracket a change (the
+    line joins the two levels and spreads the change over the step or more), or one
+    whose offset takes a weight from a valid window straddling a change (its median
+    mixes both levels), held ends included. Samples with no valid offset are never
+    flagged here (``offset_flag`` 3 says so).
+
+    Parameters
+    ----------
+    times : array_like of datetime64, shape (n,)
+    table : OffsetTable
+        With ``level_changes`` (a table without them flags nothing).
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
+
+    Examples
+    --------
+    Weekly centres, windows 28 days long, a change on 2019-12-12: the valid windows
+    centred 11-29 .. 12-20 straddle it, so the offsets between 11-22 and 12-27 are
+    interpolated from one of them.
+
+    >>> import numpy as np
+    >>> from types import SimpleNamespace
+    >>> c = np.arange("2019-11-15", "2020-01-10", 7, dtype="datetime64[D]").astype("datetime64[ns]")
+    >>> ch = SimpleNamespace(time=np.datetime64("2019-12-12", "ns"))
+    >>> tab = SimpleNamespace(center=c, start=c - np.timedelta64(14, "D"),
+    ...                       end=c + np.timedelta64(14, "D"), offset_nT=np.zeros((c.size, 3)),
+    ...                       level_changes=(ch,))
+    >>> t = np.array(["2019-11-22", "2019-11-23", "2019-12-26", "2019-12-28"],
+    ...              dtype="datetime64[ns]")
+    >>> across_level_change(t, tab)
+    array([False,  True,  True, False])
+    """
+    t = np.asarray(times).astype("datetime64[ns]").astype(np.int64)
+    out = np.zeros(t.size, dtype=bool)
+    changes = tuple(getattr(table, "level_changes", ()) or ())
+    ok = np.all(np.isfinite(np.asarray(table.offset_nT, dtype=float)), axis=1)
+    if not changes or not ok.any():
+        return out
+    c = np.asarray(table.center).astype("datetime64[ns]").astype(np.int64)[ok]
+    s = np.asarray(table.start).astype("datetime64[ns]").astype(np.int64)[ok]
+    e = np.asarray(table.end).astype("datetime64[ns]").astype(np.int64)[ok]
+    at = np.array([np.datetime64(ch.time, "ns").astype(np.int64) for ch in changes])
+    straddles = np.array([np.any((s[i] < at) & (at < e[i])) for i in range(c.size)])
+    if c.size == 1:
+        return out | bool(straddles[0])
+    # each sample's bracketing pair of valid centres (the end pair beyond the ends)
+    k = np.clip(np.searchsorted(c, t, side="right") - 1, 0, c.size - 2)
+    lo, hi = c[k], c[k + 1]
+    inside = (t > lo) & (t < hi)
+    spans = np.zeros(t.size, dtype=bool)
+    for a in at:
+        spans |= inside & (lo < a) & (a < hi)
+    # weights: left window where t < hi (or held before the first centre), right window
+    # where t > lo (or held after the last)
+    uses_left = (t < hi) & straddles[k]
+    uses_right = (t > lo) & straddles[k + 1]
+    return spans | uses_left | uses_right
 
 
 def apply_offsets(times, data_hpen, table):

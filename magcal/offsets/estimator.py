@@ -11,6 +11,13 @@ local-time hours (see :func:`magcal.offsets.windows.window_coverage`); thinner w
 get NaN and the reason. A record far shorter than the window (less than
 :data:`SHORT_RECORD_FRACTION` of it) is said in every window's reason and in
 ``OffsetTable.warnings``.
+
+Sudden level changes of the offset (a sensor reset, a heater switched) are looked for
+in the used samples' day values (:mod:`magcal.offsets.levels`): each is named in the
+warnings, in the ``reason`` of the valid windows straddling it (``caution: level change
+of ... inside the window``) and in ``OffsetTable.level_changes``; the window medians are
+left as they are (CONTRACTS §2), and ``offsets apply`` flags the samples interpolated
+across a change.
 """
 
 from __future__ import annotations
@@ -57,6 +64,22 @@ def short_record_warning(span_days: float, window_days: float) -> str:
             f"{window_days:g}-day window")
 
 
+def with_caution(reason: str, caution: str) -> str:
+    """``reason`` of a valid window with ``caution`` (``caution: ...``) put first, other
+    cautions kept.
+
+    Examples
+    --------
+    >>> with_caution("", "caution: a")
+    'caution: a'
+    >>> with_caution("caution: b", "caution: a")
+    'caution: a; b'
+    """
+    if not reason:
+        return caution
+    return f"{caution}; {reason.removeprefix('caution: ')}"
+
+
 def quiet_mask(kp, kp_max: float = 1.0) -> np.ndarray:
     """True where ``kp <= kp_max`` (NaN Kp is never quiet).
 
@@ -94,6 +117,11 @@ class OffsetEstimator:
     min_lt_fraction : float
         Fewest of the 24 local-time hours, as a fraction, that must hold used samples
         (default :data:`MIN_LT_COVERAGE`; checked when :meth:`fit` gets ``lon_deg``).
+    level_changes : bool
+        Look for sudden level changes of the offset in the record
+        (:func:`magcal.offsets.levels.detect_level_changes`, default True): each is named
+        in :attr:`warnings_`, in the ``reason`` of the valid windows straddling it, and in
+        ``OffsetTable.level_changes``. The offsets themselves do not change.
 
     Attributes
     ----------
@@ -103,6 +131,10 @@ class OffsetEstimator:
         Record-level warnings (e.g. a record far shorter than the window).
     span_days_ : float
         Length of the record (last minus first time plus one sample spacing), days.
+    level_changes_ : tuple of LevelChange
+        Level changes found (:mod:`magcal.offsets.levels`), in time order.
+    level_test_ : dict
+        How the level changes were looked for (``tested``, ``threshold``, ...).
 
     Examples
     --------
@@ -118,7 +150,7 @@ class OffsetEstimator:
     def __init__(self, kp_max: float = 1.0, window_days: float = 28.0, step_days: float = 7.0,
                  min_used: int = 720, origin=None, method: str = "median",
                  min_day_fraction: float = MIN_DAY_COVERAGE,
-                 min_lt_fraction: float = MIN_LT_COVERAGE):
+                 min_lt_fraction: float = MIN_LT_COVERAGE, level_changes: bool = True):
         self.kp_max = kp_max
         self.window_days = window_days
         self.step_days = step_days
@@ -127,6 +159,7 @@ class OffsetEstimator:
         self.method = method
         self.min_day_fraction = min_day_fraction
         self.min_lt_fraction = min_lt_fraction
+        self.level_changes = level_changes
 
     def get_params(self) -> dict:
         """Constructor parameters (JSON-ready)."""
@@ -134,7 +167,7 @@ class OffsetEstimator:
         return {"kp_max": self.kp_max, "window_days": self.window_days,
                 "step_days": self.step_days, "min_used": self.min_used, "origin": origin,
                 "method": self.method, "min_day_fraction": self.min_day_fraction,
-                "min_lt_fraction": self.min_lt_fraction}
+                "min_lt_fraction": self.min_lt_fraction, "level_changes": self.level_changes}
 
     def fit(self, times, data_hpen, model_hpen, kp, lon_deg=None,
             provenance: dict | None = None, span_days: float | None = None):
@@ -199,6 +232,7 @@ class OffsetEstimator:
         warning = short_record_warning(self.span_days_, self.window_days)
         self.warnings_ = (warning,) if warning else ()
         reasons = self._judge_coverage(stats, cover, warning)
+        self._look_for_level_changes(t[used], diff[used], starts, ends, stats, reasons)
         centre = starts + (ends - starts) // 2
         self.table_ = OffsetTable(
             center=centre.astype("datetime64[ns]"), start=starts.astype("datetime64[ns]"),
@@ -208,7 +242,8 @@ class OffsetEstimator:
             reason=tuple(reasons), parameters=self.get_params(),
             provenance=dict(provenance or {}), days_covered=cover["days_covered"],
             lt_hours_covered=cover["lt_hours_covered"], warnings=self.warnings_,
-            se_nT=stats["se"], dof=stats["dof"])
+            se_nT=stats["se"], dof=stats["dof"], level_changes=self.level_changes_,
+            level_test=self.level_test_)
         self.n_quiet_ = int(np.count_nonzero(quiet_mask(kp, self.kp_max)))
         return self
 
@@ -227,6 +262,23 @@ class OffsetEstimator:
                 why = f"{why}; {warning}" if why else f"caution: {warning}"
             reasons.append(why)
         return reasons
+
+    def _look_for_level_changes(self, t_used, diff_used, starts, ends, stats, reasons):
+        """Level changes in the used samples: warnings, and a caution in the reason of
+        each valid window straddling one."""
+        from magcal.offsets.levels import (change_caution, change_warning,
+                                           detect_level_changes, straddling_windows)
+
+        self.level_changes_, self.level_test_ = (), {"tested": False, "why": "not asked"}
+        if not self.level_changes:
+            return
+        changes, self.level_test_ = detect_level_changes(t_used, diff_used)
+        self.level_changes_ = tuple(changes)
+        self.warnings_ += tuple(change_warning(c, self.step_days) for c in changes)
+        for i, inside in enumerate(straddling_windows(starts, ends, changes)):
+            if np.all(np.isfinite(stats["median"][i])):
+                for c in reversed(inside):
+                    reasons[i] = with_caution(reasons[i], change_caution(c))
 
     def apply(self, times, data_hpen):
         """Corrected data, the offsets used, and the flag (see :mod:`magcal.offsets.apply`)."""

@@ -9,7 +9,10 @@ than the window), ``days_covered`` (UTC days of the window holding used samples)
 ``lt_hours_covered`` (of the 24 local-time hours; empty when the longitude is unknown),
 ``Hp_se,He_se,Hn_se`` (1-sigma standard errors, CONTRACTS §7.1) and ``Hp_dof,He_dof,
 Hn_dof`` (their degrees of freedom: the 95 % interval is ``offset +- t(0.975, dof) se``).
-Provenance is written beside the CSV as ``<file>.provenance.json``.
+Provenance is written beside the CSV as ``<file>.provenance.json``, with the level changes
+of the offset found in the record (``level_changes``, :mod:`magcal.offsets.levels`) and how
+they were looked for (``level_change_test``); :func:`read_offsets_csv` reads them back
+(or, without the sidecar, from the windows' ``reason`` cautions).
 """
 
 from __future__ import annotations
@@ -65,6 +68,12 @@ class OffsetTable:
         the standard error is estimated from a few correlated days, so an interval takes
         Student's t on them, :meth:`interval95`); columns ``Hp_dof..``, NaN where not
         computed.
+    level_changes : tuple of LevelChange
+        Sudden level changes of the offset found in the record
+        (:func:`magcal.offsets.levels.detect_level_changes`), in time order; ``offsets
+        apply`` flags the samples whose interpolation spans one.
+    level_test : dict
+        How they were looked for (``tested``, ``threshold``, ...; empty when unknown).
     """
 
     center: np.ndarray
@@ -84,6 +93,8 @@ class OffsetTable:
     warnings: tuple = ()
     se_nT: np.ndarray | None = None
     dof: np.ndarray | None = None
+    level_changes: tuple = ()
+    level_test: dict = dc_field(default_factory=dict)
 
     def __len__(self) -> int:
         return int(self.center.size)
@@ -154,7 +165,14 @@ class OffsetTable:
         frame = frame.astype(object).where(frame.notna(), None)
         return product_dict({"windows": frame.to_dict(orient="records"),
                              "warnings": list(self.warnings),
-                             "parameters": self.parameters, "provenance": self.provenance})
+                             "parameters": self.parameters, "provenance": self.provenance,
+                             **self.levels_json()})
+
+    def levels_json(self) -> dict:
+        """``level_changes`` (one record each, :meth:`LevelChange.to_dict`) and
+        ``level_change_test`` for the JSON products."""
+        return {"level_changes": [c.to_dict() for c in self.level_changes],
+                "level_change_test": to_jsonable(self.level_test)}
 
 
 def write_offsets_csv(path, table: OffsetTable, float_format: str = "%.4f") -> Path:
@@ -167,7 +185,7 @@ def write_offsets_csv(path, table: OffsetTable, float_format: str = "%.4f") -> P
         frame.to_csv(tmp, index=False, float_format=float_format, na_rep="NaN")
         with atomic_path(side) as tmp_side:
             payload = {"parameters": table.parameters, "warnings": list(table.warnings),
-                       "provenance": table.provenance}
+                       "provenance": table.provenance, **table.levels_json()}
             tmp_side.write_text(json.dumps(product_dict(to_jsonable(payload)), indent=2) + "\n")
     return Path(path)
 
@@ -260,9 +278,30 @@ def read_offsets_csv(path) -> OffsetTable:
     reason = missing_offset_reasons(given, reason)
     cover = {c: np.nan_to_num(num(c, -1), nan=-1).astype(np.int64)
              for c in ("days_covered", "lt_hours_covered")}
+    changes, test = _level_changes_beside(p, reason)
     return OffsetTable(center=times["center"], start=times["start"], end=times["end"],
                        offset_nT=offset, std_nT=std, mad_nT=mad, n_used=n_used,
                        n_available=n_av, fraction_used=num("fraction_used"), reason=reason,
                        parameters={"source": os.fspath(p)},
                        se_nT=np.stack([num(f"{c}_se") for c in COMPONENTS], axis=1),
-                       dof=np.stack([num(f"{c}_dof") for c in COMPONENTS], axis=1), **cover)
+                       dof=np.stack([num(f"{c}_dof") for c in COMPONENTS], axis=1),
+                       level_changes=changes, level_test=test, **cover)
+
+
+def _level_changes_beside(path: Path, reason) -> tuple:
+    """The level changes in ``<path>.provenance.json`` when it lists them, else those the
+    windows' ``reason`` cautions name; and the test's record ({} when unknown)."""
+    from magcal.offsets.levels import LevelChange, changes_from_reasons
+
+    side = Path(str(path) + ".provenance.json")
+    try:
+        payload = json.loads(side.read_text()) if side.is_file() else {}
+    except (OSError, ValueError):
+        payload = {}
+    if isinstance(payload, dict) and isinstance(payload.get("level_changes"), list):
+        try:
+            changes = tuple(LevelChange.from_dict(d) for d in payload["level_changes"])
+            return changes, dict(payload.get("level_change_test") or {})
+        except (KeyError, TypeError, ValueError):
+            pass
+    return changes_from_reasons(reason), {}

@@ -32,6 +32,10 @@ IMPLAUSIBLE = np.uint16(32)
 #: The offset applied was interpolated across a window without a valid offset
 #: (``offset_flag`` 4): a line over twice the window step or more.
 OFFSET_BRIDGED = np.uint16(64)
+#: The offset applied was interpolated across a detected level change of the offset (a
+#: sudden step, :mod:`magcal.offsets.levels`), or from a window straddling one: the line
+#: spreads the change over a week or more, so the offset is off by up to the change.
+OFFSET_ACROSS_LEVEL_CHANGE = np.uint16(128)
 
 #: Bit -> name, in bit order (the CF flag_masks / flag_meanings of every product).
 FLAG_NAMES = {
@@ -42,6 +46,7 @@ FLAG_NAMES = {
     int(OFFSET_HELD): "offset_held_or_extrapolated",
     int(IMPLAUSIBLE): "implausible_vs_model",
     int(OFFSET_BRIDGED): "offset_bridged_over_missing_window",
+    int(OFFSET_ACROSS_LEVEL_CHANGE): "offset_interpolated_across_level_change",
 }
 
 #: Bits that keep a sample out of every fit, average and statistic (all but the offset

@@ -1,0 +1,510 @@
+"""Level changes of the offset: sudden steps (a sensor reset, a heater switched) found in
+the record's day values.
+
+The sliding-window medians and their linear interpolation assume an offset that varies
+slowly against the window step. A sudden change breaks that silently: windows
+straddling it report a median mixing both levels, and the interpolation spreads the
+change over weeks. This module looks for such changes on the record's *day values* (the
+median of each UTC day's selected residual, as the windows' standard errors use them).
+
+At each day ``k`` the values of the ``half_width`` days either side are fitted by
+generalised least squares with a line and a curvature plus a step from day ``k`` (plus
+any change already found there): a linear drift is in the line and is never a step, and
+a slow wander (months) is locally close to a parabola, which in a window symmetric about
+``k`` leaves nothing in the step. The day values' covariance is the record's pooled
+day-to-day correlation (:func:`magcal.offsets.windows.pooled_lag_correlation`, the
+model of the model miss the windows' standard errors use), scaled by a variance taken
+from the local fits without the step (their median, so a change not yet found inflates
+only its own days'). The components' t-statistics at each day are combined as
+``t^T R^-1 t`` (``R`` the components' correlation: the model miss is often shared, and
+a change in several components at once is what a reset or a heater makes), and the
+largest over days is compared with the same maximum simulated under no change on the
+record's own days and correlation (a Monte Carlo look-elsewhere correction with a fixed
+seed, so the result is reproducible). Changes are added one at a time, strongest first,
+each in the others' presence; after each, the correlation is re-estimated with the
+changes taken out (a step inside a window reads as day-to-day correlation).
+
+Why local and not one line through the record: a slow wander of the offset (a 120-day
+swing of a few nT) is no step, and against one line it reads as several. The price is
+power: the step is told from the local line by the days either side alone, so under a
+model miss correlated over hours to days only changes of a few nT are found (the
+CHANGELOG has the measured rates); a change too small to find here is also small against
+the windows' own standard errors.
+
+Each change gets its day (the first day at the new level), a 95 % time interval from
+the likelihood ratio of the split day (Hansen 2000, critical value
+:func:`magcal.discover.step_time.lr_critical_value`), and its size per component with a
+standard error.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from magcal.offsets.windows import DAY_NS, _lag_shape, pooled_lag_correlation
+
+#: Days either side of a candidate day that its local fit uses. Wider finds smaller
+#: changes (28 days: 2 nT under a 1-hour miss twice as often) but lets a 120-day wander
+#: of 4 nT read as a step in 2-3 % of records (none of 100 at 21 days).
+HALF_WIDTH_DAYS = 21
+#: Fewest days with data on each side of a candidate day.
+MIN_SIDE_DAYS = 5
+#: False-detection probability per record of the test under the modelled noise. The
+#: noise is modelled, not known (a miss correlated over days is the least well), so the
+#: level is set below the 5 % a record may carry.
+ALPHA = 0.01
+#: Draws of the Monte Carlo look-elsewhere correction.
+N_SIM = 2000
+#: Most changes looked for in one record.
+MAX_CHANGES = 5
+_SEED = 20191212
+
+
+@dataclass(frozen=True)
+class LevelChange:
+    """A level change of the offset found in the record.
+
+    Attributes
+    ----------
+    time : numpy.datetime64
+        Start (UTC midnight) of the first day at the new level: the change happened
+        within about a day before it or during that day.
+    time_lo, time_hi : numpy.datetime64
+        95 % interval of the change's time: after ``time_lo``, before ``time_hi``.
+    size_nT, se_nT : ndarray, shape (m,)
+        Size (new minus old level) per component and its 1-sigma standard error.
+    z : float
+        Largest ``|size / se|`` over the components.
+    p_value : float
+        Chance of a maximum as large anywhere in a record without a change (look-elsewhere
+        corrected, Monte Carlo).
+    """
+
+    time: np.datetime64
+    time_lo: np.datetime64
+    time_hi: np.datetime64
+    size_nT: np.ndarray
+    se_nT: np.ndarray
+    z: float
+    p_value: float
+
+    def describe(self, columns=("Hp", "He", "Hn")) -> str:
+        """``Hp +1.02 +- 0.15, ... nT at 2019-12-12 (95 %: 2019-12-11 .. 2019-12-13)``."""
+        sizes = ", ".join(f"{c} {s:+.2f} +- {e:.2f}"
+                          for c, s, e in zip(columns, self.size_nT, self.se_nT))
+        return (f"{sizes} nT at {_day(self.time)} (95 %: {_day(self.time_lo)} .. "
+                f"{_day(self.time_hi)})")
+
+    def to_dict(self, columns=("Hp", "He", "Hn")) -> dict:
+        """JSON-ready record (times ISO UTC)."""
+        return {"time": str(np.datetime64(self.time, "s")),
+                "time_ci95": [str(np.datetime64(self.time_lo, "s")),
+                              str(np.datetime64(self.time_hi, "s"))],
+                "size_nT": {c: round(float(v), 4) for c, v in zip(columns, self.size_nT)},
+                "se_nT": {c: round(float(v), 4) for c, v in zip(columns, self.se_nT)},
+                "z": round(float(self.z), 2), "p_value": round(float(self.p_value), 4)}
+
+    @classmethod
+    def from_dict(cls, d: dict, columns=("Hp", "He", "Hn")) -> "LevelChange":
+        """The inverse of :meth:`to_dict`."""
+        lo, hi = d.get("time_ci95", [d["time"], d["time"]])
+        return cls(np.datetime64(d["time"], "ns"), np.datetime64(lo, "ns"),
+                   np.datetime64(hi, "ns"),
+                   np.array([float(d.get("size_nT", {}).get(c, np.nan)) for c in columns]),
+                   np.array([float(d.get("se_nT", {}).get(c, np.nan)) for c in columns]),
+                   float(d.get("z", np.nan)), float(d.get("p_value", np.nan)))
+
+
+def _day(t) -> str:
+    return str(np.datetime64(t, "D"))
+
+
+def record_day_values(t_ns, x, min_fraction: float = 0.1):
+    """Median of each UTC day's samples: calendar days (since 1970) and values (nd, m).
+
+    Days holding under ``min_fraction`` of the fullest day's samples are left out (as
+    :func:`magcal.offsets.windows.day_batches` does).
+
+    Examples
+    --------
+    >>> t = np.array([0, 1, DAY_NS + 5, DAY_NS + 6, 3 * DAY_NS])
+    >>> days, v = record_day_values(t, np.array([1.0, 3.0, 5.0, 7.0, 9.0]))
+    >>> days.tolist(), v[:, 0].tolist()
+    ([0, 1, 3], [2.0, 6.0, 9.0])
+    """
+    t = np.asarray(t_ns, dtype=np.int64)
+    x = np.asarray(x, dtype=float)
+    x = x[:, None] if x.ndim == 1 else x
+    if t.size == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros((0, x.shape[1]))
+    day = np.floor_divide(t, DAY_NS)
+    edges = np.flatnonzero(np.diff(day)) + 1
+    groups = np.split(np.arange(t.size), edges)
+    most = max(g.size for g in groups)
+    good = [g for g in groups if g.size >= min_fraction * most]
+    return (np.array([day[g[0]] for g in good], dtype=np.int64),
+            np.array([np.median(x[g], axis=0) for g in good]).reshape(len(good), x.shape[1]))
+
+
+def record_day_correlation(days, values, window_days: int = 28, step_days: int = 7,
+                           min_pairs: int = 10):
+    """The pooled day-to-day correlation (:func:`pooled_lag_correlation`) of the record's
+    day values over windows of ``window_days`` stepped by ``step_days``; None when the
+    record is too short to pool."""
+    days = np.asarray(days, dtype=np.int64)
+    if days.size < 3:
+        return None
+    layouts = []
+    for w0 in range(int(days[0]), int(days[-1]) + 1, step_days):
+        inside = (days >= w0) & (days < w0 + window_days)
+        if inside.sum() >= 3:
+            layouts.append((days[inside] - w0, values[inside], w0))
+        if w0 + window_days > days[-1]:
+            break
+    return pooled_lag_correlation(layouts, min_pairs)
+
+
+def _factor(corr) -> np.ndarray:
+    """A square root ``L`` of a correlation matrix (``L L^T = corr``): its Cholesky factor,
+    or, where the modelled correlation is not positive definite on the record's days
+    (``c1 r ** (k - 1)`` on scattered days can fail to be), that of its eigenvalues
+    raised to a thousandth of the largest."""
+    try:
+        return np.linalg.cholesky(corr)
+    except np.linalg.LinAlgError:
+        lam, vec = np.linalg.eigh(corr)
+        lam = np.clip(lam, 1e-3 * lam.max(), None)
+        return np.linalg.cholesky((vec * lam) @ vec.T)
+
+
+def _null_columns(d, k, half_width) -> list:
+    """The local no-change model on days ``d`` about day ``k``: a level, a slope (a drift
+    is never a step) and a curvature. In a window symmetric about ``k`` the curvature is
+    orthogonal to the step and costs it nothing; where the record's end cuts the window
+    short it keeps a slow wander's curvature out of the step."""
+    u = (d - k) / half_width
+    return [np.ones(d.size), u, u ** 2]
+
+
+class _Fits:
+    """GLS fits of the local model (:func:`_null_columns`) plus a step at each candidate
+    day, one component: the step, its variance factor, its weights on the day values
+    (for the Monte Carlo), and the noise variance (the median over the candidate days of
+    the fits without the step, unless given)."""
+
+    def __init__(self, days, y, c1, r, candidates, known, half_width, sigma2=None):
+        self.weights = []  # (index slice, weight vector of the step on y[slice])
+        delta, var, s2, dof = [], [], [], []
+        for k in candidates:
+            lo = np.searchsorted(days, k - half_width)
+            hi = np.searchsorted(days, k + half_width)
+            d = days[lo:hi]
+            cols = _null_columns(d, k, half_width)
+            cols.insert(2, (d >= k).astype(float))
+            cols += [(d >= kk).astype(float) for kk in known
+                     if d[0] < kk <= d[-1] and kk != k]
+            x = np.stack(cols, axis=1)
+            corr = np.eye(d.size) + c1 * _lag_shape(d, r)
+            chol = _factor(corr)
+            xw = np.linalg.solve(chol, x)
+            yw = np.linalg.solve(chol, y[lo:hi])
+            q, rr = np.linalg.qr(xw)
+            inv = np.linalg.inv(rr)
+            cov = inv @ inv.T
+            w = np.linalg.solve(chol.T, q @ inv.T[:, 2])  # step = w @ y[lo:hi]
+            beta = inv @ (q.T @ yw)
+            # the null fit (without the step) for the noise variance
+            x0 = np.delete(xw, 2, axis=1)
+            res0 = yw - x0 @ np.linalg.lstsq(x0, yw, rcond=None)[0]
+            self.weights.append((slice(lo, hi), w))
+            delta.append(beta[2])
+            var.append(cov[2, 2])
+            s2.append(float(res0 @ res0) / max(d.size - x0.shape[1], 1))
+            dof.append(d.size - x0.shape[1])
+        self.delta, self.var = np.array(delta), np.array(var)
+        if sigma2 is None:
+            # the median over days: windows holding a change not yet found inflate
+            # their own estimate, not the record's; scaled to the chi-square's mean
+            from scipy.stats import chi2
+
+            nu = float(np.median(dof)) if dof else 1.0
+            sigma2 = float(np.median(s2)) * nu / chi2.median(nu) if s2 else np.nan
+        self.sigma2 = sigma2
+
+    @property
+    def se(self):
+        return np.sqrt(self.sigma2 * self.var)
+
+    @property
+    def t(self):
+        return self.delta / self.se
+
+    def simulated_t(self, z):
+        """t-statistics (n_sim, n_candidates) of noise draws ``z`` (n_sim, n) with unit
+        variance and this component's correlation."""
+        out = np.empty((z.shape[0], len(self.weights)))
+        for i, (sl, w) in enumerate(self.weights):
+            out[:, i] = z[:, sl] @ w
+        return out / np.sqrt(self.var)
+
+
+def _candidates(days, known, min_side):
+    """Split days (first day at the new level) with ``min_side`` days of data each side
+    and not within ``min_side`` days of a change already found."""
+    if days.size < 2 * min_side:
+        return np.zeros(0, dtype=np.int64)
+    cand = days[min_side:days.size - min_side + 1]
+    for kk in known:
+        cand = cand[np.abs(cand - kk) >= min_side]
+    return cand
+
+
+def _null_max(days, corrs, fits_by_comp, mix, n_sim, seed):
+    """The statistic's largest value over candidate days in ``n_sim`` records without a
+    change: noise with each component's day correlation, the components mixed by the
+    Cholesky factor ``mix`` of their correlation."""
+    rng = np.random.default_rng(seed)
+    m = len(fits_by_comp)
+    u = rng.standard_normal((n_sim, days.size, m)) @ mix.T
+    ts = []
+    for j, ((c1, r), fits) in enumerate(zip(corrs, fits_by_comp)):
+        corr = np.eye(days.size) + c1 * _lag_shape(days, r)
+        chol = _factor(corr)
+        ts.append(fits.simulated_t(u[:, :, j] @ chol.T))
+    return _statistic(np.stack(ts, axis=-1), mix).max(axis=1)
+
+
+def _statistic(t, mix):
+    """``t^T R^-1 t`` over the components (last axis) of t-statistics ``t``, with ``R``
+    the components' correlation (``mix`` its Cholesky factor): chi-square with ``m``
+    degrees of freedom at one day under no change."""
+    white = np.linalg.solve(mix, np.moveaxis(t, -1, 0).reshape(mix.shape[0], -1))
+    return np.sum(white ** 2, axis=0).reshape(t.shape[:-1])
+
+
+def component_correlation(days, values, corrs, window_days: int = 28) -> np.ndarray:
+    """Correlation (m, m) of the components' day values, from their residuals about a
+    straight line through each ``window_days`` stretch of the record, whitened with each
+    component's day correlation ``corrs`` (``[(c1, r), ...]``).
+
+    The model miss is often shared by the components, and a change in several at once
+    is judged against that. Whitened, the residuals are nearly independent from day to
+    day, so the estimate rests on every day; unwhitened, a miss correlated over days left
+    few independent values, the estimate scattered (0.3 between independent components
+    under a 5-day miss) and a wrong correlation inflated the statistic (7 of 60 records
+    without a change named one)."""
+    days = np.asarray(days, dtype=np.int64)
+    m = values.shape[1]
+    acc = np.zeros((m, m))
+    for w0 in range(int(days[0]), int(days[-1]) + 1, window_days):
+        inside = (days >= w0) & (days < w0 + window_days)
+        if inside.sum() < 4:
+            continue
+        d = days[inside]
+        x = np.stack([np.ones(d.size), (d - d.mean()) / window_days], axis=1)
+        res = np.empty((d.size, m))
+        for j, (c1, r) in enumerate(corrs):
+            chol = _factor(np.eye(d.size) + c1 * _lag_shape(d, r))
+            xw, yw = np.linalg.solve(chol, x), np.linalg.solve(chol, values[inside, j])
+            res[:, j] = yw - xw @ np.linalg.lstsq(xw, yw, rcond=None)[0]
+        acc += res.T @ res
+    sd = np.sqrt(np.diag(acc))
+    if not np.all(sd > 0):
+        return np.eye(m)
+    return np.clip(acc / np.outer(sd, sd), -0.95, 0.95) * (1 - np.eye(m)) + np.eye(m)
+
+
+def _time_interval(days, y, corrs, sigma2, k_hat, known, half_width, comps, level=0.95):
+    """Split days whose likelihood ratio against ``k_hat`` stays under the critical value,
+    on the fixed data window of ``k_hat`` (the step's components ``comps``)."""
+    from magcal.discover.step_time import lr_critical_value
+
+    lo = np.searchsorted(days, k_hat - half_width)
+    hi = np.searchsorted(days, k_hat + half_width)
+    d = days[lo:hi]
+    others = [kk for kk in known if d[0] < kk <= d[-1] and kk != k_hat]
+    splits = d[1:]
+    lr = np.zeros(splits.size)
+    for j in comps:
+        c1, r = corrs[j]
+        chol = _factor(np.eye(d.size) + c1 * _lag_shape(d, r))
+        yw = np.linalg.solve(chol, y[lo:hi, j])
+        base = _null_columns(d, k_hat, half_width) + [(d >= kk) * 1.0 for kk in others]
+        sse = []
+        for k in splits:
+            xw = np.linalg.solve(chol, np.stack(base + [(d >= k) * 1.0], axis=1))
+            res = yw - xw @ np.linalg.lstsq(xw, yw, rcond=None)[0]
+            sse.append(float(res @ res) / sigma2[j])
+        lr += np.array(sse)
+    lr -= lr.min()
+    kept = splits[lr <= lr_critical_value(level)]
+    return int(kept.min()), int(kept.max())
+
+
+def detect_level_changes(t_ns, x, *, half_width: int = HALF_WIDTH_DAYS,
+                         min_side: int = MIN_SIDE_DAYS, alpha: float = ALPHA,
+                         n_sim: int = N_SIM, max_changes: int = MAX_CHANGES,
+                         seed: int = _SEED) -> tuple[list, dict]:
+    """Level changes of the offset in the selected residual ``x`` (data minus model).
+
+    Parameters
+    ----------
+    t_ns : array_like of int64, shape (n,)
+        Times (ns) of the selected (quiet) samples, sorted.
+    x : array_like, shape (n, m)
+        Their data minus model (nT).
+    half_width : int
+        Days either side of a candidate day in its local fit.
+    min_side : int
+        Fewest days with data each side of a candidate day.
+    alpha : float
+        Chance of naming a change in a record without one, under the modelled noise
+        (look-elsewhere corrected).
+    n_sim : int
+        Monte Carlo draws of the no-change maximum.
+    max_changes : int
+        Most changes named.
+    seed : int
+        Seed of the Monte Carlo (the result is reproducible).
+
+    Returns
+    -------
+    changes : list of LevelChange
+        In time order.
+    info : dict
+        ``tested`` (bool: False when the record is too short to pool the day
+        correlation or to split), ``threshold`` (the value of ``t^T R^-1 t`` a change
+        must exceed, the first round's), ``n_days``, ``half_width_days``, ``alpha``,
+        ``n_changes``, ``why`` (when not tested).
+    """
+    t = np.asarray(t_ns, dtype=np.int64)
+    x = np.asarray(x, dtype=float)
+    x = x[:, None] if x.ndim == 1 else x
+    ok = np.all(np.isfinite(x), axis=1)
+    days, y = record_day_values(t[ok], x[ok])
+    info = {"tested": False, "n_days": int(days.size), "threshold": None,
+            "half_width_days": half_width, "alpha": alpha}
+    known: list[int] = []
+    sizes: dict = {}
+    changes = []
+    pooled = record_day_correlation(days, y)
+    if pooled is None or _candidates(days, known, min_side).size == 0:
+        info["why"] = "record too short to look for level changes"
+        return changes, info
+    info["tested"] = True
+    m = y.shape[1]
+    for _ in range(max_changes + 1):
+        corrs = [(float(pooled.c1[0, j]), float(pooled.r[0, j])) for j in range(m)]
+        mix = _factor(component_correlation(days, _without(days, y, sizes), corrs))
+        cand = _candidates(days, known, min_side)
+        if cand.size == 0:
+            break
+        fits = [_Fits(days, y[:, j], *corrs[j], cand, known, half_width) for j in range(m)]
+        null = _null_max(days, corrs, fits, mix, n_sim, seed)
+        thr = float(np.quantile(null, 1.0 - alpha))
+        if info["threshold"] is None:
+            info["threshold"] = round(thr, 3)
+        stat = _statistic(np.stack([f.t for f in fits], axis=1), mix)
+        i = int(np.argmax(stat))
+        if stat[i] <= thr or len(known) >= max_changes:
+            break
+        known.append(int(cand[i]))
+        sizes[known[-1]] = np.array([f.delta[i] for f in fits])
+        # the correlation with the changes found taken out of the day values
+        pooled = record_day_correlation(days, _without(days, y, sizes)) or pooled
+    # final sizes, errors and intervals, each change in the others' presence
+    corrs = [(float(pooled.c1[0, j]), float(pooled.r[0, j])) for j in range(m)]
+    mix = _factor(component_correlation(days, _without(days, y, sizes), corrs))
+    for kk in sorted(known):
+        rest = [k for k in known if k != kk]
+        # the record's noise variance (over every candidate day, the others' changes
+        # in), then the change's own fit
+        full = [_Fits(days, y[:, j], *corrs[j], _candidates(days, rest, min_side), rest,
+                      half_width) for j in range(m)]
+        sigma2 = [f.sigma2 for f in full]
+        fits = [_Fits(days, y[:, j], *corrs[j], np.array([kk]), rest, half_width,
+                      sigma2=sigma2[j]) for j in range(m)]
+        size = np.array([f.delta[0] for f in fits])
+        se = np.array([f.se[0] for f in fits])
+        zc = np.abs(size / se)
+        comps = [j for j in range(m) if zc[j] >= 2.0] or [int(np.argmax(zc))]
+        k_lo, k_hi = _time_interval(days, y, corrs, sigma2, kk, rest, half_width, comps)
+        null = _null_max(days, corrs, full, mix, n_sim, seed)
+        stat = float(_statistic(zc * np.sign(size), mix))
+        changes.append(LevelChange(
+            time=_midnight(kk), time_lo=_midnight(min(k_lo, kk) - 1),
+            time_hi=_midnight(max(k_hi, kk) + 1), size_nT=size, se_nT=se,
+            z=float(zc.max()), p_value=float((1 + np.sum(null >= stat)) / (1 + n_sim))))
+    info["n_changes"] = len(changes)
+    return changes, info
+
+
+def _without(days, y, sizes: dict) -> np.ndarray:
+    """Day values ``y`` with the changes ``{first day: size}`` taken out."""
+    out = np.array(y, dtype=float)
+    for kk, size in sizes.items():
+        out -= np.outer(days >= kk, size)
+    return out
+
+
+def _midnight(day: int) -> np.datetime64:
+    return np.datetime64(int(day) * DAY_NS, "ns")
+
+
+def straddling_windows(starts, ends, changes) -> list:
+    """For each window ``[start, end)`` the changes strictly inside it (a change at the
+    window's start is not inside)."""
+    s = np.asarray(starts).astype("datetime64[ns]").astype(np.int64)
+    e = np.asarray(ends).astype("datetime64[ns]").astype(np.int64)
+    out = []
+    for a, b in zip(s, e):
+        out.append([c for c in changes
+                    if a < np.datetime64(c.time, "ns").astype(np.int64) < b])
+    return out
+
+
+def change_caution(change, columns=("Hp", "He", "Hn")) -> str:
+    """The ``reason`` caution of a valid window straddling ``change``."""
+    sizes = ", ".join(f"{c} {s:+.2f}" for c, s in zip(columns, change.size_nT))
+    return f"caution: level change of {sizes} nT at {_day(change.time)} inside the window"
+
+
+
+def change_warning(change, step_days: float = 7.0, columns=("Hp", "He", "Hn")) -> str:
+    """The record-level warning naming ``change``."""
+    return (f"level change of the offset: {change.describe(columns)}; the windows "
+            "straddling it mix both levels and 'offsets apply' interpolates across it "
+            f"(over {step_days:g} days or more; quality bit "
+            "offset_interpolated_across_level_change)")
+
+
+_CAUTION = re.compile(r"level change of (?P<sizes>[^;]*?) nT at (?P<day>\d{4}-\d{2}-\d{2})"
+                      r" inside the window")
+
+
+def changes_from_reasons(reasons, columns=("Hp", "He", "Hn")) -> tuple:
+    """Level changes named in windows' ``reason`` cautions (:func:`change_caution`), for
+    an OFFSETS.csv read without its JSON sidecar: their days and sizes, no errors.
+
+    Examples
+    --------
+    >>> got = changes_from_reasons(["", "caution: level change of Hp +1.00, He -0.50, "
+    ...                             "Hn +0.25 nT at 2019-12-12 inside the window"])
+    >>> str(got[0].time), got[0].size_nT.tolist()
+    ('2019-12-12T00:00:00.000000000', [1.0, -0.5, 0.25])
+    """
+    seen = {}
+    for reason in reasons:
+        for match in _CAUTION.finditer(str(reason)):
+            day = match["day"]
+            if day in seen:
+                continue
+            sizes = dict(part.split() for part in match["sizes"].split(", "))
+            t = np.datetime64(day, "ns")
+            seen[day] = LevelChange(t, t - np.timedelta64(1, "D"), t + np.timedelta64(1, "D"),
+                                    np.array([float(sizes.get(c, "nan")) for c in columns]),
+                                    np.full(len(columns), np.nan), np.nan, np.nan)
+    return tuple(seen[d] for d in sorted(seen))
