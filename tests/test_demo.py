@@ -118,6 +118,10 @@ def test_the_injected_offset_step_is_named_and_the_samples_across_it_flagged(dem
         t = f["time"].dt.tz_localize(None)
         inside = ((t > before) & (t < after)).to_numpy()
         np.testing.assert_array_equal((f["quality"].to_numpy() & 128) > 0, inside)
+    # and the uncertainty report lists it with its interval
+    html = (out / "report" / "REPORT.html").read_text()
+    assert "Sudden level changes of the offset" in html
+    assert f"{lo:%Y-%m-%d} .. {hi:%Y-%m-%d}" in html
 
 
 @pytest.mark.slow

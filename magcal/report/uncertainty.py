@@ -396,6 +396,19 @@ def offsets_section(root: Path, budget: list) -> tuple:
         items.append(Paragraph(f"{int((~ok).sum())} window(s) without an offset, left out "
                                "of the table: " + ("; ".join(reasons) or "no reason given")
                                + "."))
+    changes = tuple(getattr(table, "level_changes", ()) or ())
+    if changes:
+        items.append(Table.from_records(
+            ["day of the change", "95 % interval"] + [f"{c} (nT)" for c in COMPONENTS],
+            [(str(np.datetime64(ch.time, "D")),
+              f"{np.datetime64(ch.time_lo, 'D')} .. {np.datetime64(ch.time_hi, 'D')}",
+              *[f"{v:+.2f} +- {e:.2f}" for v, e in zip(ch.size_nT, ch.se_nT)])
+             for ch in changes],
+            caption="Sudden level changes of the offset found in the record "
+                    "(magcal.offsets.levels; size new minus old level, 1-sigma). The "
+                    "windows straddling one mix both levels, and corrected samples "
+                    "interpolated across it carry quality bit 128.",
+            source=_rel(main, root)))
     if ok.any():
         spread = (np.nanmax(table.offset_nT[ok], axis=0)
                   - np.nanmin(table.offset_nT[ok], axis=0))
