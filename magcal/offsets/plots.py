@@ -40,7 +40,9 @@ def plot_residual_local_time(path, times, diff, lon_deg, selected=None, title=No
 def plot_offsets(path, table, title=None):
     """Save the window offsets per component: error bars are the 1-sigma standard errors
     (``table.se_nT``) and the band the spread of the selected samples; without standard
-    errors the error bars are the spread."""
+    errors the error bars are the spread. Level changes found in the record
+    (``table.level_changes``) are drawn at their day with their 95 % time interval
+    shaded: the windows around one mix both levels."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -57,6 +59,10 @@ def plot_offsets(path, table, title=None):
         ax.errorbar(table.center, off, yerr=se[:, j] if has_se else table.std_nT[:, j],
                     fmt="o-", capsize=3,
                     label="offset, 1-sigma standard error" if has_se else "offset, spread")
+        for k, ch in enumerate(getattr(table, "level_changes", ()) or ()):
+            ax.axvspan(ch.time_lo, ch.time_hi, color="tab:red", alpha=0.15)
+            ax.axvline(ch.time, color="tab:red", lw=1,
+                       label=None if k else "level change found (95 % time interval)")
         ax.set_ylabel(f"{COMPONENTS[j]} offset (nT)")
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7)
