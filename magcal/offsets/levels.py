@@ -459,7 +459,8 @@ def detect_level_changes(t_ns, x, *, half_width: int = HALF_WIDTH_DAYS,
         (``"trend"``), a level only (``"level"``), or (``"auto"``) the level only where
         the record shows no slow trend (:func:`trend_p_value` above :data:`TREND_P`) and
         would show one clearly enough (:func:`drift_detectability` at least
-        :data:`MIN_DRIFT_DETECTABILITY`), else the trend model.
+        :data:`MIN_DRIFT_DETECTABILITY`) and the day values' lag-one correlation is at
+        most :data:`MAX_LEVEL_ONLY_C1`, else the trend model.
 
     Returns
     -------
@@ -529,7 +530,9 @@ def detect_level_changes(t_ns, x, *, half_width: int = HALF_WIDTH_DAYS,
         ratio = drift_detectability(days, corrs, _candidates(days, [], min_side),
                                     half_width, sd=sd)
         info["drift_detectability"] = round(ratio, 3)
-        if p_trend > TREND_P and ratio >= MIN_DRIFT_DETECTABILITY:
+        memory = max(c[0] for c in corrs)
+        if (p_trend > TREND_P and ratio >= MIN_DRIFT_DETECTABILITY
+                and memory <= MAX_LEVEL_ONLY_C1):
             degree = 0
             known, sizes, pooled, thr = search(0, [], {}, pooled0)
     elif local_model != "trend":
@@ -575,6 +578,12 @@ TREND_P = 0.3
 #: with a local level only: a drift the level-only fits read as a step of 1 standard
 #: error then stands 3 standard errors out in the trend test.
 MIN_DRIFT_DETECTABILITY = 3.0
+#: Largest lag-one day correlation (any component) at which a record may have its
+#: candidate days fitted with a local level only. Above it (a model miss correlated over
+#: days) the modelled day correlation, which the level-only fit leans on harder than
+#: the local line does, is the least well known, and level-only fits named changes in
+#: records without one.
+MAX_LEVEL_ONLY_C1 = 0.65
 #: Steps :func:`trend_p_value` allows in the no-trend model (changes not yet found).
 TREND_STEPS = 1
 #: Shortest half-period (days) of the cosines :func:`trend_p_value` fits.
