@@ -15,9 +15,10 @@ record needs them: a linear drift is in the line and is never a step, and a slow
 nothing in the step. But a step in the middle of a line is told from the line's slope by
 half the days, so where the record holds no slow trend (:func:`trend_p_value`: cosines
 of months over the record, judged against a level and one step, so that a change not
-yet found does not read as a trend) and would show one clearly enough
-(:func:`drift_detectability`), the local model is a level only, which about halves the
-step's standard error.
+yet found does not read as a trend), would show one clearly enough
+(:func:`drift_detectability`) and its day values are not correlated over days (where the
+modelled correlation, on which a level-only fit leans harder, is least well known), the
+local model is a level only, which about halves the step's standard error.
 
 The day values' covariance is the record's pooled day-to-day correlation
 (:func:`magcal.offsets.windows.pooled_lag_correlation`, the model of the model miss the
