@@ -8,12 +8,21 @@ change over weeks. This module looks for such changes on the record's *day value
 median of each UTC day's selected residual, as the windows' standard errors use them).
 
 At each day ``k`` the values of the ``half_width`` days either side are fitted by
-generalised least squares with a line and a curvature plus a step from day ``k`` (plus
-any change already found there): a linear drift is in the line and is never a step, and
-a slow wander (months) is locally close to a parabola, which in a window symmetric about
-``k`` leaves nothing in the step. The day values' covariance is the record's pooled
-day-to-day correlation (:func:`magcal.offsets.windows.pooled_lag_correlation`, the
-model of the model miss the windows' standard errors use), scaled by a variance taken
+generalised least squares with a local no-change model plus a step from day ``k`` (plus
+any change already found there). The local model is a line and a curvature where the
+record needs them: a linear drift is in the line and is never a step, and a slow wander
+(months) is locally close to a parabola, which in a window symmetric about ``k`` leaves
+nothing in the step. But a step in the middle of a line is told from the line's slope by
+half the days, so where the record holds no slow trend (:func:`trend_p_value`: cosines
+of months over the record, judged against a level and one step, so that a change not
+yet found does not read as a trend), would show one clearly enough
+(:func:`drift_detectability`) and its day values are not correlated over days (where the
+modelled correlation, on which a level-only fit leans harder, is least well known), the
+local model is a level only, which about halves the step's standard error.
+
+The day values' covariance is the record's pooled day-to-day correlation
+(:func:`magcal.offsets.windows.pooled_lag_correlation`, the model of the model miss the
+windows' standard errors use), scaled by a variance taken
 from the local fits without the step (their median, so a change not yet found inflates
 only its own days'). The components' t-statistics at each day are combined as
 ``t^T R^-1 t`` (``R`` the components' correlation: the model miss is often shared, and
@@ -135,18 +144,80 @@ def record_day_values(t_ns, x, min_fraction: float = 0.1):
     >>> days.tolist(), v[:, 0].tolist()
     ([0, 1, 3], [2.0, 6.0, 9.0])
     """
+    days, values, _ = _day_values_and_counts(t_ns, x, min_fraction)
+    return days, values
+
+
+def _day_values_and_counts(t_ns, x, min_fraction: float = 0.1):
+    """:func:`record_day_values` and each kept day's number of samples."""
     t = np.asarray(t_ns, dtype=np.int64)
     x = np.asarray(x, dtype=float)
     x = x[:, None] if x.ndim == 1 else x
     if t.size == 0:
-        return np.zeros(0, dtype=np.int64), np.zeros((0, x.shape[1]))
+        return np.zeros(0, dtype=np.int64), np.zeros((0, x.shape[1])), np.zeros(0)
     day = np.floor_divide(t, DAY_NS)
     edges = np.flatnonzero(np.diff(day)) + 1
     groups = np.split(np.arange(t.size), edges)
     most = max(g.size for g in groups)
     good = [g for g in groups if g.size >= min_fraction * most]
     return (np.array([day[g[0]] for g in good], dtype=np.int64),
-            np.array([np.median(x[g], axis=0) for g in good]).reshape(len(good), x.shape[1]))
+            np.array([np.median(x[g], axis=0) for g in good]).reshape(len(good), x.shape[1]),
+            np.array([g.size for g in good], dtype=float))
+
+
+#: Largest ratio of two days' modelled variances (:func:`day_variance_scale`): bounds
+#: the weight one full day can take over a sparse one when the fit of the variances
+#: scatters.
+MAX_VARIANCE_RATIO = 30.0
+
+
+def day_variance_scale(days, values, counts, max_ratio: float = MAX_VARIANCE_RATIO):
+    """Standard deviation (relative, median 1) of each day value, modelled as
+    ``a + b / n`` in the day's number ``n`` of samples.
+
+    A day value is the median of the day's selected samples; under a model miss
+    correlated over hours, a day holding 3 quiet hours averages a few of its swings and
+    one holding 20 hours many, so the first is far noisier (the ``b / n`` part), while a
+    miss correlated over days moves the whole day alike however many samples it holds
+    (the ``a`` part). ``a`` and ``b`` are fitted, shared by the components (each
+    normalised by its own mean), to the squared second differences ``y_d - (y_{d-1} +
+    y_{d+1}) / 2`` of consecutive days, whose expectation is ``a g + b (1 / n_d + (1 /
+    n_{d-1} + 1 / n_{d+1}) / 4)`` (``g`` constant): second differences, so a drift or a
+    wander does not enter, nor a step beyond the two days beside it. Squared
+    differences are capped at 25 times their median (a day spoilt by a disturbance the
+    selection missed does not set the fit).
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(1)
+    >>> counts = np.tile([30.0, 300.0], 200)
+    >>> values = rng.standard_normal((400, 1)) * np.sqrt(0.2 + 30.0 / counts)[:, None]
+    >>> sd = day_variance_scale(np.arange(400), values, counts)
+    >>> bool(1.6 < sd[0] / sd[1] < 2.5)  # truth 2
+    True
+    """
+    days = np.asarray(days, dtype=np.int64)
+    n = days.size
+    flat = np.ones(n)
+    if n < 5:
+        return flat
+    inv = 1.0 / np.asarray(counts, dtype=float)
+    mid = np.flatnonzero((days[1:-1] - days[:-2] == 1) & (days[2:] - days[1:-1] == 1)) + 1
+    if mid.size < 10:
+        return flat
+    e2 = (values[mid] - 0.5 * (values[mid - 1] + values[mid + 1])) ** 2
+    e2 = e2 / np.maximum(e2.mean(axis=0), 1e-300)
+    e2 = np.minimum(e2, 25.0 * np.median(e2, axis=0))
+    h = inv[mid] + 0.25 * (inv[mid - 1] + inv[mid + 1])
+    m = values.shape[1]
+    design = np.tile(np.stack([np.full(mid.size, 1.5), h], axis=1), (m, 1))
+    coef, *_ = np.linalg.lstsq(design, e2.T.ravel(), rcond=None)
+    a, b = float(coef[0]), max(float(coef[1]), 0.0)
+    if not a > 0.0:
+        a = b * float(np.min(inv)) / max_ratio if b > 0 else 1.0
+    var = a + b * inv
+    var = np.clip(var, var.max() / max_ratio, None)
+    return np.sqrt(var / np.median(var))
 
 
 def record_day_correlation(days, values, window_days: int = 28, step_days: int = 7,
@@ -180,13 +251,21 @@ def _factor(corr) -> np.ndarray:
         return np.linalg.cholesky((vec * lam) @ vec.T)
 
 
-def _null_columns(d, k, half_width) -> list:
+def _cov_factor(d, c1, r, sd) -> np.ndarray:
+    """A square root of the day values' covariance on days ``d``: each day's relative
+    standard deviation ``sd`` (:func:`day_variance_scale`) times the pooled correlation
+    ``1`` on the diagonal and ``c1 r ** (k - 1)`` at a lag of ``k`` days."""
+    corr = np.eye(d.size) + c1 * _lag_shape(d, r)
+    return (np.ones(d.size) if sd is None else np.asarray(sd, float))[:, None] * _factor(corr)
+
+
+def _null_columns(d, k, half_width, degree=2) -> list:
     """The local no-change model on days ``d`` about day ``k``: a level, a slope (a drift
     is never a step) and a curvature. In a window symmetric about ``k`` the curvature is
     orthogonal to the step and costs it nothing; where the record's end cuts the window
     short it keeps a slow wander's curvature out of the step."""
     u = (d - k) / half_width
-    return [np.ones(d.size), u, u ** 2]
+    return [np.ones(d.size), u, u ** 2][:degree + 1]
 
 
 class _Fits:
@@ -195,33 +274,33 @@ class _Fits:
     (for the Monte Carlo), and the noise variance (the median over the candidate days of
     the fits without the step, unless given)."""
 
-    def __init__(self, days, y, c1, r, candidates, known, half_width, sigma2=None):
+    def __init__(self, days, y, c1, r, candidates, known, half_width, sigma2=None,
+                 sd=None, degree=2):
         self.weights = []  # (index slice, weight vector of the step on y[slice])
         delta, var, s2, dof = [], [], [], []
         for k in candidates:
             lo = np.searchsorted(days, k - half_width)
             hi = np.searchsorted(days, k + half_width)
             d = days[lo:hi]
-            cols = _null_columns(d, k, half_width)
-            cols.insert(2, (d >= k).astype(float))
+            cols = _null_columns(d, k, half_width, degree)
+            cols.insert(1, (d >= k).astype(float))
             cols += [(d >= kk).astype(float) for kk in known
                      if d[0] < kk <= d[-1] and kk != k]
             x = np.stack(cols, axis=1)
-            corr = np.eye(d.size) + c1 * _lag_shape(d, r)
-            chol = _factor(corr)
+            chol = _cov_factor(d, c1, r, None if sd is None else sd[lo:hi])
             xw = np.linalg.solve(chol, x)
             yw = np.linalg.solve(chol, y[lo:hi])
             q, rr = np.linalg.qr(xw)
             inv = np.linalg.inv(rr)
             cov = inv @ inv.T
-            w = np.linalg.solve(chol.T, q @ inv.T[:, 2])  # step = w @ y[lo:hi]
+            w = np.linalg.solve(chol.T, q @ inv.T[:, 1])  # step = w @ y[lo:hi]
             beta = inv @ (q.T @ yw)
             # the null fit (without the step) for the noise variance
-            x0 = np.delete(xw, 2, axis=1)
+            x0 = np.delete(xw, 1, axis=1)
             res0 = yw - x0 @ np.linalg.lstsq(x0, yw, rcond=None)[0]
             self.weights.append((slice(lo, hi), w))
-            delta.append(beta[2])
-            var.append(cov[2, 2])
+            delta.append(beta[1])
+            var.append(cov[1, 1])
             s2.append(float(res0 @ res0) / max(d.size - x0.shape[1], 1))
             dof.append(d.size - x0.shape[1])
         self.delta, self.var = np.array(delta), np.array(var)
@@ -262,7 +341,7 @@ def _candidates(days, known, min_side):
     return cand
 
 
-def _null_max(days, corrs, fits_by_comp, mix, n_sim, seed):
+def _null_max(days, corrs, fits_by_comp, mix, n_sim, seed, sd=None):
     """The statistic's largest value over candidate days in ``n_sim`` records without a
     change: noise with each component's day correlation, the components mixed by the
     Cholesky factor ``mix`` of their correlation."""
@@ -271,8 +350,7 @@ def _null_max(days, corrs, fits_by_comp, mix, n_sim, seed):
     u = rng.standard_normal((n_sim, days.size, m)) @ mix.T
     ts = []
     for j, ((c1, r), fits) in enumerate(zip(corrs, fits_by_comp)):
-        corr = np.eye(days.size) + c1 * _lag_shape(days, r)
-        chol = _factor(corr)
+        chol = _cov_factor(days, c1, r, sd)
         ts.append(fits.simulated_t(u[:, :, j] @ chol.T))
     return _statistic(np.stack(ts, axis=-1), mix).max(axis=1)
 
@@ -285,7 +363,8 @@ def _statistic(t, mix):
     return np.sum(white ** 2, axis=0).reshape(t.shape[:-1])
 
 
-def component_correlation(days, values, corrs, window_days: int = 28) -> np.ndarray:
+def component_correlation(days, values, corrs, window_days: int = 28,
+                          sd=None) -> np.ndarray:
     """Correlation (m, m) of the components' day values, from their residuals about a
     straight line through each ``window_days`` stretch of the record, whitened with each
     component's day correlation ``corrs`` (``[(c1, r), ...]``).
@@ -307,7 +386,7 @@ def component_correlation(days, values, corrs, window_days: int = 28) -> np.ndar
         x = np.stack([np.ones(d.size), (d - d.mean()) / window_days], axis=1)
         res = np.empty((d.size, m))
         for j, (c1, r) in enumerate(corrs):
-            chol = _factor(np.eye(d.size) + c1 * _lag_shape(d, r))
+            chol = _cov_factor(d, c1, r, None if sd is None else sd[inside])
             xw, yw = np.linalg.solve(chol, x), np.linalg.solve(chol, values[inside, j])
             res[:, j] = yw - xw @ np.linalg.lstsq(xw, yw, rcond=None)[0]
         acc += res.T @ res
@@ -317,7 +396,8 @@ def component_correlation(days, values, corrs, window_days: int = 28) -> np.ndar
     return np.clip(acc / np.outer(sd, sd), -0.95, 0.95) * (1 - np.eye(m)) + np.eye(m)
 
 
-def _time_interval(days, y, corrs, sigma2, k_hat, known, half_width, comps, level=0.95):
+def _time_interval(days, y, corrs, sigma2, k_hat, known, half_width, comps, level=0.95,
+                   sd=None, degree=2):
     """Split days whose likelihood ratio against ``k_hat`` stays under the critical value,
     on the fixed data window of ``k_hat`` (the step's components ``comps``)."""
     from magcal.discover.step_time import lr_critical_value
@@ -330,9 +410,9 @@ def _time_interval(days, y, corrs, sigma2, k_hat, known, half_width, comps, leve
     lr = np.zeros(splits.size)
     for j in comps:
         c1, r = corrs[j]
-        chol = _factor(np.eye(d.size) + c1 * _lag_shape(d, r))
+        chol = _cov_factor(d, c1, r, None if sd is None else sd[lo:hi])
         yw = np.linalg.solve(chol, y[lo:hi, j])
-        base = _null_columns(d, k_hat, half_width) + [(d >= kk) * 1.0 for kk in others]
+        base = _null_columns(d, k_hat, half_width, degree) + [(d >= kk) * 1.0 for kk in others]
         sse = []
         for k in splits:
             xw = np.linalg.solve(chol, np.stack(base + [(d >= k) * 1.0], axis=1))
@@ -347,7 +427,8 @@ def _time_interval(days, y, corrs, sigma2, k_hat, known, half_width, comps, leve
 def detect_level_changes(t_ns, x, *, half_width: int = HALF_WIDTH_DAYS,
                          min_side: int = MIN_SIDE_DAYS, alpha: float = ALPHA,
                          n_sim: int = N_SIM, max_changes: int = MAX_CHANGES,
-                         seed: int = _SEED) -> tuple[list, dict]:
+                         seed: int = _SEED, weigh_days: bool = False,
+                         local_model: str = "auto") -> tuple[list, dict]:
     """Level changes of the offset in the selected residual ``x`` (data minus model).
 
     Parameters
@@ -369,6 +450,18 @@ def detect_level_changes(t_ns, x, *, half_width: int = HALF_WIDTH_DAYS,
         Most changes named.
     seed : int
         Seed of the Monte Carlo (the result is reproducible).
+    weigh_days : bool
+        Weigh the day values by their modelled variances (:func:`day_variance_scale`:
+        a day holding few selected samples is noisier). Off by default: with quiet data
+        in whole 3-hour Kp blocks the days' counts vary too little for the weights to
+        gain power, and their scatter added false changes.
+    local_model : {"auto", "trend", "level"}
+        The local no-change model of each candidate day: a level, slope and curvature
+        (``"trend"``), a level only (``"level"``), or (``"auto"``) the level only where
+        the record shows no slow trend (:func:`trend_p_value` above :data:`TREND_P`) and
+        would show one clearly enough (:func:`drift_detectability` at least
+        :data:`MIN_DRIFT_DETECTABILITY`) and the day values' lag-one correlation is at
+        most :data:`MAX_LEVEL_ONLY_C1`, else the trend model.
 
     Returns
     -------
@@ -378,13 +471,15 @@ def detect_level_changes(t_ns, x, *, half_width: int = HALF_WIDTH_DAYS,
         ``tested`` (bool: False when the record is too short to pool the day
         correlation or to split), ``threshold`` (the value of ``t^T R^-1 t`` a change
         must exceed, the first round's), ``n_days``, ``half_width_days``, ``alpha``,
-        ``n_changes``, ``why`` (when not tested).
+        ``n_changes``, ``local_model`` (``"level"`` or ``"level, slope, curvature"``),
+        ``trend_p_value`` and ``drift_detectability`` (when judged), ``why`` (when not
+        tested).
     """
     t = np.asarray(t_ns, dtype=np.int64)
     x = np.asarray(x, dtype=float)
     x = x[:, None] if x.ndim == 1 else x
     ok = np.all(np.isfinite(x), axis=1)
-    days, y = record_day_values(t[ok], x[ok])
+    days, y, counts = _day_values_and_counts(t[ok], x[ok])
     info = {"tested": False, "n_days": int(days.size), "threshold": None,
             "half_width_days": half_width, "alpha": alpha}
     known: list[int] = []
@@ -394,45 +489,77 @@ def detect_level_changes(t_ns, x, *, half_width: int = HALF_WIDTH_DAYS,
     if pooled is None or _candidates(days, known, min_side).size == 0:
         info["why"] = "record too short to look for level changes"
         return changes, info
+    if local_model not in ("auto", "trend", "level"):
+        raise ValueError(f"local_model must be 'auto', 'trend' or 'level', not {local_model!r}")
     info["tested"] = True
     m = y.shape[1]
-    for _ in range(max_changes + 1):
+    sd = day_variance_scale(days, y, counts) if weigh_days else None
+
+    def search(degree, known, sizes, pooled):
+        """Changes added one at a time, strongest first, under the local model of
+        ``degree``; the first round's threshold."""
+        known, sizes, first = list(known), dict(sizes), None
+        for _ in range(max_changes + 1):
+            corrs = [(float(pooled.c1[0, j]), float(pooled.r[0, j])) for j in range(m)]
+            mix = _factor(component_correlation(days, _without(days, y, sizes), corrs,
+                                                sd=sd))
+            cand = _candidates(days, known, min_side)
+            if cand.size == 0:
+                break
+            fits = [_Fits(days, y[:, j], *corrs[j], cand, known, half_width, sd=sd,
+                          degree=degree) for j in range(m)]
+            null = _null_max(days, corrs, fits, mix, n_sim, seed, sd=sd)
+            thr = float(np.quantile(null, 1.0 - alpha))
+            first = thr if first is None else first
+            stat = _statistic(np.stack([f.t for f in fits], axis=1), mix)
+            i = int(np.argmax(stat))
+            if stat[i] <= thr or len(known) >= max_changes:
+                break
+            known.append(int(cand[i]))
+            sizes[known[-1]] = np.array([f.delta[i] for f in fits])
+            # the correlation with the changes found taken out of the day values
+            pooled = record_day_correlation(days, _without(days, y, sizes)) or pooled
+        return known, sizes, pooled, first
+
+    pooled0 = pooled
+    known, sizes, pooled, thr = search(2, known, sizes, pooled0)
+    degree = 2
+    if local_model == "auto":
         corrs = [(float(pooled.c1[0, j]), float(pooled.r[0, j])) for j in range(m)]
-        mix = _factor(component_correlation(days, _without(days, y, sizes), corrs))
-        cand = _candidates(days, known, min_side)
-        if cand.size == 0:
-            break
-        fits = [_Fits(days, y[:, j], *corrs[j], cand, known, half_width) for j in range(m)]
-        null = _null_max(days, corrs, fits, mix, n_sim, seed)
-        thr = float(np.quantile(null, 1.0 - alpha))
-        if info["threshold"] is None:
-            info["threshold"] = round(thr, 3)
-        stat = _statistic(np.stack([f.t for f in fits], axis=1), mix)
-        i = int(np.argmax(stat))
-        if stat[i] <= thr or len(known) >= max_changes:
-            break
-        known.append(int(cand[i]))
-        sizes[known[-1]] = np.array([f.delta[i] for f in fits])
-        # the correlation with the changes found taken out of the day values
-        pooled = record_day_correlation(days, _without(days, y, sizes)) or pooled
+        p_trend = trend_p_value(days, _without(days, y, sizes), corrs, min_side, sd=sd)
+        info["trend_p_value"] = round(p_trend, 4)
+        ratio = drift_detectability(days, corrs, _candidates(days, [], min_side),
+                                    half_width, sd=sd)
+        info["drift_detectability"] = round(ratio, 3)
+        memory = max(c[0] for c in corrs)
+        if (p_trend > TREND_P and ratio >= MIN_DRIFT_DETECTABILITY
+                and memory <= MAX_LEVEL_ONLY_C1):
+            degree = 0
+            known, sizes, pooled, thr = search(0, [], {}, pooled0)
+    elif local_model != "trend":
+        degree = 0
+        known, sizes, pooled, thr = search(0, [], {}, pooled0)
+    info["local_model"] = ("level", "", "level, slope, curvature")[degree]
+    info["threshold"] = None if thr is None else round(thr, 3)
     # final sizes, errors and intervals, each change in the others' presence
     corrs = [(float(pooled.c1[0, j]), float(pooled.r[0, j])) for j in range(m)]
-    mix = _factor(component_correlation(days, _without(days, y, sizes), corrs))
+    mix = _factor(component_correlation(days, _without(days, y, sizes), corrs, sd=sd))
     for kk in sorted(known):
         rest = [k for k in known if k != kk]
         # the record's noise variance (over every candidate day, the others' changes
         # in), then the change's own fit
         full = [_Fits(days, y[:, j], *corrs[j], _candidates(days, rest, min_side), rest,
-                      half_width) for j in range(m)]
+                      half_width, sd=sd, degree=degree) for j in range(m)]
         sigma2 = [f.sigma2 for f in full]
         fits = [_Fits(days, y[:, j], *corrs[j], np.array([kk]), rest, half_width,
-                      sigma2=sigma2[j]) for j in range(m)]
+                      sigma2=sigma2[j], sd=sd, degree=degree) for j in range(m)]
         size = np.array([f.delta[0] for f in fits])
         se = np.array([f.se[0] for f in fits])
         zc = np.abs(size / se)
         comps = [j for j in range(m) if zc[j] >= 2.0] or [int(np.argmax(zc))]
-        k_lo, k_hi = _time_interval(days, y, corrs, sigma2, kk, rest, half_width, comps)
-        null = _null_max(days, corrs, full, mix, n_sim, seed)
+        k_lo, k_hi = _time_interval(days, y, corrs, sigma2, kk, rest, half_width, comps,
+                                    sd=sd, degree=degree)
+        null = _null_max(days, corrs, full, mix, n_sim, seed, sd=sd)
         stat = float(_statistic(zc * np.sign(size), mix))
         changes.append(LevelChange(
             time=_midnight(kk), time_lo=_midnight(min(k_lo, kk) - 1),
@@ -440,6 +567,122 @@ def detect_level_changes(t_ns, x, *, half_width: int = HALF_WIDTH_DAYS,
             z=float(zc.max()), p_value=float((1 + np.sum(null >= stat)) / (1 + n_sim))))
     info["n_changes"] = len(changes)
     return changes, info
+
+
+#: A record whose day values (its changes taken out) hold a slow trend with a p-value
+#: under this (:func:`trend_p_value`) has its candidate days fitted with a local line and
+#: curvature; above it, with a local level only (about half the step's standard error:
+#: a step in the middle of a line is told from the line's slope by half the days).
+#: Generous: a trend missed reads as steps in the level-only fits.
+TREND_P = 0.3
+#: Least :func:`drift_detectability` at which a record may have its candidate days fitted
+#: with a local level only: a drift the level-only fits read as a step of 1 standard
+#: error then stands 3 standard errors out in the trend test.
+MIN_DRIFT_DETECTABILITY = 3.0
+#: Largest lag-one day correlation (any component) at which a record may have its
+#: candidate days fitted with a local level only. Above it (a model miss correlated over
+#: days) the modelled day correlation, which the level-only fit leans on harder than
+#: the local line does, is the least well known, and level-only fits named changes in
+#: records without one.
+MAX_LEVEL_ONLY_C1 = 0.65
+#: Steps :func:`trend_p_value` allows in the no-trend model (changes not yet found).
+TREND_STEPS = 1
+#: Shortest half-period (days) of the cosines :func:`trend_p_value` fits.
+TREND_HALF_PERIOD_DAYS = 30.0
+
+
+def trend_p_value(days, values, corrs, min_side: int = MIN_SIDE_DAYS, sd=None,
+                  half_period: float = TREND_HALF_PERIOD_DAYS,
+                  n_steps: int = TREND_STEPS) -> float:
+    """P-value of a slow trend in the day values ``values`` against a level and one step.
+
+    The trend is a sum of cosines over the record with half-periods of at least
+    ``half_period`` days (a drift, a wander of months); it is judged by generalised
+    least squares with each component's day correlation ``corrs`` (``[(c1, r), ...]``)
+    and relative day errors ``sd``, both in the no-trend model and the trend model, a
+    step at the day that fits best (chosen in the no-trend model: a change not yet
+    found projects on the slowest cosines and would otherwise read as a trend). The
+    statistic is the drop in the sum of squares over the components, against the
+    chi-square with as many degrees of freedom as cosines times components (the noise
+    variance from the trend model's residuals).
+    """
+    days = np.asarray(days, dtype=np.int64)
+    n, m = values.shape
+    span = float(days[-1] - days[0]) or 1.0
+    n_cos = max(1, int(span // half_period))
+    u = (days - days[0]) / span
+    trend = np.stack([np.cos(np.pi * k * u) for k in range(1, n_cos + 1)], axis=1)
+    cand = days[min_side:n - min_side + 1]
+    whit = []
+    for j, (c1, r) in enumerate(corrs):
+        chol = _cov_factor(days, c1, r, sd)
+        whit.append((np.linalg.solve(chol, np.ones(n)), np.linalg.solve(chol, values[:, j]),
+                     np.linalg.solve(chol, trend),
+                     np.linalg.solve(chol, (days[:, None] >= cand[None, :]) * 1.0)))
+    # the best steps of the no-trend model, one at a time, summed over components
+    chosen: list[int] = []
+    for _ in range(n_steps if cand.size else 0):
+        score = np.zeros(cand.size)
+        for one, yw, _, steps in whit:
+            q = np.linalg.qr(np.stack([one] + [steps[:, k] for k in chosen], axis=1))[0]
+            sp = steps - q @ (q.T @ steps)
+            ry = yw - q @ (q.T @ yw)
+            score += (sp.T @ ry) ** 2 / np.maximum(np.sum(sp ** 2, axis=0), 1e-12) / (ry @ ry)
+        score[chosen] = -1.0
+        chosen.append(int(np.argmax(score)))
+    drop = 0.0
+    for one, yw, tw, steps in whit:
+        x0 = np.stack([one] + [steps[:, k] for k in chosen], axis=1)
+        x1 = np.concatenate([x0, tw], axis=1)
+        r0 = yw - x0 @ np.linalg.lstsq(x0, yw, rcond=None)[0]
+        r1 = yw - x1 @ np.linalg.lstsq(x1, yw, rcond=None)[0]
+        s2 = float(r1 @ r1) / max(n - x1.shape[1], 1)
+        drop += (float(r0 @ r0) - float(r1 @ r1)) / s2
+    from scipy.stats import chi2
+
+    return float(chi2.sf(drop, n_cos * m))
+
+
+def drift_detectability(days, corrs, candidates, half_width, sd=None,
+                        half_period: float = TREND_HALF_PERIOD_DAYS,
+                        n_steps: int = TREND_STEPS) -> float:
+    """How much better :func:`trend_p_value` sees a linear drift than a level-only local
+    fit reads it as a step: the ratio, in the worst component, of the drift's standard
+    score in the trend test (against a level and a step at mid-record) to its mean
+    standard score in the level-only local step estimates (their median over the
+    candidate days), both under the modelled day covariance.
+
+    A level-only local fit reads a drift of ``D`` nT/day as a step of about ``D`` times
+    the half-width; the trend test guards against that only where it sees the same
+    drift much more clearly than the local fits read it as a step. How much more
+    depends on the record's length, gaps, days and day correlation, so it is computed
+    for each record rather than assumed.
+    """
+    days = np.asarray(days, dtype=np.int64)
+    n = days.size
+    span = float(days[-1] - days[0]) or 1.0
+    n_cos = max(1, int(span // half_period))
+    u = (days - days[0]) / span
+    trend = np.stack([np.cos(np.pi * k * u) for k in range(1, n_cos + 1)], axis=1)
+    slope = (days - days.mean()).astype(float)
+    steps = [(days >= days[(i * n) // (n_steps + 1)]) * 1.0 for i in range(1, n_steps + 1)]
+    worst = np.inf
+    for c1, r in corrs:
+        chol = _cov_factor(days, c1, r, sd)
+        x0 = np.linalg.solve(chol, np.stack([np.ones(n)] + steps, axis=1))
+        q0 = np.linalg.qr(x0)[0]
+        sw = np.linalg.solve(chol, slope)
+        sw -= q0 @ (q0.T @ sw)
+        tw = np.linalg.solve(chol, trend)
+        tw -= q0 @ (q0.T @ tw)
+        qt = np.linalg.qr(tw)[0]
+        seen = float(np.linalg.norm(qt.T @ sw))  # the drift's score per nT/day
+        fits = _Fits(days, np.zeros(n), c1, r, candidates, [], half_width, sigma2=1.0,
+                     sd=sd, degree=0)
+        local = np.median([abs(w @ (days[sl] - k)) / np.sqrt(v)
+                           for (sl, w), v, k in zip(fits.weights, fits.var, candidates)])
+        worst = min(worst, seen / max(local, 1e-12))
+    return float(worst)
 
 
 def _without(days, y, sizes: dict) -> np.ndarray:
