@@ -95,6 +95,9 @@ def run_fit(args) -> int:
     n_changes = len(table.level_changes)
     changes = (f", {n_changes} level change{'s' if n_changes > 1 else ''} of the offset"
                if n_changes else "")
+    test = getattr(table, "level_test", None) or {}
+    if test and not test.get("tested", True):
+        changes += f"; {test.get('why') or 'level changes not looked for'}"
     print(f"magcal offsets fit: {len(table)} windows ({int(table.valid.sum())} valid"
           f"{f', {thin} with coverage too thin to trust' if thin else ''}{changes}), "
           f"{np.mean(details['quiet']):.1%} of 1-min samples at Kp <= {args.kp_max:g}",
