@@ -152,6 +152,8 @@ def across_level_change(times, table) -> np.ndarray:
     >>> across_level_change(t, tab)
     array([False,  True,  True, False])
     """
+    from magcal.offsets.levels import straddling_windows
+
     t = np.asarray(times).astype("datetime64[ns]").astype(np.int64)
     out = np.zeros(t.size, dtype=bool)
     changes = tuple(getattr(table, "level_changes", ()) or ())
@@ -162,7 +164,7 @@ def across_level_change(times, table) -> np.ndarray:
     s = np.asarray(table.start).astype("datetime64[ns]").astype(np.int64)[ok]
     e = np.asarray(table.end).astype("datetime64[ns]").astype(np.int64)[ok]
     at = np.array([np.datetime64(ch.time, "ns").astype(np.int64) for ch in changes])
-    straddles = np.array([np.any((s[i] < at) & (at < e[i])) for i in range(c.size)])
+    straddles = np.array([bool(inside) for inside in straddling_windows(s, e, changes)])
     if c.size == 1:
         return out | bool(straddles[0])
     # each sample's bracketing pair of valid centres (the end pair beyond the ends)

@@ -53,7 +53,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from magcal.offsets.windows import DAY_NS, _lag_shape, pooled_lag_correlation
+from magcal.offsets.windows import (DAY_NS, _lag_shape, batches_with_counts,
+                                    pooled_lag_correlation)
 
 #: Days either side of a candidate day that its local fit uses. Wider finds smaller
 #: changes (28 days: 2 nT under a 1-hour miss twice as often) but lets a 120-day wander
@@ -129,40 +130,6 @@ class LevelChange:
 
 def _day(t) -> str:
     return str(np.datetime64(t, "D"))
-
-
-def record_day_values(t_ns, x, min_fraction: float = 0.1):
-    """Median of each UTC day's samples: calendar days (since 1970) and values (nd, m).
-
-    Days holding under ``min_fraction`` of the fullest day's samples are left out (as
-    :func:`magcal.offsets.windows.day_batches` does).
-
-    Examples
-    --------
-    >>> t = np.array([0, 1, DAY_NS + 5, DAY_NS + 6, 3 * DAY_NS])
-    >>> days, v = record_day_values(t, np.array([1.0, 3.0, 5.0, 7.0, 9.0]))
-    >>> days.tolist(), v[:, 0].tolist()
-    ([0, 1, 3], [2.0, 6.0, 9.0])
-    """
-    days, values, _ = _day_values_and_counts(t_ns, x, min_fraction)
-    return days, values
-
-
-def _day_values_and_counts(t_ns, x, min_fraction: float = 0.1):
-    """:func:`record_day_values` and each kept day's number of samples."""
-    t = np.asarray(t_ns, dtype=np.int64)
-    x = np.asarray(x, dtype=float)
-    x = x[:, None] if x.ndim == 1 else x
-    if t.size == 0:
-        return np.zeros(0, dtype=np.int64), np.zeros((0, x.shape[1])), np.zeros(0)
-    day = np.floor_divide(t, DAY_NS)
-    edges = np.flatnonzero(np.diff(day)) + 1
-    groups = np.split(np.arange(t.size), edges)
-    most = max(g.size for g in groups)
-    good = [g for g in groups if g.size >= min_fraction * most]
-    return (np.array([day[g[0]] for g in good], dtype=np.int64),
-            np.array([np.median(x[g], axis=0) for g in good]).reshape(len(good), x.shape[1]),
-            np.array([g.size for g in good], dtype=float))
 
 
 #: Largest ratio of two days' modelled variances (:func:`day_variance_scale`): bounds
@@ -479,7 +446,8 @@ def detect_level_changes(t_ns, x, *, half_width: int = HALF_WIDTH_DAYS,
     x = np.asarray(x, dtype=float)
     x = x[:, None] if x.ndim == 1 else x
     ok = np.all(np.isfinite(x), axis=1)
-    days, y, counts = _day_values_and_counts(t[ok], x[ok])
+    # the median of each UTC day's samples (calendar days since 1970)
+    days, y, counts = batches_with_counts(t[ok], x[ok], origin_ns=0)
     info = {"tested": False, "n_days": int(days.size), "threshold": None,
             "half_width_days": half_width, "alpha": alpha}
     known: list[int] = []
@@ -500,7 +468,7 @@ def detect_level_changes(t_ns, x, *, half_width: int = HALF_WIDTH_DAYS,
         ``degree``; the first round's threshold."""
         known, sizes, first = list(known), dict(sizes), None
         for _ in range(max_changes + 1):
-            corrs = [(float(pooled.c1[0, j]), float(pooled.r[0, j])) for j in range(m)]
+            corrs = _component_corrs(pooled)
             mix = _factor(component_correlation(days, _without(days, y, sizes), corrs,
                                                 sd=sd))
             cand = _candidates(days, known, min_side)
@@ -522,10 +490,10 @@ def detect_level_changes(t_ns, x, *, half_width: int = HALF_WIDTH_DAYS,
         return known, sizes, pooled, first
 
     pooled0 = pooled
-    known, sizes, pooled, thr = search(2, known, sizes, pooled0)
-    degree = 2
+    degree = 0 if local_model == "level" else 2
+    known, sizes, pooled, thr = search(degree, known, sizes, pooled0)
     if local_model == "auto":
-        corrs = [(float(pooled.c1[0, j]), float(pooled.r[0, j])) for j in range(m)]
+        corrs = _component_corrs(pooled)
         p_trend = trend_p_value(days, _without(days, y, sizes), corrs, min_side, sd=sd)
         info["trend_p_value"] = round(p_trend, 4)
         ratio = drift_detectability(days, corrs, _candidates(days, [], min_side),
@@ -536,13 +504,10 @@ def detect_level_changes(t_ns, x, *, half_width: int = HALF_WIDTH_DAYS,
                 and memory <= MAX_LEVEL_ONLY_C1):
             degree = 0
             known, sizes, pooled, thr = search(0, [], {}, pooled0)
-    elif local_model != "trend":
-        degree = 0
-        known, sizes, pooled, thr = search(0, [], {}, pooled0)
     info["local_model"] = ("level", "", "level, slope, curvature")[degree]
     info["threshold"] = None if thr is None else round(thr, 3)
     # final sizes, errors and intervals, each change in the others' presence
-    corrs = [(float(pooled.c1[0, j]), float(pooled.r[0, j])) for j in range(m)]
+    corrs = _component_corrs(pooled)
     mix = _factor(component_correlation(days, _without(days, y, sizes), corrs, sd=sd))
     for kk in sorted(known):
         rest = [k for k in known if k != kk]
@@ -591,6 +556,15 @@ TREND_STEPS = 1
 TREND_HALF_PERIOD_DAYS = 30.0
 
 
+def _trend_basis(days, half_period: float) -> np.ndarray:
+    """The slow-trend cosines over the record (n, n_cos): half-periods of at least
+    ``half_period`` days, at least one."""
+    span = float(days[-1] - days[0]) or 1.0
+    u = (days - days[0]) / span
+    return np.stack([np.cos(np.pi * k * u)
+                     for k in range(1, max(1, int(span // half_period)) + 1)], axis=1)
+
+
 def trend_p_value(days, values, corrs, min_side: int = MIN_SIDE_DAYS, sd=None,
                   half_period: float = TREND_HALF_PERIOD_DAYS,
                   n_steps: int = TREND_STEPS) -> float:
@@ -608,10 +582,8 @@ def trend_p_value(days, values, corrs, min_side: int = MIN_SIDE_DAYS, sd=None,
     """
     days = np.asarray(days, dtype=np.int64)
     n, m = values.shape
-    span = float(days[-1] - days[0]) or 1.0
-    n_cos = max(1, int(span // half_period))
-    u = (days - days[0]) / span
-    trend = np.stack([np.cos(np.pi * k * u) for k in range(1, n_cos + 1)], axis=1)
+    trend = _trend_basis(days, half_period)
+    n_cos = trend.shape[1]
     cand = days[min_side:n - min_side + 1]
     whit = []
     for j, (c1, r) in enumerate(corrs):
@@ -660,10 +632,7 @@ def drift_detectability(days, corrs, candidates, half_width, sd=None,
     """
     days = np.asarray(days, dtype=np.int64)
     n = days.size
-    span = float(days[-1] - days[0]) or 1.0
-    n_cos = max(1, int(span // half_period))
-    u = (days - days[0]) / span
-    trend = np.stack([np.cos(np.pi * k * u) for k in range(1, n_cos + 1)], axis=1)
+    trend = _trend_basis(days, half_period)
     slope = (days - days.mean()).astype(float)
     steps = [(days >= days[(i * n) // (n_steps + 1)]) * 1.0 for i in range(1, n_steps + 1)]
     worst = np.inf
@@ -683,6 +652,11 @@ def drift_detectability(days, corrs, candidates, half_width, sd=None,
                            for (sl, w), v, k in zip(fits.weights, fits.var, candidates)])
         worst = min(worst, seen / max(local, 1e-12))
     return float(worst)
+
+
+def _component_corrs(pooled) -> list:
+    """``[(c1, r), ...]`` per component of a pooled day correlation, as estimated."""
+    return [(float(c1), float(r)) for c1, r in zip(pooled.c1[0], pooled.r[0])]
 
 
 def _without(days, y, sizes: dict) -> np.ndarray:
@@ -713,7 +687,6 @@ def change_caution(change, columns=("Hp", "He", "Hn")) -> str:
     """The ``reason`` caution of a valid window straddling ``change``."""
     sizes = ", ".join(f"{c} {s:+.2f}" for c, s in zip(columns, change.size_nT))
     return f"caution: level change of {sizes} nT at {_day(change.time)} inside the window"
-
 
 
 def change_warning(change, step_days: float = 7.0, columns=("Hp", "He", "Hn")) -> str:

@@ -439,18 +439,34 @@ def day_batches(t_ns, x, batch_ns: int = DAY_NS, min_fraction: float = 0.1):
     >>> days.tolist(), b[:, 0].tolist()
     ([0, 3], [2.0, 7.5])
     """
+    return batches_with_counts(t_ns, x, batch_ns, min_fraction)[:2]
+
+
+def batches_with_counts(t_ns, x, batch_ns: int = DAY_NS, min_fraction: float = 0.1,
+                        origin_ns: int | None = None):
+    """:func:`day_batches` with each kept batch's number of samples; batches counted
+    from ``origin_ns`` (default: the first sample; 0 gives calendar days since 1970,
+    as :mod:`magcal.offsets.levels` takes them).
+
+    Returns
+    -------
+    days : ndarray of int, shape (nb,)
+    medians : ndarray, shape (nb, m)
+    counts : ndarray of float, shape (nb,)
+    """
     t = np.asarray(t_ns, dtype=np.int64)
     x = np.asarray(x, dtype=float)
     x = x[:, None] if x.ndim == 1 else x
     if t.size == 0:
-        return np.zeros(0, dtype=np.int64), np.zeros((0, x.shape[1]))
-    day = (t - t[0]) // int(batch_ns)
+        return np.zeros(0, dtype=np.int64), np.zeros((0, x.shape[1])), np.zeros(0)
+    day = (t - (t[0] if origin_ns is None else int(origin_ns))) // int(batch_ns)
     edges = np.flatnonzero(np.diff(day)) + 1
     groups = np.split(np.arange(t.size), edges)
     sizes = np.array([g.size for g in groups])
     good = [g for g, s in zip(groups, sizes) if s >= min_fraction * sizes.max()]
     return (np.array([day[g[0]] for g in good], dtype=np.int64),
-            np.array([np.median(x[g], axis=0) for g in good]).reshape(len(good), x.shape[1]))
+            np.array([np.median(x[g], axis=0) for g in good]).reshape(len(good), x.shape[1]),
+            np.array([g.size for g in good], dtype=float))
 
 
 def batch_se_dof(days, b, min_batches: int = 3,
