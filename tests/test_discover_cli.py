@@ -14,14 +14,22 @@ from magcal.io.csv import write_csv_frame
 LON = 128.2
 
 
-def _files(tmp_path, rng, with_cov=True, days=14):
+def geostationary_minutes(days: int):
+    """A synthetic geostationary record at 1 min from 2019-11-01 (UTC): its times, local
+    time (h) at :data:`LON`, a model whose Hp and He follow local time and Hn is
+    constant, and a hidden 2 nT diurnal term in Hp the model lacks. Shared by the
+    discovery tests (CLI, messy input, degenerate candidates)."""
     t = pd.date_range("2019-11-01", periods=days * 1440, freq="1min", tz="UTC", name="time")
-    ut = t.hour + t.minute / 60
-    lt = (ut + LON / 15) % 24
+    lt = (t.hour + t.minute / 60 + LON / 15) % 24
     model = pd.DataFrame({"Hp": 100 + 10 * np.cos(2 * np.pi * (lt - 12) / 24),
                           "He": 5 * np.sin(2 * np.pi * lt / 24), "Hn": -20.0 + 0 * lt},
                          index=t)
     hidden = np.column_stack([2.0 * np.cos(2 * np.pi * (lt - 13) / 24), 0 * lt, 0 * lt])
+    return t, lt, model, hidden
+
+
+def _files(tmp_path, rng, with_cov=True, days=14):
+    t, lt, model, hidden = geostationary_minutes(days)
     noise = rng.normal(0, 1.0, (len(t), 3))
     meas = model + hidden + noise + np.array([3.0, -1.0, 0.5])
     paths = {"m": tmp_path / "measured.csv", "model": tmp_path / "model.csv",

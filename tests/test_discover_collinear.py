@@ -14,13 +14,12 @@ from the local-time field a short record cannot tell it from.
 from __future__ import annotations
 
 import numpy as np
-import pandas as pd
 import pytest
+from test_discover_cli import LON, geostationary_minutes
 
 from magcal.discover import discover_gap
 from magcal.simulate.month import MonthConfig, simulate_month
 
-LON = 128.2
 #: Offsets injected in the synthetic record (Hp, He, Hn), nT.
 OFFSET = np.array([3.0, -1.0, 0.5])
 #: Effects injected in the sample month (make_data_samples.py, seed 20191101): the
@@ -32,12 +31,7 @@ INJECTED = {"offset", "drift", "diurnal", "activity"}
 def _flat_record(days=10, seed=5):
     """Hn model constant, Hp model a pure local-time wave: scale is degenerate in both."""
     rng = np.random.default_rng(seed)
-    t = pd.date_range("2019-11-01", periods=days * 1440, freq="1min", tz="UTC", name="time")
-    lt = (t.hour + t.minute / 60 + LON / 15) % 24
-    model = pd.DataFrame({"Hp": 100 + 10 * np.cos(2 * np.pi * (lt - 12) / 24),
-                          "He": 5 * np.sin(2 * np.pi * lt / 24), "Hn": -20.0 + 0 * lt},
-                         index=t)
-    hidden = np.column_stack([2.0 * np.cos(2 * np.pi * (lt - 13) / 24), 0 * lt, 0 * lt])
+    t, lt, model, hidden = geostationary_minutes(days)
     meas = model + hidden + OFFSET + rng.normal(0, 1.0, (t.size, 3))
     return meas, model
 

@@ -13,13 +13,13 @@ import numpy as np
 import pandas as pd
 import pytest
 from numpy.testing import assert_allclose
+from test_discover_cli import LON, geostationary_minutes
 
 from magcal.cli import main
 from magcal.discover import discover_gap
 from magcal.errors import InputError
 from magcal.io.csv import write_csv_frame
 
-LON = 128.2
 #: Dst response (nT of Hp per nT of Dst) injected where a test uses the covariate.
 DST_COUPLING = 0.3
 
@@ -27,19 +27,13 @@ DST_COUPLING = 0.3
 def _record(days=10, seed=5, dst_response=False):
     """(measured, model, covariates) of a synthetic geostationary record, 1 min."""
     rng = np.random.default_rng(seed)
-    t = pd.date_range("2019-11-01", periods=days * 1440, freq="1min", tz="UTC", name="time")
-    ut = t.hour + t.minute / 60
-    lt = (ut + LON / 15) % 24
-    model = pd.DataFrame({"Hp": 100 + 10 * np.cos(2 * np.pi * (lt - 12) / 24),
-                          "He": 5 * np.sin(2 * np.pi * lt / 24), "Hn": -20.0 + 0 * lt},
-                         index=t)
+    t, lt, model, hidden = geostationary_minutes(days)
     day = np.asarray((t - t[0]).total_seconds() / 86400.0)
     # two storms (Dst down to -80 and -60 nT) with a recovery of a day
     dst = np.zeros(t.size)
     for onset, depth in ((3.2, -80.0), (7.5, -60.0)):
         after = day >= onset
         dst[after] += depth * np.exp(-(day[after] - onset) / 1.0)
-    hidden = np.column_stack([2.0 * np.cos(2 * np.pi * (lt - 13) / 24), 0 * lt, 0 * lt])
     if dst_response:
         hidden[:, 0] += DST_COUPLING * dst
     meas = model + hidden + rng.normal(0, 1.0, (t.size, 3)) + np.array([3.0, -1.0, 0.5])
