@@ -211,10 +211,12 @@ def mean_record(minute: MinuteData, interval_s: float, cadence_s: float) -> Minu
 
 def _covariate_holes(raw: pd.DataFrame, index: pd.DatetimeIndex, path) -> list[str]:
     """Warnings naming the holes of each covariate column of a file over the record's
-    span (a jump of more than 2.5 of its own median spacing, or a missing start or end):
-    discovery leaves out the samples there, or does not use a covariate that covers
-    fewer than half of them (:func:`magcal.discover.inputs.prepare_covariates`), and a
-    user should know where."""
+    span (a jump of more than :data:`~magcal.discover.inputs.HOLE_SPACINGS` of its own
+    median spacing, or a missing start or end): discovery leaves out the samples there,
+    or does not use a covariate that covers fewer than half of them
+    (:func:`magcal.discover.inputs.prepare_covariates`), and a user should know where."""
+    from magcal.discover.inputs import HOLE_SPACINGS
+
     out = []
     t0, t1 = index.as_unit("ns")[0], index.as_unit("ns")[-1]
     for c in raw.columns:
@@ -226,7 +228,7 @@ def _covariate_holes(raw: pd.DataFrame, index: pd.DatetimeIndex, path) -> list[s
         step = np.median(np.diff(tv.asi8))
         edges = np.concatenate([[t0.value], tv.asi8, [t1.value]])  # ns
         edges = np.clip(edges, t0.value, t1.value)
-        jumps = np.flatnonzero(np.diff(edges) > 2.5 * step)
+        jumps = np.flatnonzero(np.diff(edges) > HOLE_SPACINGS * step)
         if jumps.size:
             k = jumps[np.argmax(np.diff(edges)[jumps])]
             a, b = pd.Timestamp(edges[k]), pd.Timestamp(edges[k + 1])

@@ -253,20 +253,26 @@ def _valid(values, name: str, file=None) -> tuple[np.ndarray, int]:
     return v, n_bad
 
 
+#: A covariate's hole: a step between its values of more than this many of its median
+#: spacings. Discovery leaves the samples inside out (:func:`_unknown`); the chain warns
+#: about the same holes (``magcal.chain.calibrate._covariate_holes``).
+HOLE_SPACINGS = 2.5
+
+
 def _unknown(t_new: np.ndarray, t_known: np.ndarray) -> np.ndarray:
     """Samples a covariate known at ``t_known`` does not cover.
 
     Its spacing is the median step of ``t_known``. A sample is not covered more than
     one spacing before the first value or after the last (an hourly Dst stamped at the
     start of its hour, a 3-hourly Kp, cover their interval) or inside a hole of more
-    than 2.5 spacings (the chain's covariate-hole rule); shorter holes are interpolated.
+    than :data:`HOLE_SPACINGS` spacings; shorter holes are interpolated.
     """
     if t_known.size == 0:
         return np.ones(t_new.size, dtype=bool)
     step = float(np.median(np.diff(t_known))) if t_known.size > 1 else 0.0
     out = (t_new < t_known[0] - step) | (t_new > t_known[-1] + step)
     if t_known.size > 1:
-        gaps = np.flatnonzero(np.diff(t_known) > 2.5 * step)
+        gaps = np.flatnonzero(np.diff(t_known) > HOLE_SPACINGS * step)
         k = np.searchsorted(t_known, t_new, side="right") - 1
         inside = np.isin(k, gaps)
         out |= inside & (t_new > t_known[np.clip(k, 0, None)])
