@@ -22,13 +22,9 @@ Data: ELFIN SOC (PI V. Angelopoulos, UCLA), "Open Data for Scientific Use".
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
-import pandas as pd
 
 from magcal.lstsq import lstsq
-from magcal.missions.elfin.phase import despun_basis
 from magcal.missions.elfin.scalar import fast_part, fit_spin_harmonics, rms
 from magcal.spin.despin import despin, spin
 
@@ -128,38 +124,20 @@ def correct_elfin_calibration(cal, **kw):
         Per zone: scalar and vector RMS against IGRF before and after, fast parts, the
         4x amplitude and the drifting 1x/2x RMS.
     """
-    from magcal.missions.elfin.drift import fit_samples
+    from magcal.missions.elfin.drift import map_zones
 
-    f = cal.field.copy()
-    # the new columns gathered per zone and set once (a .loc write per zone and column
-    # group cost as much as the step's own fits)
-    despun = f[["bx_despun", "by_despun", "bz_despun"]].to_numpy(float, copy=True)
-    gei = f[["bx_gei", "by_gei", "bz_gei"]].to_numpy(float, copy=True)
-    rows = []
-    for k in sorted(f["zone"].unique()):
-        sel = (f["zone"] == k).to_numpy()
-        z = f.loc[sel]
-        t = (z.index.asi8 - z.index.asi8[0]) / 1e9
-        used = fit_samples(z, scalar=True)
+    def step(t, z, used):
         phase = z["phase"].to_numpy()
         desp = z[["bx_despun", "by_despun", "bz_despun"]].to_numpy()
         ref_d = z[["igrf_x_despun", "igrf_y_despun", "igrf_z_despun"]].to_numpy()
-        axis = z[["spin_axis_gei_x", "spin_axis_gei_y", "spin_axis_gei_z"]].to_numpy()
-        basis = despun_basis(axis)
         body, info = harmonic_vector_correction(t, spin(desp, phase),
                                                 np.linalg.norm(ref_d, axis=1),
                                                 fit_mask=used, **kw)
         new_d = despin(body, phase)
-        new_g = np.einsum("nji,nj->ni", basis, new_d)      # the calibration's despun -> GEI
-        despun[sel] = new_d
-        gei[sel] = new_g
-        rows.append({"zone": int(k), **info,
-                     "vector_rms_before_nT": rms((desp - ref_d)[used]),
-                     "vector_rms_after_nT": rms((new_d - ref_d)[used])})
-    f[["bx_despun", "by_despun", "bz_despun"]] = despun
-    f[["bx_gei", "by_gei", "bz_gei"]] = gei
-    params = {**cal.parameters, "spin_harmonic_correction": {k: str(v) for k, v in kw.items()}}
-    return replace(cal, field=f, parameters=params), pd.DataFrame(rows)
+        return new_d, {**info, "vector_rms_before_nT": rms((desp - ref_d)[used]),
+                       "vector_rms_after_nT": rms((new_d - ref_d)[used])}
+
+    return map_zones(cal, step, "spin_harmonic_correction", kw, scalar=True)
 
 
 def drifting_harmonic_correction(t_s, b_body, ref_magnitude_nT, *, harmonics=(1, 2),
