@@ -471,8 +471,9 @@ class VectorSeries:
             raise InputError(f"unknown resample method {method!r} (use 'mean' or 'interp')")
         index = pd.DatetimeIndex(grid + centre_shift, tz="UTC", name="time").as_unit("ns")
         data = pd.DataFrame(out, index=index, columns=self.data.columns)
-        aux = self.aux.reindex(index, method="nearest", tolerance=pd.Timedelta(step_ns // 2, "ns")) \
-            if self.aux.shape[1] else pd.DataFrame(index=index)
+        aux = (self.aux.reindex(index, method="nearest",
+                                tolerance=pd.Timedelta(step_ns // 2, "ns"))
+               if self.aux.shape[1] else pd.DataFrame(index=index))
         meta = dict(self.meta, cadence_s=float(cadence_s))
         return self.replace(data=data, aux=aux, meta=meta).with_step(
             "resample", cadence_s=float(cadence_s), max_gap_s=float(max_gap_s), method=method,

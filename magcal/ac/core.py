@@ -16,8 +16,8 @@ variation, substorms) steers it away from the disturbance (§5). With
 ``direction="coherent"`` ``e_i`` is instead the direction of ``k = C_id e_ij /
 lambda_ij``, the part of ``b_i`` that varies with the difference principal component:
 the ambient field cancels in the cross-covariance, and ``A = -k e_ij^T`` keeps the
-rank-one form of Eq. 17 with ``alpha = |k|``. ``alpha`` starts from the amplitude ratio of Eq. 14 with the sign
-that removes the disturbance (the sign of the covariance of the two principal
+rank-one form of Eq. 17 with ``alpha = |k|``. ``alpha`` starts from the amplitude ratio of
+Eq. 14 with the sign that removes the disturbance (the sign of the covariance of the two principal
 components) and is refined by making the corrected component uncorrelated with the
 difference component, which has the closed form ``alpha = cov(x, d_x) / var(d_x)``.
 

@@ -38,7 +38,8 @@ def require_common_frame(frame: pd.DataFrame, sensors) -> None:
     >>> require_common_frame(f, ["ib", "ob"])
     Traceback (most recent call last):
     ...
-    magcal.errors.InputError: sensors ib (inboard sensor), ob (outboard sensor) are in different frames: PiCoG needs one common frame (rotate them first, e.g. with magcal run and a [frames] section)
+    magcal.errors.InputError: sensors ib (inboard sensor), ob (outboard sensor) are in different
+    frames: PiCoG needs one common frame (rotate them first, e.g. with magcal run and a ...)
     """
     frames = frame.attrs.get("sensor_frames") or {}
     seen = {s: frames[s] for s in sensors if s in frames}

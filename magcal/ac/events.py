@@ -59,8 +59,8 @@ def detect_steps(d: np.ndarray, t_s: np.ndarray, *, span_s: float = 90.0, gap_s:
     ``span_s`` and ``h = gap_s + span_s / 2`` (the Table-2 ramp size at every sample);
     its peaks above ``median + n_sigma`` robust sigmas (and ``min_nT``) whose height is
     at least ``min_significance`` times the robust spread (MAD sigma, norm over
-    components) of the samples in the noisier of the two ``span_s`` windows are the steps. The second
-    test rejects the peaks that band-limited noise puts in the step signal (on the
+    components) of the samples in the noisier of the two ``span_s`` windows are the steps.
+    The second test rejects the peaks that band-limited noise puts in the step signal (on the
     GK-2A-like demo day the true steps have 4.5-38, noise peaks below 3.6).
 
     Parameters
@@ -132,8 +132,8 @@ def detect_spikes(d: np.ndarray, t_s: np.ndarray, *, span_s: float = 20.0, gap_s
     A spike is a peak of ``|d - running median over 2 (span_s + gap_s)|`` above
     ``n_sigma`` local robust sigmas (running MAD over the same span, its
     largest value within that span; and ``min_nT``), narrower than ``max_width_s`` at
-    half height (GK-2A spikes: 6 s), at least ``span_s + gap_s`` from the next one and ``exclude_within_s``
-    from any time in ``exclude_s`` (the steps).
+    half height (GK-2A spikes: 6 s), at least ``span_s + gap_s`` from the next one and
+    ``exclude_within_s`` from any time in ``exclude_s`` (the steps).
 
     Examples
     --------
@@ -257,9 +257,11 @@ def remnants(raw: np.ndarray, clean: np.ndarray, diff: np.ndarray, t_s: np.ndarr
     >>> dist = np.zeros((4000, 3)); dist[2000:, 2] = 2.0; dist[1000, 0] = 4.0
     >>> amb = rng.normal(0, 0.02, (4000, 3))
     >>> out = remnants(amb + dist, amb + 0.1 * dist, 3 * dist + amb, t)
-    >>> round(out["steps"]["raw"]["mean_abs_nT"][2], 1), round(out["steps"]["clean"]["mean_abs_nT"][2], 2)
+    >>> steps = out["steps"]
+    >>> round(steps["raw"]["mean_abs_nT"][2], 1), round(steps["clean"]["mean_abs_nT"][2], 2)
     (2.0, 0.2)
-    >>> round(out["spikes"]["raw"]["mean_abs_nT"][0], 1), round(out["spikes"]["clean"]["mean_abs_nT"][0], 1)
+    >>> spikes = out["spikes"]
+    >>> round(spikes["raw"]["mean_abs_nT"][0], 1), round(spikes["clean"]["mean_abs_nT"][0], 1)
     (4.0, 0.4)
     """
     from magcal.ac.metrics import hf_peak_to_peak, ramp_sizes, spike_heights

@@ -126,10 +126,11 @@ def flank_ambient(x: np.ndarray, t_s: np.ndarray, centre_s: float, *,
 
     Fits a polynomial of ``degree`` plus the best single sinusoid (period from
     ``periods_s``, or none) and steps at ``centre_s + steps_s`` to ``x`` on
-    ``core_s < |t - centre_s| <= flank_s`` (rows in ``exclude`` left out) by least squares and evaluates it on ``|t - centre_s| <=
-    flank_s`` (NaN elsewhere). Subtracted from both sensors of a pair it leaves their
-    difference unchanged and removes most of a ULF wave from the event core, which
-    would otherwise correlate with the event's pulse by chance.
+    ``core_s < |t - centre_s| <= flank_s`` (rows in ``exclude`` left out) by least squares
+    and evaluates it on ``|t - centre_s| <= flank_s`` (NaN elsewhere). Subtracted from
+    both sensors of a pair it leaves their difference unchanged and removes most of a
+    ULF wave from the event core, which would otherwise correlate with the event's pulse
+    by chance.
 
     Examples
     --------
@@ -201,7 +202,8 @@ def flank_ambient_error(x: np.ndarray, t_s: np.ndarray, centre_s: float, *,
 
 
 #: template shifts (s) for the chance level of a pulse selection
-PULSE_LAGS_S = tuple(float(v) for v in np.r_[-np.arange(1800, 299, -100), np.arange(300, 1801, 100)])
+PULSE_LAGS_S = tuple(float(v) for v in np.r_[-np.arange(1800, 299, -100),
+                                             np.arange(300, 1801, 100)])
 
 
 def _pulse_template(dd: np.ndarray, tt: np.ndarray, steps_s=()) -> np.ndarray:

@@ -269,7 +269,8 @@ def plan_to_dict(plan: Plan) -> dict:
         if st.joint:
             d.update(joint=True, event_half_s=st.event_half_s, min_snr=st.min_snr,
                      events=st.events, pulse_min_snr=st.pulse_min_snr)
-        d["orders"] = [{"window_s": o.window_s, "interval": list(o.interval) if o.interval else None,
+        d["orders"] = [{"window_s": o.window_s,
+                        "interval": list(o.interval) if o.interval else None,
                         "cone_deg": o.cone_deg, "detrend_s": o.detrend_s,
                         "direction": o.direction, "highpass_s": o.highpass_s,
                         "band_hz": list(o.band_hz) if o.band_hz else None}

@@ -318,9 +318,10 @@ def offset_intervals(data: dict, target: str, dt_s: float) -> tuple[np.ndarray, 
     The smooth part of ``target - partner`` (:func:`slow_part`; the partner is the
     quietest other sensor, as ``--auto`` pairs it) is differentiated; samples where the
     rate (norm over components) exceeds the record's median by :data:`OFFSET_SIGMA`
-    robust sigmas and :data:`OFFSET_RATE_FACTOR` times the median, widened by :data:`OFFSET_GUARD_S`, are flagged (a boom sensor cooling into the
-    shadow and warming out of it, with the offset oscillations that come with the
-    temperature change). Returns ``(mask (n,), report)``; the mask is all False on
+    robust sigmas and :data:`OFFSET_RATE_FACTOR` times the median, widened by
+    :data:`OFFSET_GUARD_S`, are flagged (a boom sensor cooling into the shadow and
+    warming out of it, with the offset oscillations that come with the temperature
+    change). Returns ``(mask (n,), report)``; the mask is all False on
     records shorter than :data:`MIN_RECORD_S` or when more than
     :data:`OFFSET_MAX_FRACTION` of the record would be flagged.
 

@@ -282,7 +282,8 @@ def check_before(times, data, ref, identity: AlignmentResult, *, fit_offset: boo
     return Determinability(
         determinable=not reasons, reasons=tuple(reasons), record_span_s=span,
         nuisance=nuisance + ((f"{len(periods)} local-time harmonics (not fittable)",)
-                             if periods and not lt_harmonics else ()), nuisance_periods_s=periods, crb_std_deg=crb,
+                             if periods and not lt_harmonics else ()),
+        nuisance_periods_s=periods, crb_std_deg=crb,
         crb_std_rotation_only_deg=alone, information_retained=retained,
         condition_number=cond, reference_variation_nT=variation,
         max_angle_deg=float(max_angle_deg), identity_rms_nT=identity.residual_rms_nT)

@@ -277,8 +277,8 @@ def fit_alignment(times, data, ref, *, fit_rotation: bool = True, fit_offset: bo
 
     Model: ``data = scale * R(w) @ ref + offset + L(LT) + e`` where each component of
     ``e`` is correlated noise (by default two Ornstein-Uhlenbeck time scales plus white
-    noise, fitted; ``noise_model``) and ``L`` is an optional field fixed in local time (``lt_harmonics``
-    harmonics per component, nuisance parameters, see
+    noise, fitted; ``noise_model``) and ``L`` is an optional field fixed in local time
+    (``lt_harmonics`` harmonics per component, nuisance parameters, see
     :mod:`magcal.alignment.localtime`). The estimate starts at Wahba's closed form and
     is refined by Gauss-Newton generalised least squares. The covariance is the
     spectral sandwich around the inverse Fisher matrix of that model

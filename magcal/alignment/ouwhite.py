@@ -535,7 +535,8 @@ def whitened_series(t, resid, jac, noise):
     """
     ys, xs = [], []
     for c in range(3):
-        u = noise.gains(c, t).whiten(np.column_stack([resid[:, c], jac[:, c, :]])) / np.sqrt(noise.total_var[c])
+        u = (noise.gains(c, t).whiten(np.column_stack([resid[:, c], jac[:, c, :]]))
+             / np.sqrt(noise.total_var[c]))
         ys.append(u[:, 0])
         xs.append(u[:, 1:])
     return ys, xs

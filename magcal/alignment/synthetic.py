@@ -155,8 +155,11 @@ def coverage_trial(rng: np.random.Generator, *, with_lt_field: bool, n: int = 14
     ci = np.asarray(res.ci95_deg)
     prec = (res.checks or {}).get("precision", {})
     comps = ("Hp", "He", "Hn")
-    pick = lambda key: np.array([prec[key][c] for c in comps]) if key in prec else (
-        np.full(3, np.nan))
+
+    def pick(key):
+        return (np.array([prec[key][c] for c in comps]) if key in prec
+                else np.full(3, np.nan))
+
     sel = (res.checks or {}).get("nuisance_selection", {})
     return {"inside": (ci[:, 0] <= truth) & (truth <= ci[:, 1]),
             "z": (res.angles_deg - truth) / res.std_deg, "std_deg": res.std_deg,

@@ -11,7 +11,8 @@ from magcal.io.formats import FORMATS
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "convert", help="convert an instrument file (CSV, GOES-R netCDF, CDF) to CSV, CDF or netCDF",
+        "convert",
+        help="convert an instrument file (CSV, GOES-R netCDF, CDF) to CSV, CDF or netCDF",
         description="Read one or more files of any supported format (detected by content: "
                     "CSV with a time header, GOES-R MAG L2 netCDF4, ISTP CDF) and write them, "
                     "joined in time order, as a CONTRACTS §0 CSV, an ISTP CDF or a CF-1.8 "

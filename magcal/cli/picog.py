@@ -7,6 +7,8 @@ import sys
 from magcal.cli._common import add_output, existing_file
 from magcal.errors import InputError
 
+INPUT_HELP = "multi-sensor file (CSV, GOES-R netCDF or CDF; detected by content)"
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -19,7 +21,7 @@ def register(subparsers) -> None:
     f = sub.add_parser("fit", help="fit the correction and write PARAMS.json",
                        description="Fit with a PLAN.toml, or let --auto choose stages, pairs, "
                                    "windows and orders for --target.")
-    f.add_argument("input", help="multi-sensor file (CSV, GOES-R netCDF or CDF; detected by content)")
+    f.add_argument("input", help=INPUT_HELP)
     f.add_argument("--plan", help="PLAN.toml (stages and orders)")
     f.add_argument("--target", help="sensor whose cleaned data is the product (with --auto)")
     f.add_argument("--auto", action="store_true", help="choose the plan automatically")
@@ -32,7 +34,7 @@ def register(subparsers) -> None:
                        description="Cleaned target = sum_k M[k] @ B_k + G (G: the DC offset "
                                    "of the correction, Eq. 31); rows where a needed sensor "
                                    "is missing are NaN with flag=1.")
-    a.add_argument("input", help="multi-sensor file (CSV, GOES-R netCDF or CDF; detected by content)")
+    a.add_argument("input", help=INPUT_HELP)
     a.add_argument("--params", required=True, help="PARAMS.json from 'picog fit'")
     offset = a.add_mutually_exclusive_group()
     offset.add_argument("--keep-correction-offset", action="store_true",

@@ -372,7 +372,8 @@ def _write_epoch(writer, epoch: np.ndarray, compress: int | None = None) -> None
             "Rec_Vary": True, "Dim_Sizes": [], "Var_Type": "zVariable",
             **({"Compress": int(compress)} if compress is not None else {})}
     attrs = {"FIELDNAM": "Epoch", "CATDESC": "Time of each sample, UTC (CDF_TIME_TT2000)",
-             "UNITS": "ns", "VAR_TYPE": "support_data", "FILLVAL": [FILLVAL_TT2000, "CDF_TIME_TT2000"],
+             "UNITS": "ns", "VAR_TYPE": "support_data",
+             "FILLVAL": [FILLVAL_TT2000, "CDF_TIME_TT2000"],
              "VALIDMIN": [np.int64(lo), "CDF_TIME_TT2000"],
              "VALIDMAX": [np.int64(hi), "CDF_TIME_TT2000"],
              "LABLAXIS": "Epoch", "FORMAT": " ", "MONOTON": "INCREASE", "TIME_BASE": "J2000",

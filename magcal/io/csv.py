@@ -243,9 +243,10 @@ def read_text_table(path: str | os.PathLike,
     cell a string with empty cells as ``""``, every line with as many fields as the
     header. A last line without its line break and with fewer fields than the header
     (a file cut short while written) is dropped and returned in
-    ``table.attrs["dropped_truncated_last_line"]``; ``table.attrs["unterminated_last_line"]``
-    says whether the kept last line lacks its line break; ``table.attrs["dropped_empty_last_column"]``
-    whether an unnamed, empty last column (every line ending with a comma) was dropped.
+    ``table.attrs["dropped_truncated_last_line"]``;
+    ``table.attrs["unterminated_last_line"]`` says whether the kept last line lacks its
+    line break; ``table.attrs["dropped_empty_last_column"]`` whether an unnamed, empty
+    last column (every line ending with a comma) was dropped.
 
     Parameters
     ----------

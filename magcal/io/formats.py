@@ -257,7 +257,8 @@ def read_cdf_frame(path: str | os.PathLike) -> pd.DataFrame:
 
     Vector variables become ``<name>_<label>`` columns (labels from ``LABL_PTR_1``; the
     variable ``B`` of magcal's own products gives bare ``Hp,He,Hn`` or ``x,y,z``);
-    ELFIN FGS files give ``b1,b2,b3`` counts (see :func:`magcal.missions.elfin.files.read_elfin_fgs`).
+    ELFIN FGS files give ``b1,b2,b3`` counts (see
+    :func:`magcal.missions.elfin.files.read_elfin_fgs`).
 
     Raises
     ------

@@ -49,7 +49,7 @@ def _column_data(series: pd.Series):
     dtype = series.dtype
     if isinstance(dtype, pd.DatetimeTZDtype) or dtype.kind == "M":
         return _utc_ns(series), None, "time"
-    if dtype == object or isinstance(dtype, pd.StringDtype):
+    if dtype.kind == "O" or isinstance(dtype, pd.StringDtype):
         return np.array(["" if v is None or v is pd.NA else str(v) for v in series],
                         dtype=object), None, "str"
     if pd.api.types.is_bool_dtype(dtype):

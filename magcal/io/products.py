@@ -119,7 +119,7 @@ def _cdf_values(series: pd.Series) -> np.ndarray:
         return series.dt.tz_convert("UTC").dt.tz_localize(None).to_numpy("datetime64[ns]")
     if dtype.kind == "M":
         return series.to_numpy("datetime64[ns]")
-    if dtype == object or isinstance(dtype, pd.StringDtype):
+    if dtype.kind == "O" or isinstance(dtype, pd.StringDtype):
         return np.array(["" if v is None or v is pd.NA else str(v) for v in series],
                         dtype=object)
     if pd.api.types.is_bool_dtype(dtype):

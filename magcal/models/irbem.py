@@ -448,7 +448,8 @@ def prepare(times, pos_geo_re, model: str = "T89", inputs=None, options=None,
         used = "get_Bfield"
     elif backend == "get_Bfield":
         used = "get_Bfield"
-    return EvaluationPlan(model=model, kext=KEXT[model], options=opts, n=n, xyz=xyz, times=t, columns=columns, bad=bad,
+    return EvaluationPlan(model=model, kext=KEXT[model], options=opts, n=n, xyz=xyz, times=t,
+                          columns=columns, bad=bad,
                           good=np.flatnonzero(~bad), reasons=reasons, backend=used)
 
 
