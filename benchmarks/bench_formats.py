@@ -7,8 +7,8 @@ netCDF4 files (``b_ob_sensor``, ``b_ib_sensor``, ``b_epn``, ``b_gse``, ``b_gsm``
 then prints:
 
 * **floor**: reading one input day's bytes with h5py alone, and writing the product's
-  bytes (time, Hp, He, Hn, offset_flag, quality; the same compression) with h5py alone and with cdflib
-  alone; magcal's reader and writers of the same day against it, and CSV for comparison;
+  bytes (time, Hp, He, Hn, offset_flag, quality; the same compression) with h5py alone and
+  with cdflib alone; magcal's reader and writers of the same day against it, and CSV for comparison;
 * **where a day's time goes**: one partition and one corrected day profiled in one
   process (cProfile: read, frames/PiCoG upload, 1-min averages, model, writes);
 * **per day per worker**: partition + corrected of one day in one process (target
@@ -342,7 +342,8 @@ def summary(days: int, fixed_days: int, floor: dict, per_day: float | None,
              f"h5py floor ({floor['read'][1]:.2f} s)", "", None),
             ("write a corrected day, netCDF",
              f"{floor['write_nc'][0]:.2f} s = {floor['write_nc'][0] / floor['write_nc'][1]:.1f}x "
-             f"h5py floor ({floor['write_nc'][1]:.2f} s); CSV {floor['write_csv']:.2f} s", "", None),
+             f"h5py floor ({floor['write_nc'][1]:.2f} s); CSV {floor['write_csv']:.2f} s",
+             "", None),
             ("write a corrected day, CDF",
              f"{floor['write_cdf'][0]:.2f} s = "
              f"{floor['write_cdf'][0] / floor['write_cdf'][1]:.1f}x cdflib floor "

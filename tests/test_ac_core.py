@@ -137,7 +137,7 @@ def test_chain_upload_matrices_reproduce_iteration(rng):
     assert np.max(np.abs(one_step - res.corrected)) < 1e-9  # Eq. 28 == iteration
     # Eqs. 29-30 written out for this chain
     A = {(st.stage, st.order, st.i): st.A for st in res.steps}
-    I = np.eye(3)
+    I = np.eye(3)  # noqa: E741 (the identity of Eqs. 29-30)
     A0sa, A0ta = A[(1, 1, "s")], A[(1, 1, "t")]
     a0st, a0ts = A[(2, 1, "s")], A[(2, 1, "t")]
     a1st, a1ts = A[(2, 2, "s")], A[(2, 2, "t")]

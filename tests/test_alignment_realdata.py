@@ -105,7 +105,10 @@ def test_raw_gls_never_fits_worse_than_the_identity(goes_pair):
         fit = fit_alignment(times, d[list(COMPONENTS)].to_numpy(), r[list(COMPONENTS)].to_numpy())
         ident = identity_fit(times, d[list(COMPONENTS)].to_numpy(),
                              r[list(COMPONENTS)].to_numpy())
-    total = lambda rms: float(np.sqrt(np.mean(np.asarray(rms) ** 2)))
+
+    def total(rms):
+        return float(np.sqrt(np.mean(np.asarray(rms) ** 2)))
+
     assert total(fit.residual_rms_nT) <= total(ident.residual_rms_nT) * 1.01
     assert total(ident.residual_rms_nT) < 1.0
 

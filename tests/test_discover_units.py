@@ -72,7 +72,8 @@ def test_wald_detects_signal_and_not_noise(rng):
 def test_scan_step_and_period(rng):
     t = np.arange(0, 20 * 86400, 60.0)
     r = np.column_stack([np.where(t >= 7.25 * 86400, 1.0, 0.0),
-                         0.8 * np.cos(2 * np.pi * t / (5.5 * 3600))]) + rng.normal(0, 0.5, (t.size, 2))
+                         0.8 * np.cos(2 * np.pi * t / (5.5 * 3600))])
+    r = r + rng.normal(0, 0.5, (t.size, 2))
     ts, size, _ = scan_step(t, r[:, :1])
     assert abs(ts - 7.25 * 86400) < 3600
     assert_allclose(size, [1.0], atol=0.05)

@@ -1,7 +1,8 @@
 """Slow part of the ELFIN scalar residual: spin-plane gain drift and reference screening.
 
 Injected truth on a simulated spinner (magcal.missions.elfin.drift), a closed-form check
-of the reference screening (magcal.missions.elfin.diagnostics.reference), and the real ELFIN-A passes
+of the reference screening (magcal.missions.elfin.diagnostics.reference), and the real ELFIN-A
+passes
 of 2022-01-12 (ELFIN SOC, PI V. Angelopoulos, UCLA; Open Data for Scientific Use),
 skipped when ../shared/real-data is absent.
 """

@@ -84,7 +84,8 @@ def test_shared_sensor_per_zone_offsets_and_attitude_are_recovered():
     # the spin-plane columns of the matrix (sensors 2, 3) within 0.1 % of the truth,
     # up to the rotation about the spin axis that the phase takes
     gram, gram_true = fit.matrix.T @ fit.matrix, (m_true * g_mean).T @ (m_true * g_mean)
-    np.testing.assert_allclose(gram[1:, 1:], gram_true[1:, 1:], rtol=1e-3, atol=1e-3 * gram_true[1, 1])
+    np.testing.assert_allclose(gram[1:, 1:], gram_true[1:, 1:], rtol=1e-3,
+                               atol=1e-3 * gram_true[1, 1])
     assert np.all(np.isfinite(fit.std)) and sh["cubic_eps"][1] > 0
 
 

@@ -1,4 +1,5 @@
-"""Spin-ripple cross-check of the ELFIN IGRF calibration (magcal.missions.elfin.diagnostics.ripple)."""
+"""Spin-ripple cross-check of the ELFIN IGRF calibration
+(magcal.missions.elfin.diagnostics.ripple)."""
 
 from __future__ import annotations
 

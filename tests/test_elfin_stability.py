@@ -27,13 +27,15 @@ A_TRUE = np.array([[0.0075, 0.0060, 0.0001], [-0.0060, 0.0075, 0.0002],
 def _zone(rng, offsets, bz_mean, duration_s=372.0, noise_nT=2.0, tau_s=3.0):
     """One pass: IGRF-like despun field whose spin-axis part changes by a few uT and
     not as a quadratic in time (otherwise the spin-plane rows' share of the spin-axis
-    counts is the offset drift: the degeneracy of the real zones), counts from ``A_TRUE`` and ``offsets``, AR(1) noise
-    with correlation time ``tau_s`` (the residuals of real zones are autocorrelated)."""
+    counts is the offset drift: the degeneracy of the real zones), counts from ``A_TRUE`` and
+    ``offsets``, AR(1) noise with correlation time ``tau_s`` (the residuals of real zones
+    are autocorrelated)."""
     t = np.arange(0.0, duration_s, 0.1)
     T = 2 * t / t[-1] - 1
     ang = np.radians(20 + 50 * (T + 1) / 2)
     perp = 43000 + 2500 * T
-    ref = np.column_stack([perp * np.cos(ang), perp * np.sin(ang), bz_mean + 3000 * np.sin(2.6 * np.pi * T)])
+    ref = np.column_stack([perp * np.cos(ang), perp * np.sin(ang),
+                           bz_mean + 3000 * np.sin(2.6 * np.pi * T)])
     phase = 2 * np.pi * t / SPIN_S + rng.uniform(0, 2 * np.pi)
     rho = np.exp(-0.1 / tau_s)
     e = rng.normal(scale=noise_nT * np.sqrt(1 - rho ** 2), size=(t.size, 3))

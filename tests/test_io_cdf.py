@@ -34,7 +34,8 @@ def _product(tmp_path, name="prod.cdf"):
     b = np.array([[1.0, 2.0, 3.0], [np.nan, 5.0, 6.0], [7.0, np.nan, 9.0], [10.0, 11.0, 12.25]])
     scalar = np.array([0.5, -0.25, np.nan, 1e-9])
     variables = {
-        "B_hpen": (b, {"UNITS": "nT", "CATDESC": "Magnetic field, Hpen", "labels": ["Hp", "He", "Hn"],
+        "B_hpen": (b, {"UNITS": "nT", "CATDESC": "Magnetic field, Hpen",
+                       "labels": ["Hp", "He", "Hn"],
                        "VALIDMIN": -1e5, "VALIDMAX": 1e5}),
         "offset": (scalar, {"UNITS": "nT"}),
         "quality": (np.array([0, 1, 2, 3], dtype=np.int32), {"UNITS": " "}),
@@ -163,7 +164,8 @@ def test_elfin_state(real_data):
                     [5548.668, 3833.0857, -841.84], rtol=0, atol=1e-3)
     assert_allclose(first[["vel_gei_x", "vel_gei_y", "vel_gei_z"]].to_numpy(float),
                     [1.014651, 0.195763, 7.589338], rtol=0, atol=1e-6)
-    assert_allclose(first[["spin_axis_gei_x", "spin_axis_gei_y", "spin_axis_gei_z"]].to_numpy(float),
+    axis_cols = ["spin_axis_gei_x", "spin_axis_gei_y", "spin_axis_gei_z"]
+    assert_allclose(first[axis_cols].to_numpy(float),
                     [-0.58215225, 0.8104529, 0.06530594], rtol=0, atol=1e-6)
     assert int(state["sun"].sum()) == 71236
     r = np.linalg.norm(state[["pos_gei_x", "pos_gei_y", "pos_gei_z"]].to_numpy(), axis=1)

@@ -102,6 +102,7 @@ def test_resample_never_bridges_long_gaps():
 
 def test_resample_mean_bins_and_empty_cells():
     t = _times(180).delete(range(60, 120))
-    vs = VectorSeries.from_arrays(t, {"a": np.tile(np.arange(180.0)[np.r_[0:60, 120:180], None], 3)})
+    kept = np.arange(180.0)[np.r_[0:60, 120:180], None]
+    vs = VectorSeries.from_arrays(t, {"a": np.tile(kept, 3)})
     m = vs.resample(60, max_gap_s=0)["a"][:, 0]
     assert m[0] == 29.5 and np.isnan(m[1]) and m[2] == 149.5

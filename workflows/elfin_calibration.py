@@ -199,7 +199,8 @@ def _run(argv=None) -> int:
               f"spin-axis tilt on the {args.tilt_bound_deg} deg bound in "
               f"{int(vector['tilt_at_bound'].sum())}/{len(vector)} zones")
     st = day.stability
-    print(f"  stable across zones (chi2/dof < {st['spread']['gain1_nT_per_count']['threshold']:.2f}, "
+    threshold = st['spread']['gain1_nT_per_count']['threshold']
+    print(f"  stable across zones (chi2/dof < {threshold:.2f}, "
           f"{st['block_s']:g} s block errors): {', '.join(st['stable']) or 'none'}; "
           f"{len(st['per_zone'])} per zone (parameter_stability in the JSON)")
     print("  zone medians (nT)      |B|-|IGRF|  fast part  slow part  vector RMS (x, y, z GEI)")

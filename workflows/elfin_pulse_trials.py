@@ -31,7 +31,6 @@ STATE_FILE = "ela_l1_state_defn_20220112_v01.cdf"
 
 
 def main(argv=None) -> int:
-    import numpy as np
     import pandas as pd
 
     from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state

@@ -36,7 +36,8 @@ KP_FILE = "celestrak_SW_2017-2023_subset.txt"
 def _mechanisms(data: Path, tab) -> None:
     from magcal.missions.elfin.linear import calibrate_elfin
     from magcal.missions.elfin.files import read_elfin_fgs, read_elfin_state
-    from magcal.missions.elfin.diagnostics.mechanisms import locking_table, power_law, timestamp_effect
+    from magcal.missions.elfin.diagnostics.mechanisms import (locking_table, power_law,
+                                                              timestamp_effect)
 
     fgs, state = read_elfin_fgs(data / FGS_FILE), read_elfin_state(data / STATE_FILE)
     cal = calibrate_elfin(fgs, state)
@@ -109,11 +110,13 @@ def _sun(data: Path) -> None:
 
 
 def _vector_evidence(data: Path, knot_s: float | None) -> None:
-    from magcal.missions.elfin.diagnostics.evidence import evidence_verdict, field_latitude, vector_evidence
+    from magcal.missions.elfin.diagnostics.evidence import (evidence_verdict, field_latitude,
+                                                            vector_evidence)
 
     cal, state = _product(data, knot_s)
     ev = vector_evidence(cal, field_latitude(cal, state))
-    drift = "polynomial (cubic)" if knot_s is None else f"{knot_s:g} s splines, + fast drift + phase refit"
+    drift = ("polynomial (cubic)" if knot_s is None
+             else f"{knot_s:g} s splines, + fast drift + phase refit")
     print(f"vector residual against IGRF split per zone (nT per component; vector step drift: "
           f"{drift}); flags: auroral current-sheet signatures (spin-averaged across-B "
           "structure > 10 nT over 20 s at |centred-dipole mlat| >= 60 deg)")
@@ -129,7 +132,8 @@ def _vector_evidence(data: Path, knot_s: float | None) -> None:
     for name in ("ratio", "ratio_out", "ratio_fast", "ratio_plane", "ratio_out_tilt_free",
                  "ratio_out_tilt_drift", "ratio_sub_tilt_drift", "ratio_auroral_tilt_predicted"):
         r = v[name]
-        print(f"  {name:30s} {r['median']:5.2f} ({r['max']:5.2f}; {r['zones_within']}/{r['zones']})")
+        print(f"  {name:30s} {r['median']:5.2f} ({r['max']:5.2f}; "
+              f"{r['zones_within']}/{r['zones']})")
     print(f"  the drifting tilt reaches {v['tilt_drift_max_deg']:.2f} deg and exceeds 0.2 deg in "
           f"{v['zones_beyond_attitude']}/{len(ev)} zones")
 

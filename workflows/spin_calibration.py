@@ -87,7 +87,8 @@ def run(out: Path, seed: int) -> dict:
                                       calcoil_intervals_s=(COIL,))
     sim = simulate_spinning(cfg, rng=np.random.default_rng(seed))
     d, tr = sim.data, sim.truth
-    t, b, p, f = tr.t_s, d[["b1", "b2", "b3"]].to_numpy(), d["phase"].to_numpy(), d["flip"].to_numpy()
+    t, b = tr.t_s, d[["b1", "b2", "b3"]].to_numpy()
+    p, f = d["phase"].to_numpy(), d["flip"].to_numpy()
     main = t < MAIN_S
     prior_c = np.eye(3)            # laboratory values: c11 = 1, c12 = 0, c33 = 1
     prior_o = np.zeros(3)
@@ -141,7 +142,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     s = run(Path(args.out), args.seed)
     errs = s["errors_after_all_steps"]
-    worst_angle = max(abs(v["error_deg"]) for k, v in errs.items() if "error_deg" in v and k != "c33")
+    worst_angle = max(abs(v["error_deg"]) for k, v in errs.items()
+                      if "error_deg" in v and k != "c33")
     worst_off = max(abs(v["error_nT"]) for v in errs.values() if "error_nT" in v)
     print(f"ripple fit: {s['ripple_fit_seconds']:.2f} s on {s['record']['vectors_ripple']} vectors")
     for comp in ("BX", "BY", "BZ"):
