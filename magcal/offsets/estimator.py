@@ -17,7 +17,8 @@ in the used samples' day values (:mod:`magcal.offsets.levels`): each is named in
 warnings, in the ``reason`` of the valid windows straddling it (``caution: level change
 of ... inside the window``) and in ``OffsetTable.level_changes``; the window medians are
 left as they are (CONTRACTS §2), and ``offsets apply`` flags the samples interpolated
-across a change.
+across a change. With ``split_at_level_changes`` (opt-in) the windows are instead cut at
+each change found, so that no offset mixes both levels (:class:`OffsetEstimator`).
 """
 
 from __future__ import annotations
@@ -30,13 +31,17 @@ from magcal.errors import InputError
 from magcal.offsets.apply import apply_offsets
 from magcal.offsets.table import COMPONENTS, OffsetTable
 from magcal.offsets.defaults import MIN_DAY_COVERAGE, MIN_LT_COVERAGE
-from magcal.offsets.windows import (DAY_NS, thin_coverage_reason, window_coverage,
-                                    window_grid, window_statistics)
+from magcal.offsets.windows import (DAY_NS, split_windows, thin_coverage_reason,
+                                    window_coverage, window_grid, window_statistics)
 
 #: Kp values within this of ``kp_max`` count as equal (thirds stored as floats).
 KP_TOLERANCE = 1e-6
 #: A record spanning less than this fraction of the window is "far shorter" than it.
 SHORT_RECORD_FRACTION = 0.25
+#: Shortest piece (days) of a window split at a level change
+#: (``split_at_level_changes``) that keeps its offset; shorter pieces are NaN with the
+#: reason. See :class:`OffsetEstimator` for the measurements behind it.
+MIN_PIECE_DAYS = 7.0
 
 
 def _duration_text(days: float) -> str:
@@ -78,6 +83,31 @@ def with_caution(reason: str, caution: str) -> str:
     if not reason:
         return caution
     return f"{caution}; {reason.removeprefix('caution: ')}"
+
+
+def piece_note(change, columns=("Hp", "He", "Hn")) -> str:
+    """How a piece of a window split at ``change`` says so in its ``reason``: the words
+    of :func:`magcal.offsets.levels.change_caution` (``level change of ... nT at DAY
+    inside the window``), so that an OFFSETS.csv read without its JSON sidecar still
+    names the change (:func:`magcal.offsets.levels.changes_from_reasons`).
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> ch = SimpleNamespace(time=np.datetime64("2019-12-12", "ns"), size_nT=[3.0, -2, 1.5])
+    >>> piece_note(ch)
+    'cut at the level change of Hp +3.00, He -2.00, Hn +1.50 nT at 2019-12-12 inside the window'
+    """
+    sizes = ", ".join(f"{c} {s:+.2f}" for c, s in zip(columns, change.size_nT))
+    return (f"cut at the level change of {sizes} nT at {np.datetime64(change.time, 'D')} "
+            "inside the window")
+
+
+def split_warning(change, columns=("Hp", "He", "Hn")) -> str:
+    """The record-level warning naming ``change`` when the windows are split at it."""
+    return (f"level change of the offset: {change.describe(columns)}; the windows are "
+            "split at it (each side's offsets from its own samples; samples inside its "
+            "95 % time interval get quality bit offset_near_level_change)")
 
 
 def quiet_mask(kp, kp_max: float = 1.0) -> np.ndarray:
@@ -122,6 +152,25 @@ class OffsetEstimator:
         (:func:`magcal.offsets.levels.detect_level_changes`, default True): each is named
         in :attr:`warnings_`, in the ``reason`` of the valid windows straddling it, and in
         ``OffsetTable.level_changes``. The offsets themselves do not change.
+    split_at_level_changes : bool
+        Opt-in (default False: the product of CONTRACTS §2, unchanged). Cut the window
+        grid at each level change found (at its ``time``, the midnight starting the first
+        day at the new level): a window straddling a change becomes ``[start, change)``
+        and ``[change, end)`` (:func:`magcal.offsets.windows.split_windows`), each piece
+        with its own median, standard error and degrees of freedom from its own samples
+        and its centre in its own middle, and judged by the same rules as any window
+        (``min_used``, day and local-time coverage); a piece shorter than
+        ``min_piece_days`` is NaN with the reason. The table's ``segment`` (column
+        ``segment`` of OFFSETS.csv, written only then) numbers the rows 0 before the
+        first change, 1 after it, ...; ``offsets apply`` then interpolates only within a
+        segment and holds a segment's end values out to the change
+        (:func:`magcal.offsets.apply.apply_offsets`). Without a change found, the
+        offsets are the unsplit ones and ``segment`` is all 0. Why opt-in: the
+        detection is a test at 1 % per record, and a false change cuts the windows
+        around it for nothing (the offsets then rest on fewer days there).
+    min_piece_days : float
+        Shortest piece of a split window that keeps its offset (default
+        :data:`MIN_PIECE_DAYS`; only with ``split_at_level_changes``).
 
     Attributes
     ----------
@@ -150,7 +199,9 @@ class OffsetEstimator:
     def __init__(self, kp_max: float = 1.0, window_days: float = 28.0, step_days: float = 7.0,
                  min_used: int = 720, origin=None, method: str = "median",
                  min_day_fraction: float = MIN_DAY_COVERAGE,
-                 min_lt_fraction: float = MIN_LT_COVERAGE, level_changes: bool = True):
+                 min_lt_fraction: float = MIN_LT_COVERAGE, level_changes: bool = True,
+                 split_at_level_changes: bool = False,
+                 min_piece_days: float = MIN_PIECE_DAYS):
         self.kp_max = kp_max
         self.window_days = window_days
         self.step_days = step_days
@@ -160,6 +211,8 @@ class OffsetEstimator:
         self.min_day_fraction = min_day_fraction
         self.min_lt_fraction = min_lt_fraction
         self.level_changes = level_changes
+        self.split_at_level_changes = split_at_level_changes
+        self.min_piece_days = min_piece_days
 
     def get_params(self) -> dict:
         """Constructor parameters (JSON-ready)."""
@@ -167,7 +220,9 @@ class OffsetEstimator:
         return {"kp_max": self.kp_max, "window_days": self.window_days,
                 "step_days": self.step_days, "min_used": self.min_used, "origin": origin,
                 "method": self.method, "min_day_fraction": self.min_day_fraction,
-                "min_lt_fraction": self.min_lt_fraction, "level_changes": self.level_changes}
+                "min_lt_fraction": self.min_lt_fraction, "level_changes": self.level_changes,
+                "split_at_level_changes": self.split_at_level_changes,
+                "min_piece_days": self.min_piece_days}
 
     def fit(self, times, data_hpen, model_hpen, kp, lon_deg=None,
             provenance: dict | None = None, span_days: float | None = None):
@@ -221,18 +276,28 @@ class OffsetEstimator:
             raise InputError("method 'lt_balanced' needs the longitude")
         diff = data - model
         used = quiet_mask(kp, self.kp_max) & np.all(np.isfinite(diff), axis=1)
-        stats = window_statistics(t, diff, used, starts, ends, self.min_used,
-                                  local_time_h=lt if self.method == "lt_balanced" else None,
-                                  columns=COMPONENTS)
-        cover = window_coverage(t, used, starts, ends, local_time_h=lt)
         if span_days is None:
             step = float(np.median(np.diff(t))) if t.size > 1 else 0.0
             span_days = (t[-1] - t[0] + step) / DAY_NS
         self.span_days_ = float(span_days)
         warning = short_record_warning(self.span_days_, self.window_days)
         self.warnings_ = (warning,) if warning else ()
+        self._look_for_level_changes(t[used], diff[used])
+        segment, whole = None, None
+        if self.split_at_level_changes:
+            cuts = [np.datetime64(c.time, "ns").astype(np.int64) for c in self.level_changes_]
+            whole = (starts, ends)
+            starts, ends, segment, source = split_windows(starts, ends, cuts)
+            whole = (whole[0][source], whole[1][source])
+        stats = window_statistics(t, diff, used, starts, ends, self.min_used,
+                                  local_time_h=lt if self.method == "lt_balanced" else None,
+                                  columns=COMPONENTS)
+        cover = window_coverage(t, used, starts, ends, local_time_h=lt)
         reasons = self._judge_coverage(stats, cover, warning)
-        self._look_for_level_changes(t[used], diff[used], starts, ends, stats, reasons)
+        if segment is None:
+            self._caution_straddling(starts, ends, stats, reasons)
+        else:
+            self._judge_pieces(starts, ends, whole, stats, reasons)
         centre = starts + (ends - starts) // 2
         self.table_ = OffsetTable(
             center=centre.astype("datetime64[ns]"), start=starts.astype("datetime64[ns]"),
@@ -243,7 +308,7 @@ class OffsetEstimator:
             provenance=dict(provenance or {}), days_covered=cover["days_covered"],
             lt_hours_covered=cover["lt_hours_covered"], warnings=self.warnings_,
             se_nT=stats["se"], dof=stats["dof"], level_changes=self.level_changes_,
-            level_test=self.level_test_)
+            level_test=self.level_test_, segment=segment)
         self.n_quiet_ = int(np.count_nonzero(quiet_mask(kp, self.kp_max)))
         return self
 
@@ -263,22 +328,51 @@ class OffsetEstimator:
             reasons.append(why)
         return reasons
 
-    def _look_for_level_changes(self, t_used, diff_used, starts, ends, stats, reasons):
-        """Level changes in the used samples: warnings, and a caution in the reason of
-        each valid window straddling one."""
-        from magcal.offsets.levels import (change_caution, change_warning,
-                                           detect_level_changes, straddling_windows)
+    def _look_for_level_changes(self, t_used, diff_used):
+        """Level changes in the used samples, and a warning naming each."""
+        from magcal.offsets.levels import change_warning, detect_level_changes
 
         self.level_changes_, self.level_test_ = (), {"tested": False, "why": "not asked"}
         if not self.level_changes:
             return
         changes, self.level_test_ = detect_level_changes(t_used, diff_used)
         self.level_changes_ = tuple(changes)
-        self.warnings_ += tuple(change_warning(c, self.step_days) for c in changes)
-        for i, inside in enumerate(straddling_windows(starts, ends, changes)):
+        if self.split_at_level_changes:
+            self.warnings_ += tuple(split_warning(c) for c in changes)
+        else:
+            self.warnings_ += tuple(change_warning(c, self.step_days) for c in changes)
+
+    def _caution_straddling(self, starts, ends, stats, reasons):
+        """A caution in the reason of each valid window straddling a level change."""
+        from magcal.offsets.levels import change_caution, straddling_windows
+
+        if not self.level_changes_:
+            return
+        for i, inside in enumerate(straddling_windows(starts, ends, self.level_changes_)):
             if np.all(np.isfinite(stats["median"][i])):
                 for c in reversed(inside):
                     reasons[i] = with_caution(reasons[i], change_caution(c))
+
+    def _judge_pieces(self, starts, ends, whole, stats, reasons):
+        """The pieces of windows split at a level change (``whole``: the bounds of the
+        window each row comes from): NaN with the reason when shorter than
+         ``min_piece_days``, else a caution naming the change (in the words
+        :func:`magcal.offsets.levels.changes_from_reasons` reads back)."""
+        for i in np.flatnonzero((starts != whole[0]) | (ends != whole[1])):
+            at = [c for c in self.level_changes_
+                  if np.datetime64(c.time, "ns").astype(np.int64) in (starts[i], ends[i])
+                  and whole[0][i] < np.datetime64(c.time, "ns").astype(np.int64) < whole[1][i]]
+            note = " and ".join(piece_note(c) for c in at)
+            days = (ends[i] - starts[i]) / DAY_NS
+            if days < self.min_piece_days:
+                stats["median"][i] = np.nan
+                why = (f"piece of {days:g} day{'' if days == 1 else 's'}, shorter than "
+                       f"{self.min_piece_days:g}, of a window {note}")
+                reasons[i] = f"{why}; {reasons[i]}" if reasons[i] else why
+            elif np.all(np.isfinite(stats["median"][i])):
+                reasons[i] = with_caution(reasons[i], f"caution: window {note}")
+            else:
+                reasons[i] = f"{reasons[i]}; window {note}"
 
     def apply(self, times, data_hpen):
         """Corrected data, the offsets used, and the flag (see :mod:`magcal.offsets.apply`)."""
