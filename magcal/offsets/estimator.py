@@ -30,7 +30,7 @@ import numpy as np
 from magcal.errors import InputError
 from magcal.offsets.apply import apply_offsets
 from magcal.offsets.table import COMPONENTS, OffsetTable
-from magcal.offsets.defaults import MIN_DAY_COVERAGE, MIN_LT_COVERAGE
+from magcal.offsets.defaults import MIN_DAY_COVERAGE, MIN_LT_COVERAGE, MIN_PIECE_DAYS
 from magcal.offsets.windows import (DAY_NS, split_windows, thin_coverage_reason,
                                     window_coverage, window_grid, window_statistics)
 
@@ -38,10 +38,6 @@ from magcal.offsets.windows import (DAY_NS, split_windows, thin_coverage_reason,
 KP_TOLERANCE = 1e-6
 #: A record spanning less than this fraction of the window is "far shorter" than it.
 SHORT_RECORD_FRACTION = 0.25
-#: Shortest piece (days) of a window split at a level change
-#: (``split_at_level_changes``) that keeps its offset; shorter pieces are NaN with the
-#: reason. See :class:`OffsetEstimator` for the measurements behind it.
-MIN_PIECE_DAYS = 7.0
 
 
 def _duration_text(days: float) -> str:
@@ -386,7 +382,8 @@ def fit_offsets(times, data_hpen, lon_deg, lat_deg, r_re, kp, model: str = "T89"
                 step_days: float = 7.0, min_used: int = 720, method: str = "median",
                 cadence_s: float = 60.0, min_day_fraction: float = MIN_DAY_COVERAGE,
                 min_lt_fraction: float = MIN_LT_COVERAGE,
-                n_jobs: int | None = None, cache_dir=None, provenance: dict | None = None):
+                n_jobs: int | None = None, cache_dir=None, provenance: dict | None = None,
+                split_at_level_changes: bool = False):
     """Whole offset step: 1-min averages, model field, quiet selection, windows.
 
     Parameters
@@ -395,8 +392,8 @@ def fit_offsets(times, data_hpen, lon_deg, lat_deg, r_re, kp, model: str = "T89"
     lon_deg, lat_deg, r_re : position (scalars or per sample).
     kp : Kp per sample (array) or a time-indexed Kp Series (3-hour interval starts).
     model, drivers, n_jobs, cache_dir : see :func:`magcal.models.field.model_field_hpen`.
-    kp_max, window_days, step_days, min_used, method, min_day_fraction, min_lt_fraction :
-        see :class:`OffsetEstimator`.
+    kp_max, window_days, step_days, min_used, method, min_day_fraction, min_lt_fraction,
+    split_at_level_changes : see :class:`OffsetEstimator`.
     cadence_s : averaging cadence (60 s).
 
     Returns
@@ -439,7 +436,8 @@ def fit_offsets(times, data_hpen, lon_deg, lat_deg, r_re, kp, model: str = "T89"
                            cadence_s=None, n_jobs=n_jobs, cache_dir=cache_dir)
     est = OffsetEstimator(kp_max=kp_max, window_days=window_days, step_days=step_days,
                           min_used=min_used, method=method,
-                          min_day_fraction=min_day_fraction, min_lt_fraction=min_lt_fraction)
+                          min_day_fraction=min_day_fraction, min_lt_fraction=min_lt_fraction,
+                          split_at_level_changes=split_at_level_changes)
     prov = dict(provenance or {})
     prov.setdefault("model_field", res.summary())
     t_ns = t.astype(np.int64)
@@ -459,7 +457,7 @@ def fit_offsets_frame(frame, inputs, *, kp_max: float = 1.0, window_days: float 
                       min_day_fraction: float = MIN_DAY_COVERAGE,
                       min_lt_fraction: float = MIN_LT_COVERAGE, cadence_s: float = 60.0,
                       n_jobs: int | None = None, cache_dir=None,
-                      provenance: dict | None = None):
+                      provenance: dict | None = None, split_at_level_changes: bool = False):
     """The ``offsets fit`` product for a validated data frame and its model inputs.
 
     Parameters
@@ -469,7 +467,7 @@ def fit_offsets_frame(frame, inputs, *, kp_max: float = 1.0, window_days: float 
     inputs : magcal.models.inputs.ModelInputs
         Position, Kp and drivers (:func:`magcal.models.inputs.model_inputs`).
     kp_max, window_days, step_days, min_used, method, min_day_fraction, min_lt_fraction,
-    cadence_s, n_jobs, cache_dir, provenance
+    cadence_s, n_jobs, cache_dir, provenance, split_at_level_changes
         See :func:`fit_offsets` and :class:`OffsetEstimator`.
 
     Returns
@@ -502,4 +500,4 @@ def fit_offsets_frame(frame, inputs, *, kp_max: float = 1.0, window_days: float 
                        window_days=window_days, step_days=step_days, min_used=min_used,
                        method=method, cadence_s=cadence_s, min_day_fraction=min_day_fraction,
                        min_lt_fraction=min_lt_fraction, n_jobs=n_jobs, cache_dir=cache_dir,
-                       provenance=provenance)
+                       provenance=provenance, split_at_level_changes=split_at_level_changes)
