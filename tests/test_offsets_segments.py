@@ -7,7 +7,6 @@ import pandas as pd
 import pytest
 
 from magcal.offsets import OffsetEstimator
-from magcal.offsets.apply import near_level_change, quality_bits
 from magcal.offsets.table import read_offsets_csv, write_offsets_csv
 from test_offsets_levels import STEP, STEP_TIME, TRUTH, _record
 
@@ -80,6 +79,7 @@ def test_apply_does_not_blend_across_the_change(stepped):
 def test_near_change_bit_exactly_inside_the_interval(stepped):
     """Quality bit 256 (``offset_near_level_change``) on the samples in [time_lo,
     time_hi) of the change, none elsewhere; none for the unsplit product."""
+    from magcal.offsets.apply import near_level_change, quality_bits
     from magcal.qc.flags import FLAG_NAMES
 
     t, _, _, plain, split = stepped
@@ -153,10 +153,11 @@ def test_split_windows_keep_centres_strictly_increasing():
 
 def test_cli_fit_split_and_apply(tmp_path, capsys):
     """``offsets fit --split-at-level-changes`` on a 120-day 5-min record (T89 plus the
-    offset with a step of twice the other tests', a 1-hour model miss): OFFSETS.csv has ``segment`` and the
-    provenance records the option; ``offsets apply`` counts the samples near the change
-    and none interpolated across it; the corrected data 3 days either side of the step
-    are within 0.5 nT of the truth (the model field is removed exactly)."""
+    offset with a step twice the other tests', a 1-hour model miss): OFFSETS.csv has
+    ``segment`` and the provenance records the option; ``offsets apply`` counts the
+    samples near the change and none interpolated across it; the corrected data 3 days
+    either side of the step are within 0.5 nT of the truth (the model field is removed
+    exactly)."""
     from magcal.cli import main
     from magcal.indices import write_kp_csv
     from magcal.io.csv import write_csv_frame
