@@ -194,3 +194,28 @@ def test_cli_fit_split_and_apply(tmp_path, capsys):
     truth = TRUTH + 2 * STEP * (t >= STEP_TIME)[:, None]
     at = np.searchsorted(t, [STEP_TIME + d * DAY for d in (-3, 3)])
     assert np.all(np.abs(offset[at] - truth[at]) < 0.5), offset[at] - truth[at]
+
+
+def test_chain_offsets_stage_reads_the_option(stepped):
+    """``[offsets] split_at_level_changes = true`` reaches the chain's offsets stage (the
+    table is split, its parameters and the stage's provenance say so); a non-boolean
+    value is a configuration error naming the key."""
+    from magcal.chain import parse_chain_config
+    from magcal.chain.calibrate import run_offsets
+    from magcal.chain.prepare import MinuteData
+    from magcal.errors import InputError
+
+    t, diff, kp, _, split = stepped
+    base = ('[input]\nfiles = ["raw/*.csv"]\ntarget = "fgmo"\n[position]\n'
+            'longitude_deg = 128.2\n[offsets]\nmin_used = 100\n')
+    cfg = parse_chain_config(base + "split_at_level_changes = true\n", "CHAIN.toml")
+    n = t.size
+    minute = MinuteData(times=t, hpen=diff, model=np.zeros_like(diff), kp=kp,
+                        lon_deg=np.full(n, 128.2), lat_deg=np.zeros(n), r_re=np.full(n, 6.6))
+    table, product = run_offsets(minute, cfg)
+    np.testing.assert_array_equal(table.segment, split.table_.segment)
+    np.testing.assert_allclose(table.offset_nT, split.table_.offset_nT, equal_nan=True)
+    assert table.parameters["split_at_level_changes"] is True
+    assert product.provenance["parameters"]["offsets"]["split_at_level_changes"] is True
+    with pytest.raises(InputError, match="split_at_level_changes"):
+        parse_chain_config(base + 'split_at_level_changes = "yes"\n', "CHAIN.toml")
