@@ -197,9 +197,10 @@ class OffsetEstimator:
     from 3 days, so the minimum piece length is set by noise, not coverage: the median
     error of a piece of 3-7 days is twice that of one of 10-28 days. Holding the
     longer pieces' values out to the change is free for a constant offset (the error
-    fell with the minimum up to 14 days) but costs the drift over the distance (with a
-    0.04 nT/day drift the Hp error was least at 5-10 days and 6 % worse at 21):
-    :data:`MIN_PIECE_DAYS` = 7 was within 2 % of the best minimum in every cell.
+    fell with the minimum up to 14 days, by up to 8 % in Hn) but costs the drift over the
+    distance (with a 0.04 nT/day drift the Hp error was least at 5-10 days and 7 % worse
+    at 21): at :data:`MIN_PIECE_DAYS` = 7 the Hp error was within 3 % of the best
+    minimum in every cell.
 
     Examples
     --------
@@ -372,7 +373,7 @@ class OffsetEstimator:
     def _judge_pieces(self, starts, ends, whole, stats, reasons):
         """The pieces of windows split at a level change (``whole``: the bounds of the
         window each row comes from): NaN with the reason when shorter than
-         ``min_piece_days``, else a caution naming the change (in the words
+        ``min_piece_days``, else a caution naming the change (in the words
         :func:`magcal.offsets.levels.changes_from_reasons` reads back)."""
         for i in np.flatnonzero((starts != whole[0]) | (ends != whole[1])):
             at = [c for c in self.level_changes_
