@@ -12,7 +12,8 @@ MINIMAL = '[input]\nfiles = ["raw/*.csv"]\ntarget = "fgmo"\n[position]\nlongitud
 def test_defaults_follow_the_contract():
     cfg = parse_chain_config(MINIMAL, "CHAIN.toml")
     assert cfg["offsets"] == {"kp_max": 1.0, "window_days": 28.0, "step_days": 7.0,
-                              "method": "median", "min_used": 720, "cadence_s": 60.0}
+                              "method": "median", "min_used": 720, "cadence_s": 60.0,
+                              "split_at_level_changes": False}
     assert cfg["alignment"]["reference"] == "model" and cfg["picog"]["plan"] == "auto"
     assert cfg["input"]["frame"] == "hpen" and cfg.kind == "geostationary"
 

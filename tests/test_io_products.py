@@ -68,8 +68,8 @@ def test_netcdf_is_cf_with_flag_variable_and_provenance(tmp_path):
         q = ds["quality"]
         assert q.attrs["standard_name"] == "quality_flag"
         # the bits of magcal.qc (CONTRACTS 7.1, magcal's implausible-vs-model and
-        # offset-bridged and across-a-level-change bits)
-        assert list(q.attrs["flag_masks"]) == [1, 2, 4, 8, 16, 32, 64, 128]
+        # offset-bridged, across-a-level-change and near-a-level-change bits)
+        assert list(q.attrs["flag_masks"]) == [1, 2, 4, 8, 16, 32, 64, 128, 256]
         assert q.attrs["flag_meanings"].split() == list(qcflags.FLAG_NAMES.values())
         _assert_flags_decode(q.values, q.attrs["flag_masks"], q.attrs["flag_meanings"])
         assert q.attrs["flag_masks"].dtype == q.dtype
@@ -105,8 +105,8 @@ def test_cdf_is_istp_with_tt2000_and_support_data(tmp_path):
     assert cdf.varattsget("quality")["VAR_TYPE"] == "support_data"
     assert cdf.varattsget("offset_flag")["VAR_TYPE"] == "support_data"
     qa = cdf.varattsget("quality")
-    assert qa["VALIDMIN"] == 0 and qa["VALIDMAX"] == 255  # the sum of the bits
-    assert list(qa["FLAG_MASKS"]) == [1, 2, 4, 8, 16, 32, 64, 128]
+    assert qa["VALIDMIN"] == 0 and qa["VALIDMAX"] == 511  # the sum of the bits
+    assert list(qa["FLAG_MASKS"]) == [1, 2, 4, 8, 16, 32, 64, 128, 256]
     assert qa["FLAG_MEANINGS"].split() == list(qcflags.FLAG_NAMES.values())
     assert "32 implausible vs model" in qa["VAR_NOTES"]
     _assert_flags_decode(cdf.varget("quality"), qa["FLAG_MASKS"], qa["FLAG_MEANINGS"])

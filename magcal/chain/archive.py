@@ -718,6 +718,13 @@ def _bracket_key(table, day: str, partition_keys) -> str:
     changes = getattr(table, "level_changes", ())
     if changes:  # the quality bit of samples interpolated across one (keys unchanged without)
         key["level_changes"] = [str(np.datetime64(ch.time, "s")) for ch in changes]
+    if getattr(table, "segment", None) is not None:
+        # split at the changes (keys unchanged without): a day's offset may be held from
+        # anywhere in its segment, and the near-change bit follows the changes' intervals
+        key["segments"] = {"segment": table.segment, "centers": c, "offsets":
+                           table.offset_nT[valid],
+                           "intervals": [[str(np.datetime64(v, "s")) for v in
+                                          (ch.time_lo, ch.time_hi)] for ch in changes]}
     return digest(key)[:24]
 
 
@@ -726,7 +733,8 @@ def write_corrected_day(task: DayTask) -> dict:
     from magcal.chain.daily_csv import write_day_csv
     from magcal.offsets import apply_offsets
     from magcal.provenance import file_sha256
-    from magcal.offsets.apply import FLAG_MEANING, across_level_change, quality_bits
+    from magcal.offsets.apply import (FLAG_MEANING, across_level_change, near_level_change,
+                                      quality_bits)
     from magcal.qc.flags import counts as flag_counts
 
     try:
@@ -740,7 +748,8 @@ def write_corrected_day(task: DayTask) -> dict:
         else:
             corr, flag = hpen.copy(), np.full(len(t), 3, dtype=np.int8)
         flag = np.asarray(flag, dtype=int)
-        quality = data.quality[day] | quality_bits(flag, across_level_change(t, task.table))
+        quality = data.quality[day] | quality_bits(flag, across_level_change(t, task.table),
+                                                   near_level_change(t, task.table))
         if task.fmt == "csv":
             write_day_csv(Path(task.path), times, corr, HPEN, flag, extra={"quality": quality},
                           provenance=task.provenance or None)

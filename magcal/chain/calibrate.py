@@ -31,7 +31,8 @@ def run_offsets(minute: MinuteData, config: ChainConfig):
     cfg = config["offsets"]
     est = OffsetEstimator(kp_max=cfg["kp_max"], window_days=cfg["window_days"],
                           step_days=cfg["step_days"], min_used=cfg["min_used"],
-                          method=cfg["method"])
+                          method=cfg["method"],
+                          split_at_level_changes=cfg["split_at_level_changes"])
     prov = make_provenance("offsets", {"offsets": cfg, "model": config["model"]["name"]},
                            wall_clock=False)
     est.fit(minute.times, minute.hpen, minute.model, minute.kp, lon_deg=minute.lon_deg,

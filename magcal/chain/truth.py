@@ -24,7 +24,8 @@ def offsets_against_truth(table, t_truth: np.ndarray, true_offsets: np.ndarray) 
 
     Errors are given over all times the product covers and, separately, over times
     at least half a window away from any jump of the truth (a sliding-window median
-    smooths a step over one window by construction).
+    smooths a step over one window by construction). A product split at level changes
+    (``table.segment``) is scored as ``offsets apply`` applies it, segment by segment.
 
     Examples
     --------
@@ -38,9 +39,20 @@ def offsets_against_truth(table, t_truth: np.ndarray, true_offsets: np.ndarray) 
     """
     from magcal.offsets import interpolate_offsets
 
-    est, flag = interpolate_offsets(t_truth, table.center, table.offset_nT)
+    if getattr(table, "segment", None) is None:
+        est, flag = interpolate_offsets(t_truth, table.center, table.offset_nT)
+        inside = flag == 0
+    else:
+        # split at level changes: scored as applied (within segments, held out to each
+        # change), over the span of the valid centres like the unsplit product
+        from magcal.offsets.apply import interpolate_segmented
+
+        est, flag, _ = interpolate_segmented(t_truth, table)
+        c = np.asarray(table.center)[table.valid].astype("datetime64[ns]")
+        t_ns = np.asarray(t_truth).astype("datetime64[ns]")
+        inside = (np.isin(flag, (0, 1, 2)) & (t_ns >= c[0]) & (t_ns <= c[-1])
+                  if c.size else np.zeros(flag.size, dtype=bool))
     err = est - true_offsets
-    inside = flag == 0
     jumps = np.flatnonzero(np.abs(np.diff(true_offsets, axis=0)).max(axis=1) > 0.5)
     t_ns = t_truth.astype("datetime64[ns]").astype(np.int64)
     half = 0.5 * float(table.parameters.get("window_days", 28.0)) * _DAY_NS

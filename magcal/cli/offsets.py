@@ -8,7 +8,7 @@ import numpy as np
 
 from magcal.cli._common import add_model_arguments, add_output, existing_file, positive_float
 from magcal.errors import InputError
-from magcal.offsets.defaults import MIN_DAY_COVERAGE, MIN_LT_COVERAGE
+from magcal.offsets.defaults import MIN_DAY_COVERAGE, MIN_LT_COVERAGE, MIN_PIECE_DAYS
 
 
 def register(subparsers) -> None:
@@ -53,6 +53,13 @@ def register(subparsers) -> None:
     fit.add_argument("--method", choices=("median", "lt_balanced"), default="median",
                      help="median (default, CONTRACTS §2) or lt_balanced: mean over 24 "
                           "local-time bins of per-bin medians")
+    fit.add_argument("--split-at-level-changes", action="store_true",
+                     help="cut the windows at each level change of the offset found: a "
+                          "window straddling one becomes two pieces with their own "
+                          f"medians and errors (pieces under {MIN_PIECE_DAYS:g} days are "
+                          "NaN), OFFSETS.csv gains a 'segment' column, and 'offsets "
+                          "apply' interpolates within a segment only (default: off, the "
+                          "windows mix both levels)")
     add_output(fit, help_text="OFFSETS.csv")
     fit.set_defaults(func=run_fit)
     app = sub.add_parser("apply", help="subtract interpolated offsets",
@@ -62,7 +69,12 @@ def register(subparsers) -> None:
                                      "centre, 2 held after the last, 3 no valid offset, 4 "
                                      "interpolated across a window without a valid "
                                      "offset. Samples interpolated across a level change "
-                                     "named by 'offsets fit' are counted.")
+                                     "named by 'offsets fit' are counted. An OFFSETS.csv "
+                                     "with a 'segment' column (offsets fit "
+                                     "--split-at-level-changes) is interpolated within "
+                                     "each segment only, end values held out to the "
+                                     "level change; the samples inside a change's 95 % "
+                                     "time interval are counted.")
     app.add_argument("input", help="DATA.csv: time,Hp,He,Hn")
     app.add_argument("--offsets", required=True, help="OFFSETS.csv from 'offsets fit'")
     add_output(app, help_text="CORRECTED.csv (time,Hp,He,Hn,offset_flag)")
@@ -81,12 +93,14 @@ def run_fit(args) -> int:
                        drivers_path=args.drivers, model=args.model)
     params = {k: getattr(args, k) for k in ("model", "kp_max", "window_days", "step_days",
                                             "min_used", "method", "longitude",
-                                            "min_day_coverage", "min_lt_coverage")}
+                                            "min_day_coverage", "min_lt_coverage",
+                                            "split_at_level_changes")}
     table, details = fit_offsets_frame(
         frame, inp, kp_max=args.kp_max, window_days=args.window_days,
         step_days=args.step_days, min_used=args.min_used, method=args.method,
         min_day_fraction=args.min_day_coverage, min_lt_fraction=args.min_lt_coverage,
         n_jobs=args.jobs, cache_dir=args.cache_dir,
+        split_at_level_changes=args.split_at_level_changes,
         provenance=make_provenance("offsets fit", params, inputs=[path, *inp.files]))
     write_offsets_csv(args.output, table)
     for warning in table.warnings:
@@ -95,6 +109,8 @@ def run_fit(args) -> int:
     n_changes = len(table.level_changes)
     changes = (f", {n_changes} level change{'s' if n_changes > 1 else ''} of the offset"
                if n_changes else "")
+    if n_changes and table.segment is not None:
+        changes += f", windows split at {'them' if n_changes > 1 else 'it'}"
     test = getattr(table, "level_test", None) or {}
     if test and not test.get("tested", True):
         changes += f"; {test.get('why') or 'level changes not looked for'}"
@@ -112,6 +128,7 @@ def run_apply(args) -> int:
     from magcal.io.formats import read_any
     from magcal.offsets import (across_level_change, apply_offsets, outside_valid_windows,
                                 read_offsets_csv)
+    from magcal.offsets.apply import near_level_change
     from magcal.offsets.apply import skipped_windows_note
     from magcal.provenance import make_provenance
 
@@ -138,7 +155,20 @@ def run_apply(args) -> int:
     bridged = (f", bridged over a window without an offset {counts[4]}" if counts[4]
                else "")
     across = int(across_level_change(times, table).sum())
-    if table.level_changes:
+    near = int(near_level_change(times, table).sum())
+    if table.level_changes and table.segment is not None:
+        days = ", ".join(str(np.datetime64(c.time, "D")) for c in table.level_changes)
+        print(f"magcal offsets apply: offsets split at the level change"
+              f"{'s' if len(table.level_changes) > 1 else ''} of the offset ({days}): "
+              f"{near} of {len(out)} samples lie inside a change's 95 % time interval, "
+              "where which side's offset applies is uncertain (quality bit "
+              "offset_near_level_change)", file=sys.stderr)
+        if across:
+            print(f"magcal offsets apply: warning: {across} of {len(out)} samples in a "
+                  "segment without a valid window take their offset from across a level "
+                  "change (quality bit offset_interpolated_across_level_change)",
+                  file=sys.stderr)
+    elif table.level_changes:
         days = ", ".join(str(np.datetime64(c.time, "D")) for c in table.level_changes)
         print(f"magcal offsets apply: warning: {across} of {len(out)} samples interpolated "
               f"across a level change of the offset ({days}): their offset mixes both "
@@ -147,5 +177,6 @@ def run_apply(args) -> int:
               file=sys.stderr)
     print(f"magcal offsets apply: {len(out)} samples; interpolated {counts[0]}, held "
           f"{counts[1] + counts[2]}, no offset {counts[3]}{bridged}"
-          f"{f', across a level change {across}' if across else ''}", file=sys.stderr)
+          f"{f', across a level change {across}' if across else ''}"
+          f"{f', near a level change {near}' if near else ''}", file=sys.stderr)
     return 0

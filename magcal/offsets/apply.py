@@ -1,4 +1,11 @@
-"""Apply offsets: linear interpolation between window centres, end values held."""
+"""Apply offsets: linear interpolation between window centres, end values held.
+
+A product split at level changes (an ``OffsetTable`` with ``segment``, OFFSETS.csv with
+the ``segment`` column: ``OffsetEstimator(split_at_level_changes=True)``) is applied
+segment by segment (:func:`interpolate_segmented`): each sample takes the offsets of its
+own segment only, interpolated between that segment's centres and held out to the
+segment's ends (the level changes), never a line across a change.
+"""
 
 from __future__ import annotations
 
@@ -87,13 +94,14 @@ def interpolate_offsets(times, centers, offsets_nT):
     return out, flag
 
 
-def quality_bits(flag, across_change=None) -> np.ndarray:
+def quality_bits(flag, across_change=None, near_change=None) -> np.ndarray:
     """The ``quality`` bits (:mod:`magcal.qc.flags`) that ``offset_flag`` values set:
     16 (``offset_held_or_extrapolated``) for a held or missing offset (1, 2, 3), 64
     (``offset_bridged_over_missing_window``) for one bridged across a window without an
-    offset (4), none for a plain interpolation (0); and 128
+    offset (4), none for a plain interpolation (0); 128
     (``offset_interpolated_across_level_change``) where ``across_change`` (bool, from
-    :func:`across_level_change`) is True.
+    :func:`across_level_change`) is True; and 256 (``offset_near_level_change``) where
+    ``near_change`` (bool, from :func:`near_level_change`) is True.
 
     Examples
     --------
@@ -101,8 +109,11 @@ def quality_bits(flag, across_change=None) -> np.ndarray:
     [0, 16, 16, 16, 64]
     >>> quality_bits([0, 0, 4], across_change=[False, True, True]).tolist()
     [0, 128, 192]
+    >>> quality_bits([0, 2], near_change=[True, True]).tolist()
+    [256, 272]
     """
-    from magcal.qc.flags import OFFSET_ACROSS_LEVEL_CHANGE, OFFSET_BRIDGED, OFFSET_HELD
+    from magcal.qc.flags import (OFFSET_ACROSS_LEVEL_CHANGE, OFFSET_BRIDGED, OFFSET_HELD,
+                                 OFFSET_NEAR_LEVEL_CHANGE)
 
     flag = np.asarray(flag)
     held = np.isin(flag, (FLAG_HELD_BEFORE, FLAG_HELD_AFTER, FLAG_NO_OFFSET))
@@ -111,6 +122,140 @@ def quality_bits(flag, across_change=None) -> np.ndarray:
     if across_change is not None:
         out |= np.where(np.asarray(across_change, dtype=bool), OFFSET_ACROSS_LEVEL_CHANGE,
                         0).astype(np.uint16)
+    if near_change is not None:
+        out |= np.where(np.asarray(near_change, dtype=bool), OFFSET_NEAR_LEVEL_CHANGE,
+                        0).astype(np.uint16)
+    return out
+
+
+def segment_bounds(table):
+    """The segments of a product split at level changes and where each begins.
+
+    A segment begins at the earliest ``start`` of its rows: the pieces after a change
+    start at the change (:func:`magcal.offsets.windows.split_windows`), so this is the
+    change's time, read from OFFSETS.csv alone (no sidecar needed).
+
+    Returns
+    -------
+    labels : ndarray of int
+        The segments, increasing.
+    bounds : ndarray of int64 (ns)
+        Begin of each segment after the first (``labels.size - 1`` values): a sample at
+        ``t`` lies in segment ``labels[searchsorted(bounds, t, side="right")]``.
+    None when ``table`` has no ``segment``.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> s = np.array(["2019-11-01", "2019-11-08", "2019-12-12", "2019-12-12"],
+    ...              dtype="datetime64[ns]")
+    >>> labels, bounds = segment_bounds(SimpleNamespace(start=s, segment=np.array([0, 0, 1, 1])))
+    >>> labels.tolist(), str(bounds.astype("datetime64[ns]")[0].astype("datetime64[D]"))
+    ([0, 1], '2019-12-12')
+    """
+    seg = getattr(table, "segment", None)
+    if seg is None:
+        return None
+    seg = np.asarray(seg, dtype=np.int64)
+    start = np.asarray(table.start).astype("datetime64[ns]").astype(np.int64)
+    labels = np.unique(seg)
+    bounds = np.array([start[seg == lab].min() for lab in labels[1:]], dtype=np.int64)
+    return labels, bounds
+
+
+def interpolate_segmented(times, table, values=None):
+    """Offsets at ``times`` from a product split at level changes: each sample takes its
+    own segment's windows only (:func:`interpolate_offsets` on them: linear between the
+    segment's valid centres, its end values held out to the segment's ends, i.e. to the
+    level change, flags 1 and 2).
+
+    A sample whose segment has no valid window takes the unsplit interpolation over
+    every valid window (its offset then comes across a change, as in the unsplit
+    product; ``across`` says so, for quality bit 128).
+
+    Parameters
+    ----------
+    times : array_like of datetime64, shape (n,)
+    table : OffsetTable
+        With ``segment`` (:func:`segment_bounds`).
+    values : array_like, shape (k, m), optional
+        What to interpolate (default ``table.offset_nT``; rows with any NaN are skipped).
+
+    Returns
+    -------
+    offsets : ndarray, shape (n, m)
+    flag : ndarray of int8, shape (n,)
+    across : ndarray of bool, shape (n,)
+
+    Examples
+    --------
+    Two windows each side of a change on 2019-12-12: before it the first segment's
+    value is held to the change, after it the second's; no line joins them.
+
+    >>> from types import SimpleNamespace
+    >>> c = np.array(["2019-11-20", "2019-11-27", "2019-12-20", "2019-12-27"],
+    ...              dtype="datetime64[ns]")
+    >>> s = np.array(["2019-11-06", "2019-11-13", "2019-12-12", "2019-12-13"],
+    ...              dtype="datetime64[ns]")
+    >>> tab = SimpleNamespace(center=c, start=s, offset_nT=np.array([[1.0], [1.0], [4.0],
+    ...                       [4.0]]), segment=np.array([0, 0, 1, 1]))
+    >>> t = np.array(["2019-12-01", "2019-12-11T23", "2019-12-12T01"], dtype="datetime64[ns]")
+    >>> off, flag, across = interpolate_segmented(t, tab)
+    >>> off[:, 0], flag, across
+    (array([1., 1., 4.]), array([2, 2, 1], dtype=int8), array([False, False, False]))
+    """
+    t = np.asarray(times).astype("datetime64[ns]")
+    labels, bounds = segment_bounds(table)
+    seg = np.asarray(table.segment, dtype=np.int64)
+    vals = np.asarray(table.offset_nT if values is None else values, dtype=float)
+    vals = vals[:, None] if vals.ndim == 1 else vals
+    if vals.shape[0] != seg.size:
+        raise InputError(f"{vals.shape[0]} rows of values for {seg.size} segment labels")
+    centre = np.asarray(table.center).astype("datetime64[ns]")
+    ok = np.all(np.isfinite(vals), axis=1)
+    which = np.searchsorted(bounds, t.astype(np.int64), side="right")
+    out = np.full((t.size, vals.shape[1]), np.nan)
+    flag = np.full(t.size, FLAG_NO_OFFSET, dtype=np.int8)
+    across = np.zeros(t.size, dtype=bool)
+    for k, lab in enumerate(labels):
+        rows, at = seg == lab, which == k
+        if not at.any():
+            continue
+        if ok[rows].any():
+            out[at], flag[at] = interpolate_offsets(t[at], centre[rows], vals[rows])
+        elif ok.any():
+            out[at], flag[at] = interpolate_offsets(t[at], centre, vals)
+            across[at] = True
+    return out, flag, across
+
+
+def near_level_change(times, table) -> np.ndarray:
+    """True for samples inside the 95 % time interval ``[time_lo, time_hi)`` of a level
+    change of a product split at the changes (``table.segment``): the windows were cut
+    at the change's most likely day, and within the interval which side's offset applies
+    is uncertain (quality bit 256, ``offset_near_level_change``). Never True for an
+    unsplit product (``segment`` None), whose samples around a change carry bit 128.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> ch = SimpleNamespace(time_lo=np.datetime64("2019-12-11", "ns"),
+    ...                      time_hi=np.datetime64("2019-12-13", "ns"))
+    >>> t = np.array(["2019-12-10T23", "2019-12-11", "2019-12-12T23", "2019-12-13"],
+    ...              dtype="datetime64[ns]")
+    >>> near_level_change(t, SimpleNamespace(segment=np.zeros(2), level_changes=(ch,)))
+    array([False,  True,  True, False])
+    >>> bool(near_level_change(t, SimpleNamespace(segment=None, level_changes=(ch,))).any())
+    False
+    """
+    t = np.asarray(times).astype("datetime64[ns]").astype(np.int64)
+    out = np.zeros(t.size, dtype=bool)
+    if getattr(table, "segment", None) is None:
+        return out
+    for ch in tuple(getattr(table, "level_changes", ()) or ()):
+        lo = np.datetime64(ch.time_lo, "ns").astype(np.int64)
+        hi = np.datetime64(ch.time_hi, "ns").astype(np.int64)
+        out |= (t >= lo) & (t < hi)
     return out
 
 
@@ -122,7 +267,9 @@ def across_level_change(times, table) -> np.ndarray:
     line joins the two levels and spreads the change over the step or more), or one
     whose offset takes a weight from a valid window straddling a change (its median
     mixes both levels), held ends included. Samples with no valid offset are never
-    flagged here (``offset_flag`` 3 says so).
+    flagged here (``offset_flag`` 3 says so). For a product split at the changes
+    (``table.segment``) only samples whose own segment has no valid window, and so take
+    their offset from across a change (:func:`interpolate_segmented`).
 
     Parameters
     ----------
@@ -154,6 +301,10 @@ def across_level_change(times, table) -> np.ndarray:
     """
     from magcal.offsets.levels import straddling_windows
 
+    if getattr(table, "segment", None) is not None:
+        if not np.all(np.isfinite(np.asarray(table.offset_nT, dtype=float)), axis=1).any():
+            return np.zeros(np.asarray(times).size, dtype=bool)
+        return interpolate_segmented(times, table)[2]
     t = np.asarray(times).astype("datetime64[ns]").astype(np.int64)
     out = np.zeros(t.size, dtype=bool)
     changes = tuple(getattr(table, "level_changes", ()) or ())
@@ -182,7 +333,8 @@ def across_level_change(times, table) -> np.ndarray:
 
 
 def apply_offsets(times, data_hpen, table):
-    """Subtract interpolated offsets from Hpen data.
+    """Subtract interpolated offsets from Hpen data (segment by segment for a product
+    split at level changes, :func:`interpolate_segmented`).
 
     Parameters
     ----------
@@ -197,7 +349,10 @@ def apply_offsets(times, data_hpen, table):
     flag : ndarray of int8, shape (n,)
     """
     data = np.asarray(data_hpen, dtype=float)
-    off, flag = interpolate_offsets(times, table.center, table.offset_nT)
+    if getattr(table, "segment", None) is not None:
+        off, flag, _ = interpolate_segmented(times, table)
+    else:
+        off, flag = interpolate_offsets(times, table.center, table.offset_nT)
     if data.shape != off.shape:
         raise InputError(f"data shape {data.shape} does not match {off.shape}")
     return data - off, off, flag
@@ -268,7 +423,8 @@ def offset_uncertainty(times, table) -> np.ndarray:
     correlated and the blend's error is at most ``(1 - w) se_a + w se_b`` (full
     correlation), which is what is returned: an upper bound, never an understatement.
     Held ends take the end window's standard error (a drift beyond the last window is
-    not included). NaN where no window has a standard error.
+    not included). NaN where no window has a standard error. A product split at level
+    changes takes each sample's own segment (:func:`interpolate_segmented`).
 
     Parameters
     ----------
@@ -297,5 +453,7 @@ def offset_uncertainty(times, table) -> np.ndarray:
     ok = np.all(np.isfinite(se), axis=1)
     if not ok.any():
         return np.full((n, 3), np.nan)
+    if getattr(table, "segment", None) is not None:
+        return interpolate_segmented(times, table, values=se)[0]
     out, _ = interpolate_offsets(times, np.asarray(table.center)[ok], se[ok])
     return out

@@ -42,7 +42,8 @@ def plot_offsets(path, table, title=None):
     (``table.se_nT``) and the band the spread of the selected samples; without standard
     errors the error bars are the spread. Level changes found in the record
     (``table.level_changes``) are drawn at their day with their 95 % time interval
-    shaded: the windows around one mix both levels."""
+    shaded: the windows around one mix both levels (unless the product was split at
+    them, ``table.segment``: then no line joins the segments)."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -56,9 +57,14 @@ def plot_offsets(path, table, title=None):
         if has_se:
             ax.fill_between(table.center, off - table.std_nT[:, j], off + table.std_nT[:, j],
                             alpha=0.2, label="spread (std of selected samples)")
-        ax.errorbar(table.center, off, yerr=se[:, j] if has_se else table.std_nT[:, j],
-                    fmt="o-", capsize=3,
-                    label="offset, 1-sigma standard error" if has_se else "offset, spread")
+        err = se[:, j] if has_se else table.std_nT[:, j]
+        seg = getattr(table, "segment", None)
+        seg = np.zeros(len(off), dtype=int) if seg is None else np.asarray(seg)
+        for n, lab in enumerate(np.unique(seg)):  # no line across a split at a change
+            rows = seg == lab
+            ax.errorbar(table.center[rows], off[rows], yerr=err[rows], fmt="o-", capsize=3,
+                        color="tab:blue", label=None if n else (
+                            "offset, 1-sigma standard error" if has_se else "offset, spread"))
         for k, ch in enumerate(getattr(table, "level_changes", ()) or ()):
             ax.axvspan(ch.time_lo, ch.time_hi, color="tab:red", alpha=0.15)
             ax.axvline(ch.time, color="tab:red", lw=1,

@@ -13,6 +13,13 @@ Provenance is written beside the CSV as ``<file>.provenance.json``, with the lev
 of the offset found in the record (``level_changes``, :mod:`magcal.offsets.levels`) and how
 they were looked for (``level_change_test``); :func:`read_offsets_csv` reads them back
 (or, without the sidecar, from the windows' ``reason`` cautions).
+
+A product fitted with ``split_at_level_changes`` (:class:`~magcal.offsets.OffsetEstimator`)
+has one more column, last: ``segment`` (int: 0 before the first level change, 1 after
+it, ...), by which ``offsets apply`` interpolates within a segment only. The column is
+written only then, so the default product is the same file as before the option
+existed, and a reader that does not know the column reads it as before; a file without
+it is applied as one segment (as it always was).
 """
 
 from __future__ import annotations
@@ -74,6 +81,10 @@ class OffsetTable:
         apply`` flags the samples whose interpolation spans one.
     level_test : dict
         How they were looked for (``tested``, ``threshold``, ...; empty when unknown).
+    segment : ndarray of int, shape (k,), optional
+        Segment of each row when the windows were split at the level changes (0 before
+        the first, 1 after it, ...; column ``segment``); None for the unsplit product,
+        which ``offsets apply`` interpolates as one piece.
     """
 
     center: np.ndarray
@@ -95,6 +106,7 @@ class OffsetTable:
     dof: np.ndarray | None = None
     level_changes: tuple = ()
     level_test: dict = dc_field(default_factory=dict)
+    segment: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.center.size)
@@ -155,6 +167,8 @@ class OffsetTable:
         dof = np.full((len(self), 3), np.nan) if self.dof is None else self.dof
         for j, c in enumerate(COMPONENTS):
             cols[f"{c}_dof"] = dof[:, j]
+        if self.segment is not None:
+            cols["segment"] = np.asarray(self.segment, dtype=np.int64)
         return pd.DataFrame(cols)
 
     def to_json(self) -> dict:
@@ -279,13 +293,27 @@ def read_offsets_csv(path) -> OffsetTable:
     cover = {c: np.nan_to_num(num(c, -1), nan=-1).astype(np.int64)
              for c in ("days_covered", "lt_hours_covered")}
     changes, test = _level_changes_beside(p, reason)
+    segment = None
+    if "segment" in raw.columns:
+        seg = num("segment", keep_missing=True)
+        if not np.all(np.isfinite(seg) & (seg >= 0) & (seg == np.round(seg))):
+            row = int(np.flatnonzero(~(np.isfinite(seg) & (seg >= 0)
+                                       & (seg == np.round(seg))))[0])
+            raise InputError(f"segment must be a whole number >= 0, got "
+                             f"{raw['segment'].iloc[row]!r}", file=p, row=row + 2,
+                             column="segment")
+        segment = seg.astype(np.int64)
+        if segment.size > 1 and np.any(np.diff(segment) < 0):
+            row = int(np.flatnonzero(np.diff(segment) < 0)[0]) + 1
+            raise InputError("segments must not decrease with the window centres", file=p,
+                             row=row + 2, column="segment")
     return OffsetTable(center=times["center"], start=times["start"], end=times["end"],
                        offset_nT=offset, std_nT=std, mad_nT=mad, n_used=n_used,
                        n_available=n_av, fraction_used=num("fraction_used"), reason=reason,
                        parameters={"source": os.fspath(p)},
                        se_nT=np.stack([num(f"{c}_se") for c in COMPONENTS], axis=1),
                        dof=np.stack([num(f"{c}_dof") for c in COMPONENTS], axis=1),
-                       level_changes=changes, level_test=test, **cover)
+                       level_changes=changes, level_test=test, segment=segment, **cover)
 
 
 def _level_changes_beside(path: Path, reason) -> tuple:

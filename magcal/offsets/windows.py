@@ -55,6 +55,65 @@ def window_grid(first_ns: int, last_ns: int, window_days: float = 28.0,
     return starts, starts + win
 
 
+def split_windows(starts_ns, ends_ns, cuts_ns):
+    """The window grid cut at ``cuts_ns`` (level changes): a window ``[start, end)`` holding
+    a cut strictly inside becomes its pieces ``[start, cut)``, ``[cut, end)`` (at each cut
+    inside it), so that no window mixes the levels either side of a cut.
+
+    Rows come in centre order with their segment (the number of cuts at or before the
+    row's start: 0 before the first cut, 1 after it, ...) and the index of the window
+    they came from. Windows are all one length, so an uncut window's centre lies at
+    least half a window from a cut while a piece's lies within half a window of one: no
+    piece shares a centre with an uncut window. Pieces may share a centre with another
+    piece (two cuts inside one window make the same middle piece of each window holding
+    both); the longest is kept, as ``read_offsets_csv`` and ``offsets apply`` need
+    strictly increasing centres.
+
+    Parameters
+    ----------
+    starts_ns, ends_ns : array_like of int64, shape (k,)
+        Window bounds (:func:`window_grid`).
+    cuts_ns : array_like of int64
+        Cut times, increasing.
+
+    Returns
+    -------
+    starts, ends : ndarray of int64, shape (k2,)
+    segment : ndarray of int64, shape (k2,)
+    source : ndarray of int64, shape (k2,)
+        Index of the window each row comes from.
+
+    Examples
+    --------
+    Weekly 28-day windows, a cut on day 30: the three windows holding it (days 7-35,
+    14-42, 21-49) are cut; the pieces before it end at day 30, those after start there.
+
+    >>> s, e = window_grid(0, 45 * DAY_NS - 1, 28, 7)
+    >>> s2, e2, seg, src = split_windows(s, e, [30 * DAY_NS])
+    >>> [(int(a // DAY_NS), int(b // DAY_NS)) for a, b in zip(s2, e2)]
+    [(0, 28), (7, 30), (14, 30), (21, 30), (30, 35), (30, 42), (30, 49)]
+    >>> seg.tolist(), src.tolist()
+    ([0, 0, 0, 0, 1, 1, 1], [0, 1, 2, 3, 1, 2, 3])
+    """
+    starts = np.asarray(starts_ns, dtype=np.int64)
+    ends = np.asarray(ends_ns, dtype=np.int64)
+    cuts = np.unique(np.asarray(cuts_ns, dtype=np.int64))
+    rows = []
+    for i, (a, b) in enumerate(zip(starts, ends)):
+        inside = cuts[(cuts > a) & (cuts < b)]
+        edges = np.concatenate([[a], inside, [b]])
+        for lo, hi in zip(edges[:-1], edges[1:]):
+            rows.append((int(lo), int(hi), i))
+    centre = np.array([lo + (hi - lo) // 2 for lo, hi, _ in rows], dtype=np.int64)
+    length = np.array([hi - lo for lo, hi, _ in rows], dtype=np.int64)
+    order = np.lexsort((-length, centre))
+    keep = [k for n, k in enumerate(order) if n == 0 or centre[k] != centre[order[n - 1]]]
+    s2 = np.array([rows[k][0] for k in keep], dtype=np.int64)
+    e2 = np.array([rows[k][1] for k in keep], dtype=np.int64)
+    src = np.array([rows[k][2] for k in keep], dtype=np.int64)
+    return s2, e2, np.searchsorted(cuts, s2, side="right").astype(np.int64), src
+
+
 def window_statistics(t_ns, diff, selected, starts_ns, ends_ns, min_used: int = 720,
                       local_time_h=None, lt_bins: int = 24, min_per_bin: int = 5,
                       columns=None, pool_min_pairs: int | None = 10) -> dict:

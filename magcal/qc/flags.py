@@ -36,6 +36,10 @@ OFFSET_BRIDGED = np.uint16(64)
 #: sudden step, :mod:`magcal.offsets.levels`), or from a window straddling one: the line
 #: spreads the change over a week or more, so the offset is off by up to the change.
 OFFSET_ACROSS_LEVEL_CHANGE = np.uint16(128)
+#: The sample lies inside the 95 % time interval of a level change of the offset at which
+#: the windows were split (``split_at_level_changes``, :mod:`magcal.offsets.apply`):
+#: which side's offset applies is uncertain here, so the offset may be off by the change.
+OFFSET_NEAR_LEVEL_CHANGE = np.uint16(256)
 
 #: Bit -> name, in bit order (the CF flag_masks / flag_meanings of every product).
 FLAG_NAMES = {
@@ -47,6 +51,7 @@ FLAG_NAMES = {
     int(IMPLAUSIBLE): "implausible_vs_model",
     int(OFFSET_BRIDGED): "offset_bridged_over_missing_window",
     int(OFFSET_ACROSS_LEVEL_CHANGE): "offset_interpolated_across_level_change",
+    int(OFFSET_NEAR_LEVEL_CHANGE): "offset_near_level_change",
 }
 
 #: Bits that keep a sample out of every fit, average and statistic (all but the offset

@@ -405,9 +405,13 @@ def offsets_section(root: Path, budget: list) -> tuple:
               *[f"{v:+.2f} +- {e:.2f}" for v, e in zip(ch.size_nT, ch.se_nT)])
              for ch in changes],
             caption="Sudden level changes of the offset found in the record "
-                    "(magcal.offsets.levels; size new minus old level, 1-sigma). The "
-                    "windows straddling one mix both levels, and corrected samples "
-                    "interpolated across it carry quality bit 128.",
+                    "(magcal.offsets.levels; size new minus old level, 1-sigma). "
+                    + ("The windows were split at each (split_at_level_changes): the "
+                       "offsets either side come from that side's samples alone, and "
+                       "corrected samples inside a change's 95 % interval carry quality "
+                       "bit 256." if table.segment is not None else
+                       "The windows straddling one mix both levels, and corrected samples "
+                       "interpolated across it carry quality bit 128."),
             source=_rel(main, root)))
     if ok.any():
         spread = (np.nanmax(table.offset_nT[ok], axis=0)
