@@ -48,6 +48,9 @@ MAX_ALONG_B = 0.5
 #: below which a zone's amplitudes have settled.
 MAX_ITER = 8
 TOL_NT, TOL_SHARE = 2.0, 0.01
+#: Rows of a kept pulse's interval put back into the fits: within this many FWHM of its
+#: centre (its field 0.2 % of the height there).
+REACH_FWHM = 1.5
 #: Columns of the residual in GEI.
 _B = ["bx_gei", "by_gei", "bz_gei"]
 _REF = ["igrf_x_gei", "igrf_y_gei", "igrf_z_gei"]
@@ -266,6 +269,40 @@ def amplitude_steps(field: pd.DataFrame, pulses: pd.DataFrame) -> np.ndarray:
     return out
 
 
+def refitted(field: pd.DataFrame, pulses: pd.DataFrame) -> pd.DataFrame:
+    """The pulses' Gaussians fitted again (:func:`fit_gaussian`, from their current
+    centre and width) to a product calibrated with them in the reference: its residual
+    against IGRF alone over each detected interval and :data:`MARGIN_S`, the zone's
+    other pulses taken off."""
+    out = pulses.copy()
+    amp = ["amp_x_nT", "amp_y_nT", "amp_z_nT"]
+    for i, p in enumerate(pulses.itertuples()):
+        rows, t = _zone_times(field, p.zone)
+        z = field.iloc[rows]
+        used = z["used"].to_numpy() == 1
+        window = used & (t >= p.start_s - MARGIN_S) & (t <= p.end_s + MARGIN_S)
+        others = pulses[(pulses["zone"] == p.zone) & (np.arange(len(pulses)) != i)]
+        r = z[_B].to_numpy(float) - z[_REF].to_numpy(float) \
+            + template_rows(z.index, pulses.iloc[[i]]) - template_rows(z.index, others)
+        q = fit_gaussian(t[window], r[window], p.centre_s, p.fwhm_s,
+                         lo_s=p.start_s - MARGIN_S, hi_s=p.end_s + MARGIN_S)
+        out.loc[out.index[i], ["centre_s", "fwhm_s", *amp]] = [q["centre_s"], q["fwhm_s"],
+                                                              *q["amplitude"]]
+    return out
+
+
+def template_change(field: pd.DataFrame, old: pd.DataFrame, new: pd.DataFrame
+                    ) -> np.ndarray:
+    """Per pulse the largest change (nT) of its field over its zone's rows."""
+    out = np.zeros(len(old))
+    for i, p in enumerate(old.itertuples()):
+        rows, _ = _zone_times(field, p.zone)
+        idx = field.index[rows]
+        d = template_rows(idx, new.iloc[[i]]) - template_rows(idx, old.iloc[[i]])
+        out[i] = float(np.max(np.linalg.norm(d, axis=1)))
+    return out
+
+
 def _to_rows(values, keep, n, fill=0.0) -> np.ndarray:
     """Values on the calibrated rows (``keep`` of ``n``) spread to all ``n`` rows."""
     v = np.asarray(values)
@@ -275,23 +312,29 @@ def _to_rows(values, keep, n, fill=0.0) -> np.ndarray:
 
 
 def _interval_rows(field: pd.DataFrame, pulses: pd.DataFrame) -> np.ndarray:
-    """Rows of ``field`` inside the detected intervals of ``pulses``."""
+    """Rows of ``field`` inside the detected intervals of ``pulses`` and within
+    :data:`REACH_FWHM` of their centres (a run that also holds another disturbance
+    keeps that one left out)."""
     out = np.zeros(len(field), bool)
     for p in pulses.itertuples():
         rows, t = _zone_times(field, p.zone)
-        out[rows[(t >= p.start_s) & (t <= p.end_s)]] = True
+        near = np.abs(t - p.centre_s) <= REACH_FWHM * p.fwhm_s
+        out[rows[(t >= p.start_s) & (t <= p.end_s) & near]] = True
     return out
 
 
 def calibrate_perp(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, provenance=None,
                    hold_phase=None, fit_exclude=None, fit_exclude_scalar=None,
                    diagnostics: bool = True, linear=None, level_step_rows=None,
-                   pulse_templates=None, drift_templates=None):
+                   pulse_templates=None, drift_templates=None, refine: bool = True):
     """The day calibrated with its pulses across B fitted as templates of the reference.
 
     What ``ElfinSettings.pulses_perp`` runs (module docstring). ``state`` carries the
     IGRF columns (:func:`~magcal.missions.elfin.linear.with_igrf`); the other arguments
-    are those of :func:`~magcal.missions.elfin.pipeline.calibrate_elfin_day`.
+    are those of :func:`~magcal.missions.elfin.pipeline.calibrate_elfin_day`. Each
+    backfit step fits the pulses' centre, width and amplitude again on the product made
+    with them (:func:`refitted`; ``refine``) or only corrects the amplitudes by
+    regression over the zone (:func:`amplitude_steps`, ``refine=False``).
 
     Returns
     -------
@@ -341,7 +384,8 @@ def calibrate_perp(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, provenan
                     pulse_trials=0, level_trials=0)
 
     def calibrate(pulses, diag=False):
-        back = _interval_rows(f, pulses)
+        back = _interval_rows(f, found[found["accepted"].astype(bool)
+                                       & found["zone"].isin(pulses["zone"])])
         vector, scalar = left & ~back, left_scalar & ~back
         return calibrate_elfin_day(fgs, with_templates(state, pulses), plain,
                                    provenance=provenance, hold_phase=hold_phase,
@@ -357,8 +401,13 @@ def calibrate_perp(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, provenan
     amp = ["amp_x_nT", "amp_y_nT", "amp_z_nT"]
     for _ in range(MAX_ITER):
         day = calibrate(pulses)
-        step = amplitude_steps(day.calibration.field, pulses)
-        size = np.linalg.norm(step, axis=1)
+        g = day.calibration.field
+        if refine:
+            target = refitted(g, pulses)
+            size = template_change(g, pulses, target)
+        else:
+            step = amplitude_steps(g, pulses)
+            size = np.linalg.norm(step, axis=1)
         height = np.linalg.norm(pulses[amp].to_numpy(float), axis=1)
         for k in zones:
             if settled[k]:
@@ -372,8 +421,14 @@ def calibrate_perp(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, provenan
             if largest > 0.8 * last_step[k]:      # not shrinking: damp
                 damping[k] *= 0.5
             last_step[k] = largest
-            pulses.loc[mine, amp] = pulses.loc[mine, amp].to_numpy(float) \
-                + damping[k] * step[mine]
+            if refine:
+                shape = ["centre_s", "fwhm_s", *amp]
+                now = pulses.loc[mine, shape].to_numpy(float)
+                pulses.loc[mine, shape] = now + damping[k] * (
+                    target.loc[mine, shape].to_numpy(float) - now)
+            else:
+                pulses.loc[mine, amp] = pulses.loc[mine, amp].to_numpy(float) \
+                    + damping[k] * step[mine]
         if all(settled.values()):
             break
     if not all(settled.values()):
