@@ -93,14 +93,14 @@ def test_the_delivered_reference_is_igrf_alone():
     """The template added to the reference during the fits is taken off again in GEI
     and in the despun frame."""
     f = _field(np.zeros((T.size, 3)))
-    f = f.assign(spin_axis_gei_x=0.0, spin_axis_gei_y=0.0, spin_axis_gei_z=1.0,
+    f = f.assign(spin_axis_gei_x=0.0, spin_axis_gei_y=1.0, spin_axis_gei_z=0.0,
                  igrf_x_despun=0.0, igrf_y_despun=0.0, igrf_z_despun=0.0)
     pulses = pd.DataFrame({"zone": [4], "start": [f.index[0]], "centre_s": [185.0],
-                           "fwhm_s": [40.0], "amp_x_nT": [0.0], "amp_y_nT": [0.0],
-                           "amp_z_nT": [100.0]})
+                           "fwhm_s": [40.0], "amp_x_nT": [0.0], "amp_y_nT": [100.0],
+                           "amp_z_nT": [0.0]})
     g = without_templates(f, pulses)
     k = int(np.argmin(np.abs(T - 185.0)))
-    assert g["igrf_z_gei"].iloc[k] == pytest.approx(-100.0, abs=1e-6)
+    assert g["igrf_y_gei"].iloc[k] == pytest.approx(-100.0, abs=1e-6)
     assert g["igrf_z_despun"].iloc[k] == pytest.approx(-100.0, abs=1e-6)   # Z: spin axis
     assert g["igrf_x_gei"].iloc[k] == pytest.approx(45000.0)
 
@@ -133,12 +133,12 @@ def test_option_off_is_the_delivered_product(zone4):
 @pytest.mark.slow
 def test_an_east_west_pulse_beats_the_leave_out_floor(zone4):
     """A 200 nT 40 s east-west pulse at the middle of zone 4: with the option it comes
-    back with 0.9-1.1 of its energy and a whole-signal distortion below what leaving
-    exactly its rows out does to the same zone's calibration (the floor of any
-    detect-and-leave-out product, :mod:`magcal.missions.elfin.leave_out`), by at least
-    a third of that floor: on 2022-01-12 the floor there is 0.14 and the template 0.05,
-    so a third (0.05) leaves room for a changed detector while still failing a template
-    that only matches leaving out."""
+    back with 0.9-1.1 of its energy and a whole-signal distortion under half of what
+    leaving exactly its rows out does to the same zone's calibration (the floor of any
+    detect-and-leave-out product, :mod:`magcal.missions.elfin.leave_out`) and within
+    the issue's 10 %. On 2022-01-12 the floor there is 0.31, the delivered product
+    0.16 and the template 0.05: half the floor and the target leave room for a
+    changed detector or fit, and still fail a template no better than leaving out."""
     from magcal.missions.elfin.injection import run_injections
     from magcal.missions.elfin.leave_out import leave_out_effect
     from magcal.missions.elfin.pipeline import ElfinSettings
@@ -151,4 +151,5 @@ def test_an_east_west_pulse_beats_the_leave_out_floor(zone4):
                              kinds=("gauss_ew",), centres=(0.5,))
     floor = floor[floor["product"] == floor["product"].iloc[-1]]["distortion"].iloc[0]
     assert 0.9 <= got["energy_kept"] <= 1.1
-    assert got["distortion"] < floor - floor / 3.0
+    assert got["distortion"] < 0.5 * floor
+    assert got["distortion"] <= 0.1

@@ -51,6 +51,8 @@ TOL_NT, TOL_SHARE = 2.0, 0.01
 #: Rows of a kept pulse's interval put back into the fits: within this many FWHM of its
 #: centre (its field 0.2 % of the height there).
 REACH_FWHM = 1.5
+#: Rounding (s) of the times of a run's ends.
+_ROUND_S = 1e-3
 #: Columns of the residual in GEI.
 _B = ["bx_gei", "by_gei", "bz_gei"]
 _REF = ["igrf_x_gei", "igrf_y_gei", "igrf_z_gei"]
@@ -319,7 +321,9 @@ def _interval_rows(field: pd.DataFrame, pulses: pd.DataFrame) -> np.ndarray:
     for p in pulses.itertuples():
         rows, t = _zone_times(field, p.zone)
         near = np.abs(t - p.centre_s) <= REACH_FWHM * p.fwhm_s
-        out[rows[(t >= p.start_s) & (t <= p.end_s) & near]] = True
+        # the run's ends are times of the same rows, read through another float path
+        inside = (t >= p.start_s - _ROUND_S) & (t <= p.end_s + _ROUND_S)
+        out[rows[inside & near]] = True
     return out
 
 
@@ -362,9 +366,11 @@ def calibrate_perp(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, provenan
     pulses = found[found["accepted"].astype(bool)].reset_index(drop=True)
     table = found.assign(iterations=0, converged=False, kept=False)
 
-    def done(day, table):
+    def done(day, table, kept=None):
         if s.bridge_trials > 0:
-            day = _with_bridge(fgs, state, replace(s, pulses_perp=False), day,
+            # the trials fit the kept pulses' rows too: with the pulses in the reference
+            reference = state if kept is None else with_templates(state, kept)
+            day = _with_bridge(fgs, reference, replace(s, pulses_perp=False), day,
                                hold_phase=hold_phase)
         return replace(day, settings=s, steps={**day.steps, "pulses_perp": table})
 
@@ -462,7 +468,7 @@ def calibrate_perp(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, provenan
                   products=products,
                   scores={k: score_field(v.field) for k, v in products.items()},
                   steps={**first.steps, **day.steps})
-    return done(day, table)
+    return done(day, table, pulses)
 
 
 def perp_listing(day) -> list[dict]:
