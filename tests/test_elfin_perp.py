@@ -22,6 +22,8 @@ from magcal.missions.elfin.pulses import gaussian
 
 FGS = "ela_l1_fgs_20220112_v01.cdf"
 STATE = "ela_l1_state_defn_20220112_v01.cdf"
+# the real-data tests share one module fixture: one process
+pytestmark = pytest.mark.xdist_group("elfin_perp")
 
 T = np.arange(0.0, 370.0, 0.2)          # one ELFIN zone at 5 Hz
 AMP = np.array([120.0, -150.0, 40.0])   # nT, |AMP| 196 nT
@@ -116,6 +118,7 @@ def zone4():
 
 
 @pytest.mark.slow
+@pytest.mark.realdata
 def test_option_off_is_the_delivered_product(zone4):
     """``pulses_perp`` is off by default; on a zone where nothing is detected the
     option on changes nothing either (no pulse fitted, the same product)."""
@@ -131,6 +134,7 @@ def test_option_off_is_the_delivered_product(zone4):
 
 
 @pytest.mark.slow
+@pytest.mark.realdata
 def test_an_east_west_pulse_beats_the_leave_out_floor(zone4):
     """A 200 nT 40 s east-west pulse at the middle of zone 4: with the option it comes
     back with 0.9-1.1 of its energy and a whole-signal distortion under half of what

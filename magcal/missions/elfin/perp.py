@@ -449,7 +449,8 @@ def calibrate_perp(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, provenan
             day = calibrate(pulses, True)
     for p in pulses.itertuples():
         hit = (table["zone"] == p.zone) & (table["start_s"] == p.start_s)
-        table.loc[hit, amp] = [p.amp_x_nT, p.amp_y_nT, p.amp_z_nT]
+        table.loc[hit, ["centre_s", "fwhm_s", *amp]] = [p.centre_s, p.fwhm_s, p.amp_x_nT,
+                                                        p.amp_y_nT, p.amp_z_nT]
         table.loc[hit, "height_nT"] = float(np.linalg.norm([p.amp_x_nT, p.amp_y_nT,
                                                             p.amp_z_nT]))
         table.loc[hit, ["iterations", "converged", "kept"]] = [iterations[p.zone], True, True]
@@ -461,13 +462,19 @@ def calibrate_perp(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, provenan
                                  "(left out as delivered)")
     if day is first:
         return done(first, table)
+    # the delivered reference is IGRF alone, and so are the scores
     products = {k: replace(v, field=without_templates(v.field, pulses))
                 for k, v in day.products.items()}
-    last = list(products)[-1]
-    day = replace(day, calibration=products[last], linear=products["linear"],
-                  products=products,
-                  scores={k: score_field(v.field) for k, v in products.items()},
-                  steps={**first.steps, **day.steps})
+    delivered = next((products[k] for k, v in day.products.items()
+                      if v is day.calibration),
+                     replace(day.calibration,
+                             field=without_templates(day.calibration.field, pulses)))
+    scores = {k: score_field(v.field) for k, v in products.items()}
+    if "joint" in day.scores:
+        scores["joint"] = score_field(delivered.field) if day.delivered == "joint" \
+            else day.scores["joint"]
+    day = replace(day, calibration=delivered, linear=products["linear"], products=products,
+                  scores=scores, steps={**first.steps, **day.steps})
     return done(day, table, pulses)
 
 
