@@ -157,3 +157,31 @@ def test_an_east_west_pulse_beats_the_leave_out_floor(zone4):
     assert 0.9 <= got["energy_kept"] <= 1.1
     assert got["distortion"] < 0.5 * floor
     assert got["distortion"] <= 0.1
+
+
+@pytest.mark.slow
+@pytest.mark.realdata
+def test_a_backfit_that_does_not_settle_keeps_the_delivered_product(zone4, monkeypatch):
+    """With a tolerance no correction meets, the zone's pulse is fitted, its backfit
+    runs out of iterations and the interval stays left out: the delivered product, with
+    the reason in the table."""
+    from magcal.missions.elfin import perp
+    from magcal.missions.elfin.injection import inject_counts, signal_gei
+    from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
+
+    fgs, state = zone4
+    s = ElfinSettings(bridge_trials=0, pulse_trials=0, level_trials=0)
+    clean = calibrate_elfin_day(fgs, state, s, diagnostics=False)
+    f = clean.linear.field
+    injected = inject_counts(fgs, clean.linear, {0: signal_gei("gauss_ew", f, state)})
+    monkeypatch.setattr(perp, "TOL_NT", 1e-12)
+    monkeypatch.setattr(perp, "TOL_SHARE", 0.0)
+    monkeypatch.setattr(perp, "MAX_ITER", 2)
+    on = calibrate_elfin_day(injected, state, replace(s, pulses_perp=True),
+                             diagnostics=False)
+    off = calibrate_elfin_day(injected, state, s, diagnostics=False)
+    pd.testing.assert_frame_equal(off.calibration.field, on.calibration.field)
+    table = on.steps["pulses_perp"]
+    fitted = table[table["accepted"].astype(bool)]
+    assert len(fitted) == 1 and not fitted["kept"].iloc[0]
+    assert fitted["iterations"].iloc[0] == 2 and "did not settle" in fitted["why"].iloc[0]
