@@ -124,6 +124,8 @@ def _calibrate(data, settings, inputs, disturbed=()):
                      + _judged_note(day.level_step_judged()))
     if settings.pulses_b:
         lines.extend(pulse_lines(day))
+    if settings.pulses_perp:
+        lines.append(perp_line(day))
     lines.append(f"delivered: {day.delivered}")
     summary = {"n_zones": n, "delivered": day.delivered, "zone_medians_nT": medians,
                "settings": asdict(settings)}
@@ -168,6 +170,21 @@ def pulse_lines(day) -> list[str]:
                                  f"FWHM {x['fwhm_s']:.0f} s "
                                  f"({x['why']})" for x in removed))
     return lines
+
+
+def perp_line(day) -> str:
+    """The CLI's line on pulses across B fitted as templates (``pulses_perp``): those
+    kept in the fits, and how many detected intervals stay left out."""
+    from magcal.missions.elfin.perp import perp_listing
+
+    every = perp_listing(day)
+    kept = [x for x in every if x["kept"]]
+    unsettled = [x for x in every if x["iterations"] and not x["converged"]]
+    return ("pulses across B fitted as templates, in the fits (pulses_perp): "
+            + ("; ".join(f"{_at(x, 'centre')} {x['height_nT']:.0f} nT, FWHM "
+                         f"{x['fwhm_s']:.0f} s" for x in kept) if kept else "none")
+            + f"; {len(every) - len(kept)} detected interval(s) left out"
+            + (f" ({len(unsettled)} whose backfit did not settle)" if unsettled else ""))
 
 
 def _calibrated(day, probe: str):

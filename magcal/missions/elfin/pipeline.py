@@ -409,6 +409,16 @@ class ElfinDay:
 
                 payload["pulses_b"]["search"] = self.pulse_search_listing()
                 payload["pulses_b"]["note_search"] = SEARCH_NOTE
+        if s.pulses_perp:
+            from magcal.missions.elfin.perp import perp_listing
+
+            payload["pulses_perp"] = {
+                "note": "detected intervals where a Gaussian pulse across B (free centre, "
+                        "width and GEI amplitude on a linear baseline) explains the "
+                        "residual: kept in the fits with the pulse added to the reference "
+                        "and its amplitude backfitted with the calibration (magcal."
+                        "missions.elfin.perp); kept false: left out as delivered (why)",
+                "pulses": perp_listing(self)}
         if "disturbed_detection" in self.steps:
             payload["disturbed_detection"] = {
                 "note": "intervals located from the counts alone (magcal.missions.elfin."
@@ -609,6 +619,15 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
             steps["level_trials"] = level_trials(fgs, state, s, day, s.level_trials,
                                                  fit_exclude=fit_exclude)
         return replace(day, settings=s, steps=steps)
+    if s.pulses_perp and s.detect_disturbed and zone_numbers is None:
+        from magcal.missions.elfin.perp import calibrate_perp
+
+        return calibrate_perp(fgs, state, s, provenance=provenance, hold_phase=hold_phase,
+                              fit_exclude=fit_exclude, fit_exclude_scalar=fit_exclude_scalar,
+                              diagnostics=diagnostics, linear=linear,
+                              level_step_rows=level_step_rows,
+                              pulse_templates=pulse_templates,
+                              drift_templates=drift_templates)
     if s.bridge_trials > 0:
         day = calibrate_elfin_day(fgs, state, replace(s, bridge_trials=0),
                                   provenance=provenance, hold_phase=hold_phase,

@@ -167,6 +167,18 @@ class ElfinSettings:
         and the day calibrated again with them together
         (:func:`~magcal.missions.elfin.pulses.pulse_trials`; ``height_error_nT`` in the
         JSON's ``pulses_b``). 0: not measured.
+    pulses_perp : bool
+        Fit a detected interval's pulse across B as a natural-field template instead of
+        leaving its rows out (:mod:`magcal.missions.elfin.perp`): on the delivered
+        product a Gaussian (free centre, FWHM and GEI amplitude on a linear baseline)
+        fitted to each detected interval's residual, kept when it explains 80 % of it,
+        is 10-150 s wide, 30 nT or higher, inside the zone and mostly across B; the day
+        is then calibrated with those rows in the fits and the pulse added to IGRF, its
+        amplitude backfitted until settled (a zone that does not settle keeps the
+        interval left out). Why: leaving rows out changes the calibration the fits
+        bridge the gap with, a floor on the kept pulse's distortion that a fitted
+        template does not have. Default False (several more calibrations per day with
+        a pulse); ``pulses_perp`` in the JSON.
     level_trials : int
         With ``level_steps``: the error of each kept level step, from this many other
         zones without a step, a current sheet of the step's size put into their counts
@@ -198,6 +210,7 @@ class ElfinSettings:
     pulses_b: bool = True
     pulse_trials: int = 6
     level_trials: int = 3
+    pulses_perp: bool = False
 
     @classmethod
     def from_mapping(cls, given: dict, where: str = "settings") -> ElfinSettings:
