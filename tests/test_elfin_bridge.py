@@ -93,8 +93,10 @@ def test_stated_bridge_error_covers_the_kept_pulses():
     fgs = read_elfin_fgs(real_data_path("elfin", "ela_l1_fgs_20220112_v01.cdf"))
     state = read_elfin_state(real_data_path("elfin", "ela_l1_state_defn_20220112_v01.cdf"))
     fgs = inj.select_zones(fgs, (1, 4, 7, 10))
-    # the baseline and the product the trials are compared with have no trials
-    plain_settings = ElfinSettings(bridge_trials=0)
+    # the baseline and the product the trials are compared with have no trials; the
+    # pulses left out as detected (pulses_perp would fit them as templates instead:
+    # their stated error is perp_trials', tests/test_elfin_perp.py)
+    plain_settings = ElfinSettings(bridge_trials=0, pulses_perp=False)
     clean = calibrate_elfin_day(fgs, state, plain_settings, diagnostics=False)
     f = clean.linear.field
     ratios = []
@@ -102,7 +104,8 @@ def test_stated_bridge_error_covers_the_kept_pulses():
         signals = {k: inj.signal_gei(kind, f[f["zone"] == k], state)
                    for k in dict.fromkeys(f["zone"].to_numpy())}
         counts = inj.inject_counts(fgs, clean.linear, signals)
-        day = calibrate_elfin_day(counts, state, ElfinSettings(bridge_trials=3),
+        day = calibrate_elfin_day(counts, state,
+                                  ElfinSettings(bridge_trials=3, pulses_perp=False),
                                   diagnostics=False)
         if kind == "gauss_ew":
             plain = calibrate_elfin_day(counts, state, plain_settings, diagnostics=False)

@@ -134,7 +134,8 @@ def _run(argv=None) -> int:
                              phase_refit=not args.no_phase_refit,
                              joint=args.joint and not args.no_joint, scan=not args.no_scan,
                              detect_disturbed=not args.no_detect,
-                             **(dict(bridge_trials=0, pulse_trials=0, level_trials=0)
+                             **(dict(bridge_trials=0, pulse_trials=0, level_trials=0,
+                                     perp_trials=0)
                                 if args.no_trials else {}))
     day = calibrate_elfin_day(fgs, state, settings, provenance=prov)
     cal, tab, ripple, joint, scan = (day.calibration, day.linear.table(), day.ripple,

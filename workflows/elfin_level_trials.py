@@ -73,9 +73,10 @@ def main(argv=None) -> int:
     truth = args.scale * SIGNALS["sheet_ew"][0]
     print(f"ELFIN-A 2022-01-12: a {truth:g} nT east-west current sheet in one zone at a "
           f"time, delivered settings with level_trials = {args.trials}\n{CREDIT}")
-    s = ElfinSettings(level_trials=args.trials, bridge_trials=0, pulse_trials=0)
+    s = ElfinSettings(level_trials=args.trials, bridge_trials=0, pulse_trials=0,
+                      perp_trials=0)
     clean = calibrate_elfin_day(fgs, state, ElfinSettings(bridge_trials=0, pulse_trials=0,
-                                                          level_trials=0),
+                                                          level_trials=0, perp_trials=0),
                                 diagnostics=False)
     f = clean.linear.field
     cf = clean.calibration.field

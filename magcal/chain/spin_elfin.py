@@ -180,9 +180,17 @@ def perp_line(day) -> str:
     every = perp_listing(day)
     kept = [x for x in every if x["kept"]]
     unsettled = [x for x in every if x["iterations"] and not x["converged"]]
+    trials = day.steps.get("perp_trials")
+    errors = {} if trials is None else {(r.zone, r.centre): r.error_rms_nT
+                                        for r in trials.itertuples()}
+
+    def error(x):
+        e = errors.get((x["zone"], x["centre"]))
+        return "" if e is None else f" (error {e:.0f} nT RMS, pulse_error_nT)"
+
     return ("pulses across B fitted as templates, in the fits (pulses_perp): "
             + ("; ".join(f"{_at(x, 'centre')} {x['height_nT']:.0f} nT, FWHM "
-                         f"{x['fwhm_s']:.0f} s" for x in kept) if kept else "none")
+                         f"{x['fwhm_s']:.0f} s{error(x)}" for x in kept) if kept else "none")
             + f"; {len(every) - len(kept)} detected interval(s) left out"
             + (f" ({len(unsettled)} whose backfit did not settle)" if unsettled else ""))
 

@@ -150,7 +150,7 @@ def leave_out_effect(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
 
     fgs, state = ns_index(fgs, "FGS frame"), ns_index(state, "state frame")
     s = replace(settings or ElfinSettings(), bridge_trials=0, pulse_trials=0,
-                level_trials=0)
+                level_trials=0, perp_trials=0)
     if zones is not None:
         fgs = select_zones(fgs, zones)
     if clean is None:

@@ -387,7 +387,7 @@ def calibrate_perp(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, provenan
                  pulse_templates=_to_rows(shape_columns(f, NATURAL_COLUMNS), keep, n),
                  drift_templates=_to_rows(shape_columns(f, DRIFT_COLUMNS), keep, n))
     plain = replace(s, pulses_perp=False, detect_disturbed=False, bridge_trials=0,
-                    pulse_trials=0, level_trials=0)
+                    pulse_trials=0, level_trials=0, perp_trials=0)
 
     def calibrate(pulses, diag=False):
         back = _interval_rows(f, found[found["accepted"].astype(bool)
@@ -498,4 +498,108 @@ def perp_listing(day) -> list[dict]:
                                          float(r.amp_z_nT)],
                        share=float(r.share), along_b=float(r.along_b))
         out.append(rec)
+    return out
+
+
+#: Columns of :func:`perp_trials`.
+TRIAL_COLUMNS = ["zone", "centre", "fwhm_s", "height_nT", "trial_errors_nT",
+                 "trials_kept", "error_rms_nT"]
+
+
+def kept_pulses(day) -> pd.DataFrame:
+    """The pulses across B ``day`` keeps as templates (rows of ``steps["pulses_perp"]``
+    with ``kept``)."""
+    table = day.steps.get("pulses_perp")
+    if table is None or not len(table):
+        return pd.DataFrame(columns=PULSE_COLUMNS)
+    return table[table["kept"].astype(bool)].reset_index(drop=True)
+
+
+def perp_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day, n_trials: int, *,
+                fit_exclude=None) -> pd.DataFrame:
+    """The error of each kept pulse across B: a pulse like it put into the counts of
+    other zones at the same place and kept again.
+
+    For each pulse ``day`` keeps as a template (:func:`kept_pulses`), a Gaussian of its
+    FWHM and GEI amplitude is added to the counts of up to ``n_trials`` other zones
+    without a kept pulse (the nearest first), at the same fraction of the zone's used
+    span, through the day's linear calibration; the day is calibrated again with
+    ``settings`` (the trial zones together, as the pulse and level trials are:
+    :func:`magcal.missions.elfin.injection.trial_day`). A trial's error is the RMS over
+    the rows within :data:`REACH_FWHM` FWHM of the place of ``|trial - day - pulse|``
+    (GEI): what the product makes of a pulse of that size there, whether the trial zone
+    kept it as a template or left it out. The RMS of the trials' errors is the stated
+    error of the kept pulse's rows (``pulse_error_nT`` of the calibrated table).
+
+    Returns
+    -------
+    DataFrame
+        :data:`TRIAL_COLUMNS` per kept pulse: ``zone``, ``centre`` (UTC, ISO, no zone),
+        ``fwhm_s``, ``height_nT``, ``trial_errors_nT`` (list), ``trials_kept`` (how
+        many trial zones kept their pulse as a template) and ``error_rms_nT`` (NaN
+        without trials: no zone without a pulse, or the day with the trial pulses could
+        not be calibrated).
+    """
+    from magcal.missions.elfin.injection import trial_day, trial_places
+
+    kept = kept_pulses(day)
+    if not len(kept) or n_trials <= 0:
+        return pd.DataFrame([_trial_row(p, [], 0) for p in kept.itertuples()],
+                            columns=TRIAL_COLUMNS)
+    f = day.calibration.field
+    lin = day.linear.field
+    busy = set(kept["zone"].tolist())
+    out = []
+    for p in kept.itertuples():
+        centre = pd.Timestamp(p.start) + pd.to_timedelta(p.centre_s, unit="s")
+        amp = np.array([p.amp_x_nT, p.amp_y_nT, p.amp_z_nT])
+        signals, places = {}, []
+        for k, rows, t, c in trial_places(lin, p.zone, [str(centre.tz_convert(None))],
+                                          busy, n_trials):
+            signals[k] = gaussian(t, c, p.fwhm_s)[:, None] * amp
+            places.append((k, rows, t, c))
+        errors, n_kept = [], 0
+        trial = trial_day(fgs, state, settings, day, signals, fit_exclude=fit_exclude) \
+            if signals else None
+        if trial is not None:
+            g = trial.calibration.field
+            again = kept_pulses(trial)
+            for k, rows, t, c in places:
+                near = np.abs(t - c) <= REACH_FWHM * p.fwhm_s
+                sel = rows[near]
+                ok = (f["used"].to_numpy()[sel] == 1) & (g["used"].to_numpy()[sel] == 1)
+                diff = (g[_B].to_numpy(float)[sel] - f[_B].to_numpy(float)[sel]
+                        - signals[k][near])[ok]
+                if diff.size:
+                    errors.append(float(np.sqrt(np.mean(np.sum(diff ** 2, axis=1)))))
+                n_kept += int(np.any(again["zone"].to_numpy() == k))
+        out.append(_trial_row(p, errors, n_kept))
+    return pd.DataFrame(out, columns=TRIAL_COLUMNS)
+
+
+def _trial_row(p, errors, n_kept) -> dict:
+    centre = pd.Timestamp(p.start) + pd.to_timedelta(p.centre_s, unit="s")
+    e = np.asarray(errors, float)
+    return {"zone": int(p.zone), "centre": str(centre.tz_convert(None)),
+            "fwhm_s": float(p.fwhm_s),
+            "height_nT": float(np.linalg.norm([p.amp_x_nT, p.amp_y_nT, p.amp_z_nT])),
+            "trial_errors_nT": e.tolist(), "trials_kept": int(n_kept),
+            "error_rms_nT": float(np.sqrt(np.mean(e ** 2))) if e.size else float("nan")}
+
+
+def pulse_error_column(day) -> np.ndarray:
+    """Per row of the delivered field: the stated error (nT) of the kept pulse across B
+    whose rows (within :data:`REACH_FWHM` FWHM of its centre) it lies in
+    (``steps["perp_trials"]``), NaN elsewhere or where not measured."""
+    f = day.calibration.field
+    out = np.full(len(f), np.nan)
+    trials = day.steps.get("perp_trials")
+    if trials is None or not len(trials):
+        return out
+    ns = f.index.as_unit("ns").asi8
+    zone = f["zone"].to_numpy()
+    for r in trials.itertuples():
+        c = pd.Timestamp(r.centre, tz="UTC").value
+        near = (zone == r.zone) & (np.abs(ns - c) / 1e9 <= REACH_FWHM * r.fwhm_s)
+        out[near] = r.error_rms_nT
     return out

@@ -38,7 +38,7 @@ SHIFTS_S = (-0.4, -0.2, -0.1, 0.0, 0.1, 0.2, 0.4)
 #: Columns of the calibrated table (the first five after ``time`` are the issue's contract).
 CALIBRATED_COLUMNS = ("zone", "used", "bx_gei", "by_gei", "bz_gei", "bx_despun", "by_despun",
                       "bz_despun", "igrf_x_gei", "igrf_y_gei", "igrf_z_gei", "phase", "fit",
-                      "bridge_rms_nT", "level_step", "level_error_nT")
+                      "bridge_rms_nT", "level_step", "level_error_nT", "pulse_error_nT")
 #: Zone medians compared from one step to the next (:meth:`ElfinDay.worse_steps`).
 SCORED = ("scalar_rms_nT", "scalar_fast_nT", "scalar_slow_nT", "vector_rms_nT")
 #: Relative (and absolute, nT) growth of a zone median below which it is rounding.
@@ -147,7 +147,10 @@ class ElfinDay:
             f = f.assign(fit=f["used"])
         if "level_step" not in f.columns:
             f = f.assign(level_step=0)
-        f = f.assign(level_error_nT=self.level_error_column())
+        from magcal.missions.elfin.perp import pulse_error_column
+
+        f = f.assign(level_error_nT=self.level_error_column(),
+                     pulse_error_nT=pulse_error_column(self))
         table = f[cols].astype(float)
         if not self.calibration.skipped:
             return table
@@ -419,6 +422,16 @@ class ElfinDay:
                         "and its amplitude backfitted with the calibration (magcal."
                         "missions.elfin.perp); kept false: left out as delivered (why)",
                 "pulses": perp_listing(self)}
+            if "perp_trials" in self.steps:
+                payload["pulses_perp"]["trials"] = self.steps["perp_trials"].to_dict(
+                    orient="records")
+                payload["pulses_perp"]["note_error"] = (
+                    "error_rms_nT: RMS over the rows within 1.5 FWHM of the place of "
+                    "|product with the trial pulse - product - trial pulse| (GEI nT), a "
+                    "pulse like the kept one put into the counts of other zones at the "
+                    "same place (perp_trials of them, trial_errors_nT; trials_kept: how "
+                    "many were kept as templates); the calibrated table's "
+                    "pulse_error_nT on the kept pulse's rows")
         if "disturbed_detection" in self.steps:
             payload["disturbed_detection"] = {
                 "note": "intervals located from the counts alone (magcal.missions.elfin."
@@ -599,11 +612,14 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
     state = with_igrf(state, fgs)
     pulses_tried = s.pulses_b and s.pulse_trials > 0
     levels_tried = s.level_steps and s.level_trials > 0
-    if (pulses_tried or levels_tried) and zone_numbers is None:
+    perp_tried = s.pulses_perp and s.detect_disturbed and s.perp_trials > 0
+    if (pulses_tried or levels_tried or perp_tried) and zone_numbers is None:
         from magcal.missions.elfin.levels import level_trials
+        from magcal.missions.elfin.perp import perp_trials
         from magcal.missions.elfin.pulses import pulse_trials
 
-        day = calibrate_elfin_day(fgs, state, replace(s, pulse_trials=0, level_trials=0),
+        day = calibrate_elfin_day(fgs, state, replace(s, pulse_trials=0, level_trials=0,
+                                                      perp_trials=0),
                                   provenance=provenance, hold_phase=hold_phase,
                                   fit_exclude=fit_exclude,
                                   fit_exclude_scalar=fit_exclude_scalar,
@@ -618,6 +634,9 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
         if levels_tried:
             steps["level_trials"] = level_trials(fgs, state, s, day, s.level_trials,
                                                  fit_exclude=fit_exclude)
+        if perp_tried:
+            steps["perp_trials"] = perp_trials(fgs, state, s, day, s.perp_trials,
+                                               fit_exclude=fit_exclude)
         return replace(day, settings=s, steps=steps)
     if s.pulses_perp and s.detect_disturbed and zone_numbers is None:
         from magcal.missions.elfin.perp import calibrate_perp
