@@ -4,8 +4,10 @@ the record's day values.
 The sliding-window medians and their linear interpolation assume an offset that varies
 slowly against the window step. A sudden change breaks that silently: windows
 straddling it report a median mixing both levels, and the interpolation spreads the
-change over weeks. This module looks for such changes on the record's *day values* (the
-median of each UTC day's selected residual, as the windows' standard errors use them).
+change over weeks. This module looks for such changes on the record's *day values* (for
+each UTC day the mean of its hours' medians of the selected residual,
+:func:`hourly_day_values`: robust to a spike as a median, and the mean of the miss over
+the day's selected hours that the covariance below describes).
 
 At each day ``k`` the values of the ``half_width`` days either side are fitted by
 generalised least squares with a local no-change model plus a step from day ``k`` (plus
@@ -145,7 +147,7 @@ def day_variance_scale(days, values, counts, max_ratio: float = MAX_VARIANCE_RAT
     """Standard deviation (relative, median 1) of each day value, modelled as
     ``a + b / n`` in the day's number ``n`` of samples.
 
-    A day value is the median of the day's selected samples; under a model miss
+    A day value is a median of the day's selected samples; under a model miss
     correlated over hours, a day holding 3 quiet hours averages a few of its swings and
     one holding 20 hours many, so the first is far noisier (the ``b / n`` part), while a
     miss correlated over days moves the whole day alike however many samples it holds
@@ -232,7 +234,7 @@ class QuietHours:
     """When in each UTC day the selected samples fall, and the day values' correlation it
     implies.
 
-    A day value is the median of its selected samples, and with quiet data in whole
+    A day value sums up its selected samples, and with quiet data in whole
     3-hour Kp blocks a day may hold only its last hours and the next only its first (its
     value then lies hours from the previous one) or the reverse (nearly two days). Under
     a model miss correlated over days the difference of two consecutive day values is
