@@ -99,3 +99,12 @@ def test_hourly_day_values_keep_spikes_out_and_weigh_hours_by_their_samples():
     np.testing.assert_allclose(got[0], 2.0)
     np.testing.assert_allclose(got[1], (12 * 12 * 1.0 + 11 * 12 * 3.0) / (23 * 12))
     assert hourly_day_values(t, x, [1]).shape == (1, 3)
+
+
+def test_hourly_day_values_and_the_test_take_an_empty_record():
+    """No samples: no day values, and the record is reported too short, not an error."""
+    from magcal.offsets.levels import hourly_day_values
+
+    assert hourly_day_values(np.zeros(0, np.int64), np.zeros((0, 3)), []).shape == (0, 3)
+    changes, info = detect_level_changes(np.zeros(0, np.int64), np.zeros((0, 3)))
+    assert changes == [] and not info["tested"]

@@ -382,6 +382,8 @@ def hourly_day_values(t_ns, x, days, bins: int = QUIET_HOUR_BINS) -> np.ndarray:
     x = np.asarray(x, dtype=float)
     x = x[:, None] if x.ndim == 1 else x
     days = np.asarray(days, dtype=np.int64)
+    if t.size == 0 or days.size == 0:
+        return np.full((days.size, x.shape[1]), np.nan)
     day = t // DAY_NS
     key = day * bins + np.minimum(((t - day * DAY_NS) * bins) // DAY_NS, bins - 1)
     order = np.argsort(key, kind="stable")
