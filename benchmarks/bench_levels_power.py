@@ -9,7 +9,9 @@ nT in Hp, ``-0.6 s`` in He and ``0.4 s`` in Hn. A step counts as found when a ch
 named within 2 days of it or with it inside its 95 % interval; any other change named is
 a false one. Seeds 0-29 (dev) or 1000-1029 (``--held``).
 
-Run: ``python benchmarks/bench_levels_power.py power|false|two [--iid] [--held] [-n 30]``.
+Run: ``python benchmarks/bench_levels_power.py power|false|two [--iid] [--held] [-n 30]
+[--tau 24 120] [--plain]`` (``--tau``: only those correlation times; ``--plain``: of
+``false``, only the records without drift, wander, gap or spikes).
 """
 
 from __future__ import annotations
@@ -81,23 +83,26 @@ def run(job):
     return tau_h, str(kw), hits, false
 
 
-def jobs(which, base, n, iid):
+def jobs(which, base, n, iid, taus=(1, 6, 24, 120), plain=False):
     q = {"kpblocks": False} if iid else {}
     out = []
     if which == "power":
-        for tau in (1, 6, 24, 120):
+        for tau in taus:
             for s in (1, 2, 3, 5):
                 out += [(base + i, tau, dict(q, step=s)) for i in range(n)]
     elif which == "false":
-        for tau in (1, 6, 24, 120):
+        for tau in taus:
             out += [(base + 100 + i, tau, dict(q)) for i in range(n)]
-        for kw in ({"drift": 0.05}, {"wander": 3.0}, {"wander": 5.0}, {"gap": 7},
-                   {"gap": 10}, {"spikes": True}):
+        for kw in () if plain else ({"drift": 0.05}, {"wander": 3.0}, {"wander": 5.0},
+                                    {"gap": 7}, {"gap": 10}, {"spikes": True}):
             for j, tau in enumerate((1, 6, 24, 120)):
-                out += [(base + 200 + 40 * j + i, tau, dict(q, **kw)) for i in range(n // 2)]
+                if tau in taus:
+                    out += [(base + 200 + 40 * j + i, tau, dict(q, **kw))
+                            for i in range(n // 2)]
     elif which == "two":
         for tau in (1, 6):
-            out += [(base + 300 + i, tau, dict(q, two=True)) for i in range(n)]
+            if tau in taus:
+                out += [(base + 300 + i, tau, dict(q, two=True)) for i in range(n)]
     return out
 
 
@@ -108,9 +113,12 @@ def main():
     ap.add_argument("--held", action="store_true")
     ap.add_argument("-n", type=int, default=30)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--tau", type=int, nargs="+", default=[1, 6, 24, 120])
+    ap.add_argument("--plain", action="store_true")
     a = ap.parse_args()
     with Pool(a.workers) as pool:
-        results = pool.map(run, jobs(a.which, 1000 if a.held else 0, a.n, a.iid), chunksize=4)
+        todo = jobs(a.which, 1000 if a.held else 0, a.n, a.iid, a.tau, a.plain)
+        results = pool.map(run, todo, chunksize=4)
     cells = defaultdict(list)
     for tau, kw, hits, false in results:
         cells[(tau, kw)].append((hits, false))

@@ -4,8 +4,10 @@ the record's day values.
 The sliding-window medians and their linear interpolation assume an offset that varies
 slowly against the window step. A sudden change breaks that silently: windows
 straddling it report a median mixing both levels, and the interpolation spreads the
-change over weeks. This module looks for such changes on the record's *day values* (the
-median of each UTC day's selected residual, as the windows' standard errors use them).
+change over weeks. This module looks for such changes on the record's *day values* (for
+each UTC day the mean of its hours' medians of the selected residual,
+:func:`hourly_day_values`: robust to a spike as a median, and the mean of the miss over
+the day's selected hours that the covariance below describes).
 
 At each day ``k`` the values of the ``half_width`` days either side are fitted by
 generalised least squares with a local no-change model plus a step from day ``k`` (plus
@@ -22,7 +24,10 @@ local model is a level only, which about halves the step's standard error.
 
 The day values' covariance is the record's pooled day-to-day correlation
 (:func:`magcal.offsets.windows.pooled_lag_correlation`, the model of the model miss the
-windows' standard errors use), scaled by a variance taken
+windows' standard errors use), spread over the pairs of days by when in each day the
+selected samples fall (:class:`QuietHours`: with quiet data in whole Kp blocks two
+consecutive day values lie hours or nearly two days apart, and under a miss correlated
+over days their difference is that much less or more variable), scaled by a variance taken
 from the local fits without the step (their median, so a change not yet found inflates
 only its own days'). The components' t-statistics at each day are combined as
 ``t^T R^-1 t`` (``R`` the components' correlation: the model miss is often shared, and
@@ -142,7 +147,7 @@ def day_variance_scale(days, values, counts, max_ratio: float = MAX_VARIANCE_RAT
     """Standard deviation (relative, median 1) of each day value, modelled as
     ``a + b / n`` in the day's number ``n`` of samples.
 
-    A day value is the median of the day's selected samples; under a model miss
+    A day value is a median of the day's selected samples; under a model miss
     correlated over hours, a day holding 3 quiet hours averages a few of its swings and
     one holding 20 hours many, so the first is far noisier (the ``b / n`` part), while a
     miss correlated over days moves the whole day alike however many samples it holds
@@ -218,11 +223,193 @@ def _factor(corr) -> np.ndarray:
         return np.linalg.cholesky((vec * lam) @ vec.T)
 
 
-def _cov_factor(d, c1, r, sd) -> np.ndarray:
+#: Bins per UTC day in which :class:`QuietHours` counts the selected samples.
+QUIET_HOUR_BINS = 24
+#: Shortest correlation time (days) :class:`QuietHours` gives the model miss: below it
+#: two days' values are uncorrelated however close their quiet hours.
+MIN_TAU_DAYS = 0.02
+
+
+class QuietHours:
+    """When in each UTC day the selected samples fall, and the day values' correlation it
+    implies.
+
+    A day value sums up its selected samples, and with quiet data in whole
+    3-hour Kp blocks a day may hold only its last hours and the next only its first (its
+    value then lies hours from the previous one) or the reverse (nearly two days). Under
+    a model miss correlated over days the difference of two consecutive day values is
+    then far less or far more variable than the pooled lag-one correlation says on
+    average, and the largest step statistic over a record's days is drawn to the pairs
+    far apart, more often than the Monte Carlo of evenly spaced days allows.
+
+    Here each day value is modelled as the mean, over its selected samples (counted in
+    :data:`QUIET_HOUR_BINS` bins of the day), of a miss correlated ``exp(-|dt| / tau)``
+    in time, mixed with a part independent from day to day: the correlation of days
+    ``i != j`` is ``s K_ij / sqrt(K_ii K_jj)`` with ``K`` the kernel averaged over the
+    two days' bins. ``tau`` and ``s`` are set by the pooled day correlation ``c1 r **
+    (k - 1)`` (:func:`record_day_correlation`): ``exp(-1 / tau) = r`` (the decay of
+    full-day means of such a miss) and ``s`` such that the correlation averaged over
+    the record's pairs of consecutive days is ``c1``; where the decay cannot give a
+    lag-one correlation that large, ``tau`` is lengthened until it does (``s = 1``).
+    The model keeps the pooled correlation's lag-one mean and decay, and gives each
+    pair of days the share its quiet hours imply; ``s <= 1`` keeps it positive definite.
+
+    Parameters
+    ----------
+    days : array_like of int, shape (n,)
+        The record's days (calendar days since 1970).
+    weights : array_like, shape (n, QUIET_HOUR_BINS)
+        Each day's share of its selected samples in each bin of the day (rows sum to 1).
+
+    Examples
+    --------
+    Two days holding only their last 3 hours, then one holding only its first 3: under a
+    5-day miss (pooled lag-one correlation 0.87, decay 0.82) the third day's value lies
+    hours from the second's and the second's a day from the first's.
+
+    >>> w = np.zeros((3, 24))
+    >>> w[0, 21:], w[1, 21:], w[2, :3] = 1 / 3, 1 / 3, 1 / 3
+    >>> corr = QuietHours([0, 1, 2], w).correlation(np.array([0, 1, 2]), 0.87, 0.82)
+    >>> corr.round(2)
+    array([[1.  , 0.79, 0.78],
+           [0.79, 1.  , 0.95],
+           [0.78, 0.95, 1.  ]])
+    """
+
+    def __init__(self, days, weights):
+        self.days = np.asarray(days, dtype=np.int64)
+        self.weights = np.asarray(weights, dtype=float)
+        self._u = (np.arange(self.weights.shape[1]) + 0.5) / self.weights.shape[1] - 0.5
+        first = np.flatnonzero(np.diff(self.days) == 1)
+        self._pairs = (first, first + 1)
+        self._models: dict = {}  # (c1, r) -> (tau, s): this record's, set on first use
+
+    @classmethod
+    def from_times(cls, t_ns, days, bins: int = QUIET_HOUR_BINS) -> "QuietHours":
+        """The layout of the selected samples at ``t_ns`` on the record's ``days`` (those
+        :func:`magcal.offsets.windows.batches_with_counts` kept)."""
+        t = np.asarray(t_ns, dtype=np.int64)
+        day = t // DAY_NS
+        b = np.minimum(((t - day * DAY_NS) * bins) // DAY_NS, bins - 1)
+        days = np.asarray(days, dtype=np.int64)
+        i = np.searchsorted(days, day)
+        keep = (i < days.size) & (days[np.minimum(i, days.size - 1)] == day)
+        w = np.zeros((days.size, bins))
+        np.add.at(w, (i[keep], b[keep]), 1.0)
+        return cls(days, w / np.maximum(w.sum(axis=1, keepdims=True), 1e-300))
+
+    def _terms(self, idx, tau):
+        """Log of each day's bin means of ``exp(+-u / tau)`` and its own kernel mean."""
+        w = self.weights[idx]
+        up = np.log(np.maximum(w @ np.exp(self._u / tau - 0.5 / tau), 1e-300)) + 0.5 / tau
+        down = np.log(np.maximum(w @ np.exp(-self._u / tau - 0.5 / tau), 1e-300)) + 0.5 / tau
+        own = np.einsum("ia,ab,ib->i", w,
+                        np.exp(-np.abs(self._u[:, None] - self._u[None, :]) / tau), w)
+        return up, down, own
+
+    def _shape(self, idx, tau):
+        """``K_ij / sqrt(K_ii K_jj)`` on the days ``self.days[idx]`` (1 on the diagonal)."""
+        d = self.days[idx]
+        up, down, own = self._terms(idx, tau)
+        lag = d[None, :] - d[:, None]
+        # i before j: exp(-(d_j + u_b - d_i - u_a) / tau) = e^{-lag/tau} e^{u_a/tau} e^{-u_b/tau}
+        log_k = np.where(lag > 0, up[:, None] + down[None, :], down[:, None] + up[None, :])
+        log_k = log_k - np.abs(lag) / tau - 0.5 * np.log(np.outer(own, own))
+        return np.where(lag == 0, 1.0, np.exp(np.minimum(log_k, 0.0)))
+
+    def _lag_one(self, tau) -> float:
+        """The modelled correlation (``s = 1``) averaged over the record's pairs of
+        consecutive days."""
+        a, b = self._pairs
+        ua, _, own_a = self._terms(a, tau)
+        _, db, own_b = self._terms(b, tau)
+        log_k = ua + db - 1.0 / tau - 0.5 * np.log(own_a * own_b)
+        return float(np.mean(np.exp(np.minimum(log_k, 0.0))))
+
+    def _model(self, c1, r):
+        """``(tau, s)`` of the pooled day correlation ``(c1, r)``."""
+        key = (float(c1), float(r))
+        if key not in self._models:
+            tau = MIN_TAU_DAYS if r <= np.exp(-1.0 / MIN_TAU_DAYS) else -1.0 / np.log(r)
+            if self._pairs[0].size == 0 or c1 <= 0.0:
+                self._models[key] = (tau, 0.0)
+                return self._models[key]
+            have = self._lag_one(tau)
+            if have < c1:  # lengthen tau until the lag-one mean is c1
+                lo, hi = np.log(tau), np.log(1e4)
+                if self._lag_one(np.exp(hi)) < c1:
+                    lo = hi
+                for _ in range(40):
+                    mid = 0.5 * (lo + hi)
+                    lo, hi = (mid, hi) if self._lag_one(np.exp(mid)) < c1 else (lo, mid)
+                tau = float(np.exp(hi))
+                have = self._lag_one(tau)
+            self._models[key] = (tau, min(c1 / max(have, 1e-300), 1.0))
+        return self._models[key]
+
+    def correlation(self, d, c1, r) -> np.ndarray:
+        """The modelled correlation (len(d), len(d)) of the day values on days ``d`` (a
+        sorted subset of the record's) under the pooled day correlation ``(c1, r)``."""
+        idx = np.searchsorted(self.days, np.asarray(d, dtype=np.int64))
+        tau, s = self._model(c1, r)
+        out = s * self._shape(idx, tau)
+        np.fill_diagonal(out, 1.0)
+        return out
+
+
+def hourly_day_values(t_ns, x, days, bins: int = QUIET_HOUR_BINS) -> np.ndarray:
+    """Each of ``days``' value (n_days, m): the mean, weighted by their numbers of
+    samples, of the medians of the day's samples in each of ``bins`` bins of the day.
+
+    The day values' covariance (:class:`QuietHours`) is that of the mean of the model
+    miss over the day's selected hours. A median over the whole day is not that mean
+    where the miss moves within the day and the day holds hours apart (quiet Kp blocks
+    at either end of it): it follows the blocks holding more samples, by an amount that
+    differs from day to day, a noise the covariance lacks. The median within each hour
+    still keeps a spike out of the day value.
+
+    Examples
+    --------
+    A day holding 3 hours at 0 nT and 5 at 4 nT: its median is 4, the mean of its
+    hours' medians 2.5.
+
+    >>> t = (np.r_[np.arange(3), 12 + np.arange(5)] * 3600 + 60) * 10 ** 9
+    >>> x = np.r_[np.zeros(3), np.full(5, 4.0)]
+    >>> hourly_day_values(t, x, [0])
+    array([[2.5]])
+    """
+    t = np.asarray(t_ns, dtype=np.int64)
+    x = np.asarray(x, dtype=float)
+    x = x[:, None] if x.ndim == 1 else x
+    days = np.asarray(days, dtype=np.int64)
+    if t.size == 0 or days.size == 0:
+        return np.full((days.size, x.shape[1]), np.nan)
+    day = t // DAY_NS
+    key = day * bins + np.minimum(((t - day * DAY_NS) * bins) // DAY_NS, bins - 1)
+    order = np.argsort(key, kind="stable")
+    key, xs = key[order], x[order]
+    edges = np.flatnonzero(np.diff(key)) + 1
+    starts = np.r_[0, edges]
+    med = np.array([np.median(g, axis=0) for g in np.split(xs, edges)]).reshape(-1, x.shape[1])
+    n = np.diff(np.r_[starts, key.size]).astype(float)
+    i = np.searchsorted(days, key[starts] // bins)
+    keep = (i < days.size) & (days[np.minimum(i, max(days.size - 1, 0))] == key[starts] // bins)
+    total = np.zeros((days.size, x.shape[1]))
+    weight = np.zeros(days.size)
+    np.add.at(total, i[keep], med[keep] * n[keep, None])
+    np.add.at(weight, i[keep], n[keep])
+    return total / np.maximum(weight, 1e-300)[:, None]
+
+
+def _cov_factor(d, c1, r, sd, layout=None) -> np.ndarray:
     """A square root of the day values' covariance on days ``d``: each day's relative
     standard deviation ``sd`` (:func:`day_variance_scale`) times the pooled correlation
-    ``1`` on the diagonal and ``c1 r ** (k - 1)`` at a lag of ``k`` days."""
-    corr = np.eye(d.size) + c1 * _lag_shape(d, r)
+    ``1`` on the diagonal and ``c1 r ** (k - 1)`` at a lag of ``k`` days, or, given the
+    record's :class:`QuietHours` ``layout``, the correlation its quiet hours imply."""
+    if layout is None:
+        corr = np.eye(d.size) + c1 * _lag_shape(d, r)
+    else:
+        corr = layout.correlation(d, c1, r)
     return (np.ones(d.size) if sd is None else np.asarray(sd, float))[:, None] * _factor(corr)
 
 
@@ -242,7 +429,7 @@ class _Fits:
     the fits without the step, unless given)."""
 
     def __init__(self, days, y, c1, r, candidates, known, half_width, sigma2=None,
-                 sd=None, degree=2):
+                 sd=None, degree=2, layout=None):
         self.weights = []  # (index slice, weight vector of the step on y[slice])
         delta, var, s2, dof = [], [], [], []
         for k in candidates:
@@ -254,7 +441,7 @@ class _Fits:
             cols += [(d >= kk).astype(float) for kk in known
                      if d[0] < kk <= d[-1] and kk != k]
             x = np.stack(cols, axis=1)
-            chol = _cov_factor(d, c1, r, None if sd is None else sd[lo:hi])
+            chol = _cov_factor(d, c1, r, None if sd is None else sd[lo:hi], layout)
             xw = np.linalg.solve(chol, x)
             yw = np.linalg.solve(chol, y[lo:hi])
             q, rr = np.linalg.qr(xw)
@@ -308,16 +495,17 @@ def _candidates(days, known, min_side):
     return cand
 
 
-def _null_max(days, corrs, fits_by_comp, mix, n_sim, seed, sd=None):
+def _null_max(days, corrs, fits_by_comp, mix, n_sim, seed, sd=None, layout=None):
     """The statistic's largest value over candidate days in ``n_sim`` records without a
-    change: noise with each component's day correlation, the components mixed by the
-    Cholesky factor ``mix`` of their correlation."""
+    change: noise with each component's day correlation (on the record's quiet hours,
+    given its :class:`QuietHours` ``layout``), the components mixed by the Cholesky
+    factor ``mix`` of their correlation."""
     rng = np.random.default_rng(seed)
     m = len(fits_by_comp)
     u = rng.standard_normal((n_sim, days.size, m)) @ mix.T
     ts = []
     for j, ((c1, r), fits) in enumerate(zip(corrs, fits_by_comp)):
-        chol = _cov_factor(days, c1, r, sd)
+        chol = _cov_factor(days, c1, r, sd, layout)
         ts.append(fits.simulated_t(u[:, :, j] @ chol.T))
     return _statistic(np.stack(ts, axis=-1), mix).max(axis=1)
 
@@ -331,7 +519,7 @@ def _statistic(t, mix):
 
 
 def component_correlation(days, values, corrs, window_days: int = 28,
-                          sd=None) -> np.ndarray:
+                          sd=None, layout=None) -> np.ndarray:
     """Correlation (m, m) of the components' day values, from their residuals about a
     straight line through each ``window_days`` stretch of the record, whitened with each
     component's day correlation ``corrs`` (``[(c1, r), ...]``).
@@ -353,7 +541,7 @@ def component_correlation(days, values, corrs, window_days: int = 28,
         x = np.stack([np.ones(d.size), (d - d.mean()) / window_days], axis=1)
         res = np.empty((d.size, m))
         for j, (c1, r) in enumerate(corrs):
-            chol = _cov_factor(d, c1, r, None if sd is None else sd[inside])
+            chol = _cov_factor(d, c1, r, None if sd is None else sd[inside], layout)
             xw, yw = np.linalg.solve(chol, x), np.linalg.solve(chol, values[inside, j])
             res[:, j] = yw - xw @ np.linalg.lstsq(xw, yw, rcond=None)[0]
         acc += res.T @ res
@@ -364,7 +552,7 @@ def component_correlation(days, values, corrs, window_days: int = 28,
 
 
 def _time_interval(days, y, corrs, sigma2, k_hat, known, half_width, comps, level=0.95,
-                   sd=None, degree=2):
+                   sd=None, degree=2, layout=None):
     """Split days whose likelihood ratio against ``k_hat`` stays under the critical value,
     on the fixed data window of ``k_hat`` (the step's components ``comps``)."""
     from magcal.discover.step_time import lr_critical_value
@@ -377,7 +565,7 @@ def _time_interval(days, y, corrs, sigma2, k_hat, known, half_width, comps, leve
     lr = np.zeros(splits.size)
     for j in comps:
         c1, r = corrs[j]
-        chol = _cov_factor(d, c1, r, None if sd is None else sd[lo:hi])
+        chol = _cov_factor(d, c1, r, None if sd is None else sd[lo:hi], layout)
         yw = np.linalg.solve(chol, y[lo:hi, j])
         base = _null_columns(d, k_hat, half_width, degree) + [(d >= kk) * 1.0 for kk in others]
         sse = []
@@ -446,8 +634,9 @@ def detect_level_changes(t_ns, x, *, half_width: int = HALF_WIDTH_DAYS,
     x = np.asarray(x, dtype=float)
     x = x[:, None] if x.ndim == 1 else x
     ok = np.all(np.isfinite(x), axis=1)
-    # the median of each UTC day's samples (calendar days since 1970)
-    days, y, counts = batches_with_counts(t[ok], x[ok], origin_ns=0)
+    # each UTC day's value (calendar days since 1970): the mean of its hours' medians
+    days, _, counts = batches_with_counts(t[ok], x[ok], origin_ns=0)
+    y = hourly_day_values(t[ok], x[ok], days)
     info = {"tested": False, "n_days": int(days.size), "threshold": None,
             "half_width_days": half_width, "alpha": alpha}
     known: list[int] = []
@@ -462,6 +651,7 @@ def detect_level_changes(t_ns, x, *, half_width: int = HALF_WIDTH_DAYS,
     info["tested"] = True
     m = y.shape[1]
     sd = day_variance_scale(days, y, counts) if weigh_days else None
+    layout = QuietHours.from_times(t[ok], days)
 
     def search(degree, known, sizes, pooled):
         """Changes added one at a time, strongest first, under the local model of
@@ -470,13 +660,13 @@ def detect_level_changes(t_ns, x, *, half_width: int = HALF_WIDTH_DAYS,
         for _ in range(max_changes + 1):
             corrs = _component_corrs(pooled)
             mix = _factor(component_correlation(days, _without(days, y, sizes), corrs,
-                                                sd=sd))
+                                                sd=sd, layout=layout))
             cand = _candidates(days, known, min_side)
             if cand.size == 0:
                 break
             fits = [_Fits(days, y[:, j], *corrs[j], cand, known, half_width, sd=sd,
-                          degree=degree) for j in range(m)]
-            null = _null_max(days, corrs, fits, mix, n_sim, seed, sd=sd)
+                          degree=degree, layout=layout) for j in range(m)]
+            null = _null_max(days, corrs, fits, mix, n_sim, seed, sd=sd, layout=layout)
             thr = float(np.quantile(null, 1.0 - alpha))
             first = thr if first is None else first
             stat = _statistic(np.stack([f.t for f in fits], axis=1), mix)
@@ -494,10 +684,11 @@ def detect_level_changes(t_ns, x, *, half_width: int = HALF_WIDTH_DAYS,
     known, sizes, pooled, thr = search(degree, known, sizes, pooled0)
     if local_model == "auto":
         corrs = _component_corrs(pooled)
-        p_trend = trend_p_value(days, _without(days, y, sizes), corrs, min_side, sd=sd)
+        p_trend = trend_p_value(days, _without(days, y, sizes), corrs, min_side, sd=sd,
+                                layout=layout)
         info["trend_p_value"] = round(p_trend, 4)
         ratio = drift_detectability(days, corrs, _candidates(days, [], min_side),
-                                    half_width, sd=sd)
+                                    half_width, sd=sd, layout=layout)
         info["drift_detectability"] = round(ratio, 3)
         memory = max(c[0] for c in corrs)
         if (p_trend > TREND_P and ratio >= MIN_DRIFT_DETECTABILITY
@@ -508,23 +699,25 @@ def detect_level_changes(t_ns, x, *, half_width: int = HALF_WIDTH_DAYS,
     info["threshold"] = None if thr is None else round(thr, 3)
     # final sizes, errors and intervals, each change in the others' presence
     corrs = _component_corrs(pooled)
-    mix = _factor(component_correlation(days, _without(days, y, sizes), corrs, sd=sd))
+    mix = _factor(component_correlation(days, _without(days, y, sizes), corrs, sd=sd,
+                                        layout=layout))
     for kk in sorted(known):
         rest = [k for k in known if k != kk]
         # the record's noise variance (over every candidate day, the others' changes
         # in), then the change's own fit
         full = [_Fits(days, y[:, j], *corrs[j], _candidates(days, rest, min_side), rest,
-                      half_width, sd=sd, degree=degree) for j in range(m)]
+                      half_width, sd=sd, degree=degree, layout=layout) for j in range(m)]
         sigma2 = [f.sigma2 for f in full]
         fits = [_Fits(days, y[:, j], *corrs[j], np.array([kk]), rest, half_width,
-                      sigma2=sigma2[j], sd=sd, degree=degree) for j in range(m)]
+                      sigma2=sigma2[j], sd=sd, degree=degree, layout=layout)
+                for j in range(m)]
         size = np.array([f.delta[0] for f in fits])
         se = np.array([f.se[0] for f in fits])
         zc = np.abs(size / se)
         comps = [j for j in range(m) if zc[j] >= 2.0] or [int(np.argmax(zc))]
         k_lo, k_hi = _time_interval(days, y, corrs, sigma2, kk, rest, half_width, comps,
-                                    sd=sd, degree=degree)
-        null = _null_max(days, corrs, full, mix, n_sim, seed, sd=sd)
+                                    sd=sd, degree=degree, layout=layout)
+        null = _null_max(days, corrs, full, mix, n_sim, seed, sd=sd, layout=layout)
         stat = float(_statistic(zc * np.sign(size), mix))
         changes.append(LevelChange(
             time=_midnight(kk), time_lo=_midnight(min(k_lo, kk) - 1),
@@ -567,7 +760,7 @@ def _trend_basis(days, half_period: float) -> np.ndarray:
 
 def trend_p_value(days, values, corrs, min_side: int = MIN_SIDE_DAYS, sd=None,
                   half_period: float = TREND_HALF_PERIOD_DAYS,
-                  n_steps: int = TREND_STEPS) -> float:
+                  n_steps: int = TREND_STEPS, layout=None) -> float:
     """P-value of a slow trend in the day values ``values`` against a level and one step.
 
     The trend is a sum of cosines over the record with half-periods of at least
@@ -587,7 +780,7 @@ def trend_p_value(days, values, corrs, min_side: int = MIN_SIDE_DAYS, sd=None,
     cand = days[min_side:n - min_side + 1]
     whit = []
     for j, (c1, r) in enumerate(corrs):
-        chol = _cov_factor(days, c1, r, sd)
+        chol = _cov_factor(days, c1, r, sd, layout)
         whit.append((np.linalg.solve(chol, np.ones(n)), np.linalg.solve(chol, values[:, j]),
                      np.linalg.solve(chol, trend),
                      np.linalg.solve(chol, (days[:, None] >= cand[None, :]) * 1.0)))
@@ -617,7 +810,7 @@ def trend_p_value(days, values, corrs, min_side: int = MIN_SIDE_DAYS, sd=None,
 
 def drift_detectability(days, corrs, candidates, half_width, sd=None,
                         half_period: float = TREND_HALF_PERIOD_DAYS,
-                        n_steps: int = TREND_STEPS) -> float:
+                        n_steps: int = TREND_STEPS, layout=None) -> float:
     """How much better :func:`trend_p_value` sees a linear drift than a level-only local
     fit reads it as a step: the ratio, in the worst component, of the drift's standard
     score in the trend test (against a level and a step at mid-record) to its mean
@@ -637,7 +830,7 @@ def drift_detectability(days, corrs, candidates, half_width, sd=None,
     steps = [(days >= days[(i * n) // (n_steps + 1)]) * 1.0 for i in range(1, n_steps + 1)]
     worst = np.inf
     for c1, r in corrs:
-        chol = _cov_factor(days, c1, r, sd)
+        chol = _cov_factor(days, c1, r, sd, layout)
         x0 = np.linalg.solve(chol, np.stack([np.ones(n)] + steps, axis=1))
         q0 = np.linalg.qr(x0)[0]
         sw = np.linalg.solve(chol, slope)
@@ -647,7 +840,7 @@ def drift_detectability(days, corrs, candidates, half_width, sd=None,
         qt = np.linalg.qr(tw)[0]
         seen = float(np.linalg.norm(qt.T @ sw))  # the drift's score per nT/day
         fits = _Fits(days, np.zeros(n), c1, r, candidates, [], half_width, sigma2=1.0,
-                     sd=sd, degree=0)
+                     sd=sd, degree=0, layout=layout)
         local = np.median([abs(w @ (days[sl] - k)) / np.sqrt(v)
                            for (sl, w), v, k in zip(fits.weights, fits.var, candidates)])
         worst = min(worst, seen / max(local, 1e-12))
