@@ -613,20 +613,18 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
     pulses_tried = s.pulses_b and s.pulse_trials > 0
     levels_tried = s.level_steps and s.level_trials > 0
     perp_tried = s.pulses_perp and s.detect_disturbed and s.perp_trials > 0
+    # what the trials' and the pulses' runs below pass on unchanged
+    passed = dict(provenance=provenance, hold_phase=hold_phase, fit_exclude=fit_exclude,
+                  fit_exclude_scalar=fit_exclude_scalar, diagnostics=diagnostics,
+                  linear=linear, level_step_rows=level_step_rows,
+                  pulse_templates=pulse_templates, drift_templates=drift_templates)
     if (pulses_tried or levels_tried or perp_tried) and zone_numbers is None:
         from magcal.missions.elfin.levels import level_trials
         from magcal.missions.elfin.perp import perp_trials
         from magcal.missions.elfin.pulses import pulse_trials
 
         day = calibrate_elfin_day(fgs, state, replace(s, pulse_trials=0, level_trials=0,
-                                                      perp_trials=0),
-                                  provenance=provenance, hold_phase=hold_phase,
-                                  fit_exclude=fit_exclude,
-                                  fit_exclude_scalar=fit_exclude_scalar,
-                                  diagnostics=diagnostics, linear=linear,
-                                  level_step_rows=level_step_rows,
-                                  pulse_templates=pulse_templates,
-                                  drift_templates=drift_templates)
+                                                      perp_trials=0), **passed)
         steps = dict(day.steps)
         if pulses_tried:
             steps["pulse_trials"] = pulse_trials(fgs, state, s, day, s.pulse_trials,
@@ -641,12 +639,7 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
     if s.pulses_perp and s.detect_disturbed and zone_numbers is None:
         from magcal.missions.elfin.perp import calibrate_perp
 
-        return calibrate_perp(fgs, state, s, provenance=provenance, hold_phase=hold_phase,
-                              fit_exclude=fit_exclude, fit_exclude_scalar=fit_exclude_scalar,
-                              diagnostics=diagnostics, linear=linear,
-                              level_step_rows=level_step_rows,
-                              pulse_templates=pulse_templates,
-                              drift_templates=drift_templates)
+        return calibrate_perp(fgs, state, s, **passed)
     if s.bridge_trials > 0:
         day = calibrate_elfin_day(fgs, state, replace(s, bridge_trials=0),
                                   provenance=provenance, hold_phase=hold_phase,
