@@ -21,6 +21,9 @@ The calibration path, in the order the pipeline runs it:
 * :mod:`~magcal.missions.elfin.detect` and :mod:`~magcal.missions.elfin.disturbed` -
   disturbed intervals located from the counts alone and left out of the fits
   (``detect_disturbed``; finds localized fields across B only);
+* :mod:`~magcal.missions.elfin.perp` - a detected interval holding a Gaussian pulse
+  across B fitted as a natural field in the reference instead of left out
+  (``pulses_perp``), with its stated error (``perp_trials``);
 * :mod:`~magcal.missions.elfin.levels` - where a left-out interval changes the
   spin-axis level (a current sheet), kept as a step (``level_steps``);
 * :mod:`~magcal.missions.elfin.bridge` - the error of the product over the left-out
