@@ -156,8 +156,8 @@ def run_apply(args) -> int:
                else "")
     across = int(across_level_change(times, table).sum())
     near = int(near_level_change(times, table).sum())
+    days = ", ".join(str(np.datetime64(c.time, "D")) for c in table.level_changes)
     if table.level_changes and table.segment is not None:
-        days = ", ".join(str(np.datetime64(c.time, "D")) for c in table.level_changes)
         print(f"magcal offsets apply: offsets split at the level change"
               f"{'s' if len(table.level_changes) > 1 else ''} of the offset ({days}): "
               f"{near} of {len(out)} samples lie inside a change's 95 % time interval, "
@@ -169,7 +169,6 @@ def run_apply(args) -> int:
                   "change (quality bit offset_interpolated_across_level_change)",
                   file=sys.stderr)
     elif table.level_changes:
-        days = ", ".join(str(np.datetime64(c.time, "D")) for c in table.level_changes)
         print(f"magcal offsets apply: warning: {across} of {len(out)} samples interpolated "
               f"across a level change of the offset ({days}): their offset mixes both "
               "levels, off by up to the change (quality bit "

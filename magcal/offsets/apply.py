@@ -302,8 +302,6 @@ def across_level_change(times, table) -> np.ndarray:
     from magcal.offsets.levels import straddling_windows
 
     if getattr(table, "segment", None) is not None:
-        if not np.all(np.isfinite(np.asarray(table.offset_nT, dtype=float)), axis=1).any():
-            return np.zeros(np.asarray(times).size, dtype=bool)
         return interpolate_segmented(times, table)[2]
     t = np.asarray(times).astype("datetime64[ns]").astype(np.int64)
     out = np.zeros(t.size, dtype=bool)

@@ -230,6 +230,16 @@ QUIET_HOUR_BINS = 24
 MIN_TAU_DAYS = 0.02
 
 
+def day_bins(t_ns, bins: int = QUIET_HOUR_BINS) -> tuple[np.ndarray, np.ndarray]:
+    """Each time's UTC day (calendar days since 1970) and its bin of the day (0 ..
+    ``bins - 1``): the one rule by which :class:`QuietHours` lays out the selected
+    samples and :func:`hourly_day_values` takes their medians, so that the day values
+    are the quantity the covariance describes."""
+    t = np.asarray(t_ns, dtype=np.int64)
+    day = t // DAY_NS
+    return day, np.minimum(((t - day * DAY_NS) * bins) // DAY_NS, bins - 1)
+
+
 class QuietHours:
     """When in each UTC day the selected samples fall, and the day values' correlation it
     implies.
@@ -288,9 +298,7 @@ class QuietHours:
     def from_times(cls, t_ns, days, bins: int = QUIET_HOUR_BINS) -> "QuietHours":
         """The layout of the selected samples at ``t_ns`` on the record's ``days`` (those
         :func:`magcal.offsets.windows.batches_with_counts` kept)."""
-        t = np.asarray(t_ns, dtype=np.int64)
-        day = t // DAY_NS
-        b = np.minimum(((t - day * DAY_NS) * bins) // DAY_NS, bins - 1)
+        day, b = day_bins(t_ns, bins)
         days = np.asarray(days, dtype=np.int64)
         i = np.searchsorted(days, day)
         keep = (i < days.size) & (days[np.minimum(i, days.size - 1)] == day)
@@ -384,8 +392,8 @@ def hourly_day_values(t_ns, x, days, bins: int = QUIET_HOUR_BINS) -> np.ndarray:
     days = np.asarray(days, dtype=np.int64)
     if t.size == 0 or days.size == 0:
         return np.full((days.size, x.shape[1]), np.nan)
-    day = t // DAY_NS
-    key = day * bins + np.minimum(((t - day * DAY_NS) * bins) // DAY_NS, bins - 1)
+    day, b = day_bins(t, bins)
+    key = day * bins + b
     order = np.argsort(key, kind="stable")
     key, xs = key[order], x[order]
     edges = np.flatnonzero(np.diff(key)) + 1

@@ -296,9 +296,9 @@ def read_offsets_csv(path) -> OffsetTable:
     segment = None
     if "segment" in raw.columns:
         seg = num("segment", keep_missing=True)
-        if not np.all(np.isfinite(seg) & (seg >= 0) & (seg == np.round(seg))):
-            row = int(np.flatnonzero(~(np.isfinite(seg) & (seg >= 0)
-                                       & (seg == np.round(seg))))[0])
+        whole = np.isfinite(seg) & (seg >= 0) & (seg == np.round(seg))
+        if not whole.all():
+            row = int(np.flatnonzero(~whole)[0])
             raise InputError(f"segment must be a whole number >= 0, got "
                              f"{raw['segment'].iloc[row]!r}", file=p, row=row + 2,
                              column="segment")
