@@ -13,9 +13,11 @@ pulse instead, as part of the reference:
    interval's residual, is 10-150 s wide (FWHM), rises and falls inside the zone, is
    30 nT or higher and lies mostly across B (:func:`find_perp_pulses`);
 2. the day is calibrated again with those intervals' rows in the fits and the
-   reference IGRF + ``a g(t)`` (``g`` the unit Gaussian), and ``a`` is corrected by
-   regressing the product's residual against that reference on ``[1, g]`` over the
-   zone (backfitting, :func:`calibrate_perp`), until the correction is small;
+   reference IGRF + ``a g(t)`` (``g`` the unit Gaussian), and the Gaussian's centre,
+   width and amplitude ``a`` are fitted again on the product made with it (or, with
+   ``refine=False``, ``a`` alone corrected by regressing the product's residual on
+   ``[1, g]`` over the zone; backfitting, :func:`calibrate_perp`), until the change is
+   small;
 3. a zone whose backfit does not settle within the iterations keeps its intervals left
    out (the delivered product there), with the reason recorded.
 

@@ -419,7 +419,7 @@ class ElfinDay:
                 "note": "detected intervals where a Gaussian pulse across B (free centre, "
                         "width and GEI amplitude on a linear baseline) explains the "
                         "residual: kept in the fits with the pulse added to the reference "
-                        "and its amplitude backfitted with the calibration (magcal."
+                        "and its shape backfitted with the calibration (magcal."
                         "missions.elfin.perp); kept false: left out as delivered (why)",
                 "pulses": perp_listing(self)}
             if "perp_trials" in self.steps:
