@@ -174,7 +174,7 @@ class ElfinSettings:
         fitted to each detected interval's residual, kept when it explains 80 % of it,
         is 10-150 s wide, 30 nT or higher, inside the zone and mostly across B; the day
         is then calibrated with those rows in the fits and the pulse added to IGRF, its
-        amplitude backfitted until settled (a zone that does not settle keeps the
+        shape refitted until settled (a zone that does not settle keeps the
         interval left out). Why: leaving rows out changes the calibration the fits
         bridge the gap with, a floor on the kept pulse's distortion that a fitted
         template does not have (2022-01-12, 40 s pulses across B at 36 places: whole-
