@@ -271,7 +271,8 @@ def test_settings_steps_and_checks():
         ElfinSettings.from_mapping({"tilt_bound_deg": -0.1})
     with pytest.raises(InputError, match="vector_knot_s must not be negative"):
         ElfinSettings.from_mapping({"vector_knot_s": -30})
-    for key in ("pulse_trials", "level_trials"):  # were taken as 0 (no trial) unsaid
+    for key in ("pulse_trials", "level_trials", "gain_drift_degree"):
+        # the trials were taken as 0 (no trial) unsaid
         with pytest.raises(InputError, match=f"{key} must not be negative"):
             ElfinSettings.from_mapping({key: -1})
     # whole-number settings take 1 or 1.0, not 1.5, True or a negative degree

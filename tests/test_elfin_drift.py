@@ -142,6 +142,26 @@ def real_zones():
     return calibrate_elfin(fgs, state, zones=[2, 7])     # one dusk, one dawn pass
 
 
+def test_a_quintic_gain_drift_needs_gain_drift_degree_5():
+    """A drift with structure beyond a cubic (a few nT, as the real day's 2x-spin
+    harmonic shows) is left by the default cubic and recovered by ``degree=5``, the
+    value ``ElfinSettings.gain_drift_degree`` passes."""
+    rng = np.random.default_rng(11)
+    t, T, truth = _pass()
+    coef = [4e-4, 1.5e-3, -2.5e-3, 6e-4, 3e-4, -2e-4]
+    g = sum(c * T ** d for d, c in enumerate(coef))
+    measured = truth * np.c_[1 + g, 1 + g, np.ones_like(t)]
+    measured += rng.normal(scale=0.3, size=measured.shape)
+    ref = np.linalg.norm(truth, axis=1)
+    _, cubic = fit_gain_drift(t, measured, ref)
+    fixed, quintic = fit_gain_drift(t, measured, ref, degree=5)
+    assert_allclose(quintic["gain_coefficients"], coef, atol=2e-5)
+    # the cubic leaves the T^4, T^5 terms' part beyond it: about 2 nT RMS at 45000 nT
+    assert cubic["scalar_slow_after_nT"] > 1.0
+    assert quintic["scalar_slow_after_nT"] < 0.2
+    assert rms(fixed - truth) < 0.5
+
+
 @pytest.mark.realdata
 def test_real_gain_drift_removes_the_slow_part(real_zones):
     from magcal.missions.elfin.harmonic import correct_elfin_calibration
@@ -163,6 +183,47 @@ def test_real_gain_drift_removes_the_slow_part(real_zones):
     # the reference-free 2x drift has the slow part's time shape in both zones
     agree = drift_agreement_table(real_zones)
     assert np.all(agree["correlation"].abs() > 0.9)
+
+
+@pytest.mark.realdata
+def test_real_structure_beyond_a_cubic_follows_the_2x_drift(real_zones):
+    """The reference-free case for ``gain_drift_degree``: in these two passes the
+    ``|B|`` residual beyond a cubic follows the 2x-spin harmonic's drift beyond a cubic
+    (a gain change makes both, a natural field only the first), and a quintic drift
+    (``degree=5``, six gain coefficients per pass) takes more of the slow part."""
+    from magcal.missions.elfin.drift import _zone_body, correct_gain_drift, fit_samples
+    from magcal.missions.elfin.harmonic import correct_elfin_calibration
+    from magcal.missions.elfin.joint import score_field
+    from magcal.missions.elfin.scalar import fit_spin_harmonics
+
+    f = real_zones.field
+    for k in dict.fromkeys(f["zone"]):
+        z = f[f["zone"] == k]
+        t, b, ref, *_ = _zone_body(z)
+        use = fit_samples(z, scalar=True)
+        t, b, ref = t[use], b[use], ref[use]
+        r = np.linalg.norm(b, axis=1) - ref
+        m = fit_spin_harmonics(t, r, np.angle(b[:, 0] + 1j * b[:, 1]), fixed=(4,),
+                               drifting=(1, 2), drift_degree=7, poly_degree=7)
+        c2 = m.coefficients[2]
+        xy = np.column_stack([c2.real - c2.real.mean(), c2.imag - c2.imag.mean()])
+        a = xy @ np.linalg.svd(xy, full_matrices=False)[2][0]
+        T = 2 * (t - t[0]) / (t[-1] - t[0]) - 1
+        slow = np.vander(T, 8) @ np.linalg.lstsq(np.vander(T, 8), r, rcond=None)[0]
+
+        def beyond(v, d):
+            return v - np.vander(T, d + 1) @ np.linalg.lstsq(np.vander(T, d + 1), v,
+                                                             rcond=None)[0]
+
+        # measured: correlation 0.89 and 0.69
+        assert abs(np.corrcoef(beyond(a, 3), beyond(slow, 3))[0, 1]) > 0.6
+    harmonic, _ = correct_elfin_calibration(real_zones)
+    cubic = score_field(correct_gain_drift(harmonic)[0].field)
+    quintic_cal, table = correct_gain_drift(harmonic, degree=5)
+    assert [len(c) for c in table["gain_coefficients"]] == [6, 6]      # two passes
+    assert quintic_cal.parameters["gain_drift"]["shape"] == "polynomial of degree 5"
+    assert np.all(score_field(quintic_cal.field)["scalar_slow_nT"]
+                  < cubic["scalar_slow_nT"])
 
 
 @pytest.mark.realdata

@@ -196,7 +196,7 @@ def _print_shares(kinds) -> None:
           "else competes; energy_kept is then (1 - p)^2 (in brackets)")
     for kind in kinds:
         s = signal_shape(kind, t, t0=t[-1] / 2)[:, None]
-        shares = [polynomial_share(s, t, d) for d in range(4)]
+        shares = [polynomial_share(s, t, d) for d in range(6)]
         print(f"  {kind:12s} " + "  ".join(f"d={d}: {p:.3f} ({(1 - p) ** 2:.3f})"
                                            for d, p in enumerate(shares)))
 

@@ -468,7 +468,9 @@ def correct_gain_drift(cal, *, shape_from=None, robust_start_from=None, **kw):
                        "vector_rms_after_nT": rms((new_d - ref)[used])}
 
     return map_zones(cal, step, "gain_drift",
-                     {**kw, "shape": "2x-spin harmonic" if shape_from is not None else "cubic"},
+                     {**kw, "shape": "2x-spin harmonic" if shape_from is not None
+                      else "cubic" if kw.get("degree", 3) == 3
+                      else f"polynomial of degree {kw['degree']}"},
                      scalar=True)
 
 

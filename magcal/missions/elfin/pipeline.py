@@ -719,7 +719,7 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
             cal, steps["gain_drift"] = correct_gain_drift(
                 cal, shape_from=linear if s.gain_drift_2x else None,
                 robust_start_from=linear if s.gain_drift_robust_c > 0 else None,
-                robust_c=s.gain_drift_robust_c)
+                robust_c=s.gain_drift_robust_c, degree=s.gain_drift_degree)
             steps["drift_agreement"] = drift_agreement_table(linear)
             products["harmonic + gain drift"] = cal
             if s.vector_step:
@@ -853,7 +853,7 @@ def _with_level_steps(fgs, state, settings, *, linear, level_step_rows=None,
             searched["level_search"] = judged.assign(judged_on="without steps")
     natural, drift = (none if x is None else x for x in (pulse_templates, drift_templates))
     if pulse_templates is None and settings.pulses_b:
-        found = zone_pulses(f)
+        found = zone_pulses(f, degree=settings.gain_drift_degree)
         kept = found["natural"].astype(bool)
         natural, drift = shapes(f, found[kept]), shapes(f, found[~kept])
         searched["pulse_search"] = found

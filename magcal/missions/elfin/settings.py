@@ -16,7 +16,7 @@ from magcal.errors import InputError
 SIGNAL_TRADE = ("linear_phase_knot_s", "linear_phase_degree", "linear_axis_degree",
                 "gain_drift", "gain_drift_2x", "gain_drift_robust_c", "vector_step",
                 "vector_knot_s", "fast_drift", "fast_knot_s", "phase_refit", "refit_knot_s",
-                "detect_disturbed", "level_steps", "pulses_b")
+                "detect_disturbed", "level_steps", "pulses_b", "gain_drift_degree")
 
 @dataclass(frozen=True)
 class ElfinSettings:
@@ -193,6 +193,24 @@ class ElfinSettings:
         at the same place and the day calibrated again
         (:func:`~magcal.missions.elfin.levels.level_trials`; ``step_error_nT`` in the
         JSON's ``level_steps``). 0: not measured.
+    gain_drift_degree : int
+        Degree of the gain drift's polynomial in time per zone
+        (:func:`~magcal.missions.elfin.drift.fit_gain_drift`) and of the trend the
+        pulses along B are searched on (:func:`~magcal.missions.elfin.pulses.find_pulses`;
+        the two must agree: a search on a cubic under a quintic drift takes the drift's
+        own structure into the pulses, 1.45 of their energy). Default 3. On 2022-01-12
+        the 2x-spin harmonic's drift, which a spin-plane gain change makes and a
+        natural field does not, has 0.9-5.1 nT of structure beyond a cubic per zone
+        (0.3-1.3 nT beyond a quintic), and in 9 of the 12 zones the ``|B|`` residual
+        beyond a cubic follows it (correlation 0.61-0.97): the cubic leaves some gain
+        drift in the product. 5 removes it (scalar residual 6.33 -> 5.20 nT, zone
+        median) and keeps a found pulse along B closer to whole (whole day, 36 places,
+        both polarities: 0.948 / 1.011 of the energy against 0.897 / 1.160), but its
+        signal trade is larger: a quintic over a 6 min pass is 90 % of a 90 s pulse
+        along B (a cubic 71 %), so a pulse along B that is not found, or whose rows are
+        left out of the fit, loses more (interval given, zone 1: 0.79 kept against
+        0.91), and a ``|B|`` structure wider than 150 s is taken by the drift without
+        being found and listed (``pulses_b.search``).
     """
 
     harmonic: bool = True
@@ -220,6 +238,7 @@ class ElfinSettings:
     level_trials: int = 3
     pulses_perp: bool = True
     perp_trials: int = 3
+    gain_drift_degree: int = 3
 
     @classmethod
     def from_mapping(cls, given: dict, where: str = "settings") -> ElfinSettings:
@@ -263,7 +282,8 @@ class ElfinSettings:
             raise InputError(f"{where}: tilt_bound_deg must not be negative")
         for key in ("vector_knot_s", "linear_phase_knot_s", "linear_axis_degree",
                     "linear_phase_degree", "gain_drift_robust_c", "axis_prior_weight",
-                    "bridge_trials", "pulse_trials", "level_trials", "perp_trials"):
+                    "bridge_trials", "pulse_trials", "level_trials", "perp_trials",
+                    "gain_drift_degree"):
             if getattr(settings, key) < 0:
                 raise InputError(f"{where}: {key} must not be negative")
         for key in ("fast_knot_s", "refit_knot_s"):
