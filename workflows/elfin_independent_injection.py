@@ -197,8 +197,9 @@ def cli_command(cwd: Path) -> list[str]:
     return [exe]
 
 
-def write_config(path: Path, fgs: Path, state: Path) -> None:
-    """Write a ``magcal run`` configuration for one FGS file (the default pipeline).
+def write_config(path: Path, fgs: Path, state: Path, pipeline=()) -> None:
+    """Write a ``magcal run`` configuration for one FGS file (the default pipeline, or
+    with the ``[spin.pipeline]`` lines ``pipeline``).
 
     Parameters
     ----------
@@ -206,12 +207,16 @@ def write_config(path: Path, fgs: Path, state: Path) -> None:
         TOML to write.
     fgs, state : Path
         FGS counts file and the (real) state file.
+    pipeline : sequence of str
+        ``KEY = VALUE`` lines (TOML) of ``[spin.pipeline]``, e.g. ``gain_drift_degree = 5``.
     """
+    table = "\n[spin.pipeline]\n" + "".join(f"{line}\n" for line in pipeline) \
+        if pipeline else ""
     path.write_text(
         "# independent injection check (workflows/elfin_independent_injection.py)\n"
         f"[input]\nfiles = [\"{fgs.resolve()}\"]\n\n"
         "[spin]\nunits = \"counts\"\nreference = \"igrf\"\n"
-        f"state = \"{state.resolve()}\"\n")
+        f"state = \"{state.resolve()}\"\n" + table)
 
 
 def run_cli(cmd: list[str], config: Path, outdir: Path) -> float:
@@ -621,7 +626,16 @@ def main(argv=None) -> int:
                         "of a pulse across B depends on it)")
     p.add_argument("--knot", type=float, default=20.0,
                    help="knot spacing (s) of the measured body spin axis")
+    p.add_argument("--pipeline", nargs="*", default=[], metavar="KEY=VALUE",
+                   help="[spin.pipeline] settings of every run (TOML values), e.g. "
+                        "gain_drift_degree=5; default: the delivered pipeline")
     args = p.parse_args(argv)
+    pipeline = []
+    for item in args.pipeline:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            p.error(f"--pipeline wants KEY=VALUE, got {item!r}")
+        pipeline.append(f"{key.strip()} = {value.strip()}")
     kinds = [s for s in args.signals.split(",") if s]
     bad = [s for s in kinds if s not in SIGNALS + VALIDATION]
     if bad:
@@ -650,10 +664,11 @@ def main(argv=None) -> int:
     times = np.asarray(cdflib.cdfepoch.to_datetime(times_tt), "datetime64[ns]")
     state = read_state(state_path)
     result = {"cli": cmd, "magcal": lib, "zones": zones, "signals": kinds, "sign": args.sign,
+              "pipeline": pipeline,
               "claims_kept_distortion_percent": CLAIMS if args.sign > 0 else CLAIMS_OPPOSITE}
 
     cfg = out / "clean.toml"
-    write_config(cfg, fgs, state_path)
+    write_config(cfg, fgs, state_path, pipeline)
     wall = run_cli(cmd, cfg, runs / "clean")
     clean = read_product(runs / "clean")
     print(f"clean run: {wall:.0f} s")
@@ -679,7 +694,7 @@ def main(argv=None) -> int:
     unchanged = out / "ela_fgs_unchanged.cdf"
     write_fgs(unchanged, times_tt, counts)
     cfg = out / "unchanged.toml"
-    write_config(cfg, unchanged, state_path)
+    write_config(cfg, unchanged, state_path, pipeline)
     wall = run_cli(cmd, cfg, runs / "unchanged")
     same = read_product(runs / "unchanged")
     d = np.abs(same["B"] - clean["B"])
@@ -696,7 +711,7 @@ def main(argv=None) -> int:
         path = out / f"ela_fgs_{kind}.cdf"
         write_fgs(path, times_tt, new)
         cfg = out / f"{kind}.toml"
-        write_config(cfg, path, state_path)
+        write_config(cfg, path, state_path, pipeline)
         wall = run_cli(cmd, cfg, runs / kind)
         prod = read_product(runs / kind)
         per = {k: measure(clean, prod, inj[k], signals[k]) for k in zones}
