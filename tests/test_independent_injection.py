@@ -64,3 +64,22 @@ def test_signals_have_their_stated_sizes(wf):
     assert rise[-1] - rise[0] == pytest.approx(20.0, abs=0.02) and s[-1] == pytest.approx(300.0)
     w = wf.hann_wave(x, 5.0, 2.0, 10.0)
     assert np.abs(w).max() == pytest.approx(5.0, rel=0.01) and not w[np.abs(x) > 5.0].any()
+
+
+def test_config_carries_the_pipeline_settings(wf, tmp_path):
+    """``--pipeline`` lines land in ``[spin.pipeline]`` of every run's configuration, as
+    the chain reads it (an unknown key would be refused there); without them the
+    configuration is the delivered pipeline's."""
+    import tomllib
+
+    from magcal.missions.elfin.settings import ElfinSettings
+
+    fgs, state = tmp_path / "fgs.cdf", tmp_path / "state.cdf"
+    plain, tuned = tmp_path / "plain.toml", tmp_path / "tuned.toml"
+    wf.write_config(plain, fgs, state)
+    wf.write_config(tuned, fgs, state, ["gain_drift_degree = 5", "pulses_b = false"])
+    assert "pipeline" not in tomllib.loads(plain.read_text())["spin"]
+    table = tomllib.loads(tuned.read_text())["spin"]["pipeline"]
+    settings = ElfinSettings.from_mapping(table)
+    assert (settings.gain_drift_degree, settings.pulses_b) == (5, False)
+    assert tomllib.loads(tuned.read_text())["spin"]["units"] == "counts"
