@@ -529,15 +529,13 @@ def trial_day(fgs: pd.DataFrame, state: pd.DataFrame, settings, day, signals: di
         None when the day with the signals cannot be calibrated as delivered (e.g. a
         trial zone no longer calibrated): the trials then state no error.
     """
-    from dataclasses import replace
 
     from magcal.missions.elfin.pipeline import calibrate_elfin_day
 
     lin = day.linear
     keep = lin.kept_rows(len(fgs))
     exclude = None if fit_exclude is None else np.asarray(fit_exclude, bool)[keep]
-    plain = replace(settings, bridge_trials=0, pulse_trials=0, level_trials=0,
-                    perp_trials=0)
+    plain = settings.without_trials()
     try:
         return calibrate_elfin_day(inject_counts(fgs[keep], lin, signals), state, plain,
                                    fit_exclude=exclude, diagnostics=False)
@@ -668,7 +666,7 @@ def run_injections(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         raise InputError(f"scale must be positive (the polarity is sign), got {scale}")
     fgs, state = ns_index(fgs, "FGS frame"), ns_index(state, "state frame")
     # the kept fractions do not depend on the pulses' stated height errors
-    s = replace(settings or ElfinSettings(), pulse_trials=0, level_trials=0, perp_trials=0)
+    s = (settings or ElfinSettings()).without_trials(keep_bridge=True)
     if zones is not None:
         fgs = select_zones(fgs, zones)
     # the clean run needs no bridge trials (they leave the product as it is)

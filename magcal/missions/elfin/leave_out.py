@@ -143,14 +143,12 @@ def leave_out_effect(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         over those other rows), ``amplitude_for_target_nT`` (the amplitude at which the
         distortion, which falls as one over the amplitude, would be the issue's 10 %).
     """
-    from dataclasses import replace
 
     from magcal.missions.elfin.files import ns_index
     from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
 
     fgs, state = ns_index(fgs, "FGS frame"), ns_index(state, "state frame")
-    s = replace(settings or ElfinSettings(), bridge_trials=0, pulse_trials=0,
-                level_trials=0, perp_trials=0)
+    s = (settings or ElfinSettings()).without_trials()
     if zones is not None:
         fgs = select_zones(fgs, zones)
     if clean is None:

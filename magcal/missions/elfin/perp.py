@@ -388,8 +388,7 @@ def calibrate_perp(fgs: pd.DataFrame, state: pd.DataFrame, settings, *, provenan
                  if "level_step" in f.columns else np.zeros(n, bool),
                  pulse_templates=_to_rows(shape_columns(f, NATURAL_COLUMNS), keep, n),
                  drift_templates=_to_rows(shape_columns(f, DRIFT_COLUMNS), keep, n))
-    plain = replace(s, pulses_perp=False, detect_disturbed=False, bridge_trials=0,
-                    pulse_trials=0, level_trials=0, perp_trials=0)
+    plain = replace(s.without_trials(), pulses_perp=False, detect_disturbed=False)
 
     def calibrate(pulses, diag=False):
         back = _interval_rows(f, found[found["accepted"].astype(bool)

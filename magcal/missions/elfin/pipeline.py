@@ -623,8 +623,7 @@ def calibrate_elfin_day(fgs: pd.DataFrame, state: pd.DataFrame,
         from magcal.missions.elfin.perp import perp_trials
         from magcal.missions.elfin.pulses import pulse_trials
 
-        day = calibrate_elfin_day(fgs, state, replace(s, pulse_trials=0, level_trials=0,
-                                                      perp_trials=0), **passed)
+        day = calibrate_elfin_day(fgs, state, s.without_trials(keep_bridge=True), **passed)
         steps = dict(day.steps)
         if pulses_tried:
             steps["pulse_trials"] = pulse_trials(fgs, state, s, day, s.pulse_trials,

@@ -7,7 +7,7 @@ runs the steps it names.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 from magcal.errors import InputError
 
@@ -17,6 +17,9 @@ SIGNAL_TRADE = ("linear_phase_knot_s", "linear_phase_degree", "linear_axis_degre
                 "gain_drift", "gain_drift_2x", "gain_drift_robust_c", "vector_step",
                 "vector_knot_s", "fast_drift", "fast_knot_s", "phase_refit", "refit_knot_s",
                 "detect_disturbed", "level_steps", "pulses_b", "gain_drift_degree")
+#: Settings that measure a stated error by calibrating the day again (0: not measured).
+TRIAL_SETTINGS = ("bridge_trials", "pulse_trials", "level_trials", "perp_trials")
+
 
 @dataclass(frozen=True)
 class ElfinSettings:
@@ -290,6 +293,20 @@ class ElfinSettings:
             if getattr(settings, key) <= 0:
                 raise InputError(f"{where}: {key} must be positive")
         return settings
+
+    def without_trials(self, *, keep_bridge: bool = False) -> ElfinSettings:
+        """These settings with no error trials (:data:`TRIAL_SETTINGS` 0; with
+        ``keep_bridge`` the bridge trials stay): what a run whose stated errors are not
+        read (a trial day, an injected day, the calibrations behind a trial) asks for.
+
+        Examples
+        --------
+        >>> s = ElfinSettings().without_trials(keep_bridge=True)
+        >>> s.bridge_trials, s.pulse_trials, s.level_trials, s.perp_trials
+        (3, 0, 0, 0)
+        """
+        return replace(self, **{k: 0 for k in TRIAL_SETTINGS
+                                if not (keep_bridge and k == "bridge_trials")})
 
     def steps(self) -> tuple:
         """Names of the products made, in order (the last is delivered unless joint wins)."""
