@@ -34,6 +34,7 @@ from dataclasses import replace
 import numpy as np
 import pandas as pd
 
+from magcal.missions.elfin.pipeline import _utc
 from magcal.missions.elfin.pulses import gaussian
 
 #: Seconds of the product either side of a detected interval in the Gaussian's fit.
@@ -492,8 +493,7 @@ def perp_listing(day) -> list[dict]:
                "kept": bool(r.kept), "converged": bool(r.converged),
                "iterations": int(r.iterations), "why": str(r.why)}
         if pd.notna(r.centre_s):
-            rec.update(centre=str((pd.Timestamp(r.start) + pd.to_timedelta(
-                           r.centre_s, unit="s")).tz_convert(None)),
+            rec.update(centre=_utc(pd.Timestamp(r.start), r.centre_s),
                        fwhm_s=float(r.fwhm_s), height_nT=float(r.height_nT),
                        amplitude_gei_nT=[float(r.amp_x_nT), float(r.amp_y_nT),
                                          float(r.amp_z_nT)],
@@ -552,11 +552,10 @@ def perp_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day, n_trials:
     busy = set(kept["zone"].tolist())
     out = []
     for p in kept.itertuples():
-        centre = pd.Timestamp(p.start) + pd.to_timedelta(p.centre_s, unit="s")
         amp = np.array([p.amp_x_nT, p.amp_y_nT, p.amp_z_nT])
         signals, places = {}, []
-        for k, rows, t, c in trial_places(lin, p.zone, [str(centre.tz_convert(None))],
-                                          busy, n_trials):
+        for k, rows, t, c in trial_places(lin, p.zone, [_utc(pd.Timestamp(p.start),
+                                                             p.centre_s)], busy, n_trials):
             signals[k] = gaussian(t, c, p.fwhm_s)[:, None] * amp
             places.append((k, rows, t, c))
         errors, n_kept = [], 0
@@ -579,9 +578,8 @@ def perp_trials(fgs: pd.DataFrame, state: pd.DataFrame, settings, day, n_trials:
 
 
 def _trial_row(p, errors, n_kept) -> dict:
-    centre = pd.Timestamp(p.start) + pd.to_timedelta(p.centre_s, unit="s")
     e = np.asarray(errors, float)
-    return {"zone": int(p.zone), "centre": str(centre.tz_convert(None)),
+    return {"zone": int(p.zone), "centre": _utc(pd.Timestamp(p.start), p.centre_s),
             "fwhm_s": float(p.fwhm_s),
             "height_nT": float(np.linalg.norm([p.amp_x_nT, p.amp_y_nT, p.amp_z_nT])),
             "trial_errors_nT": e.tolist(), "trials_kept": int(n_kept),
