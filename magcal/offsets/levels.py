@@ -58,7 +58,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from magcal.offsets.windows import (DAY_NS, _lag_shape, batches_with_counts,
+from magcal.offsets.windows import (DAY_NS, _lag_shape, batch_days_counts,
                                     pooled_lag_correlation)
 
 #: Days either side of a candidate day that its local fit uses. Wider finds smaller
@@ -297,7 +297,7 @@ class QuietHours:
     @classmethod
     def from_times(cls, t_ns, days, bins: int = QUIET_HOUR_BINS) -> "QuietHours":
         """The layout of the selected samples at ``t_ns`` on the record's ``days`` (those
-        :func:`magcal.offsets.windows.batches_with_counts` kept)."""
+        :func:`magcal.offsets.windows.batch_days_counts` kept)."""
         day, b = day_bins(t_ns, bins)
         days = np.asarray(days, dtype=np.int64)
         i = np.searchsorted(days, day)
@@ -643,7 +643,7 @@ def detect_level_changes(t_ns, x, *, half_width: int = HALF_WIDTH_DAYS,
     x = x[:, None] if x.ndim == 1 else x
     ok = np.all(np.isfinite(x), axis=1)
     # each UTC day's value (calendar days since 1970): the mean of its hours' medians
-    days, _, counts = batches_with_counts(t[ok], x[ok], origin_ns=0)
+    days, counts = batch_days_counts(t[ok], origin_ns=0)
     y = hourly_day_values(t[ok], x[ok], days)
     info = {"tested": False, "n_days": int(days.size), "threshold": None,
             "half_width_days": half_width, "alpha": alpha}

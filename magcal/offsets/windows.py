@@ -513,19 +513,43 @@ def batches_with_counts(t_ns, x, batch_ns: int = DAY_NS, min_fraction: float = 0
     medians : ndarray, shape (nb, m)
     counts : ndarray of float, shape (nb,)
     """
-    t = np.asarray(t_ns, dtype=np.int64)
     x = np.asarray(x, dtype=float)
     x = x[:, None] if x.ndim == 1 else x
+    days, good = _kept_batches(t_ns, batch_ns, min_fraction, origin_ns)
+    return (days,
+            np.array([np.median(x[g], axis=0) for g in good]).reshape(len(good), x.shape[1]),
+            np.array([g.size for g in good], dtype=float))
+
+
+def batch_days_counts(t_ns, batch_ns: int = DAY_NS, min_fraction: float = 0.1,
+                      origin_ns: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The batches :func:`batches_with_counts` keeps and their numbers of samples,
+    without their medians (for values taken otherwise, e.g.
+    :func:`magcal.offsets.levels.hourly_day_values`).
+
+    Examples
+    --------
+    >>> DAY = 86_400 * 10 ** 9
+    >>> days, counts = batch_days_counts([0, 1, 2, DAY, 2 * DAY, 2 * DAY + 1], origin_ns=0)
+    >>> days.tolist(), counts.tolist()
+    ([0, 1, 2], [3.0, 1.0, 2.0])
+    """
+    days, good = _kept_batches(t_ns, batch_ns, min_fraction, origin_ns)
+    return days, np.array([g.size for g in good], dtype=float)
+
+
+def _kept_batches(t_ns, batch_ns, min_fraction, origin_ns):
+    """Batch numbers and sample indices of the batches holding at least ``min_fraction``
+    of the fullest one's samples (samples in time order)."""
+    t = np.asarray(t_ns, dtype=np.int64)
     if t.size == 0:
-        return np.zeros(0, dtype=np.int64), np.zeros((0, x.shape[1])), np.zeros(0)
+        return np.zeros(0, dtype=np.int64), []
     day = (t - (t[0] if origin_ns is None else int(origin_ns))) // int(batch_ns)
     edges = np.flatnonzero(np.diff(day)) + 1
     groups = np.split(np.arange(t.size), edges)
     sizes = np.array([g.size for g in groups])
     good = [g for g, s in zip(groups, sizes) if s >= min_fraction * sizes.max()]
-    return (np.array([day[g[0]] for g in good], dtype=np.int64),
-            np.array([np.median(x[g], axis=0) for g in good]).reshape(len(good), x.shape[1]),
-            np.array([g.size for g in good], dtype=float))
+    return np.array([day[g[0]] for g in good], dtype=np.int64), good
 
 
 def batch_se_dof(days, b, min_batches: int = 3,
