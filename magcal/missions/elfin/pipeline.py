@@ -833,7 +833,10 @@ def _with_level_steps(fgs, state, settings, *, linear, level_step_rows=None,
     for a zone that wants more than one level step (the strongest is kept first and
     the others judged on the day calibrated with it)."""
     from magcal.missions.elfin.levels import level_step_decision as decide
-    from magcal.missions.elfin.pulses import pulse_templates as shapes, zone_pulses
+    from magcal.missions.elfin.drift import correct_gain_drift
+    from magcal.missions.elfin.pulses import (PULSE_TREND_DEGREE, taken_by_the_drift,
+                                              zone_pulses)
+    from magcal.missions.elfin.pulses import pulse_templates as shapes
 
     none = np.zeros((len(fgs), 0))
     first = calibrate_elfin_day(
@@ -853,8 +856,18 @@ def _with_level_steps(fgs, state, settings, *, linear, level_step_rows=None,
     natural, drift = (none if x is None else x for x in (pulse_templates, drift_templates))
     if pulse_templates is None and settings.pulses_b:
         found = zone_pulses(f, degree=settings.gain_drift_degree)
+        if settings.gain_drift_degree > PULSE_TREND_DEGREE and "harmonic" in first.products \
+                and settings.gain_drift:
+            # what the cubic's search would have stated, on the product with a cubic drift
+            cubic, _ = correct_gain_drift(first.products["harmonic"],
+                                          degree=PULSE_TREND_DEGREE)
+            found = taken_by_the_drift(found, zone_pulses(cubic.field),
+                                       settings.gain_drift_degree)
+        else:
+            found = found.assign(fitted=True)
         kept = found["natural"].astype(bool)
-        natural, drift = shapes(f, found[kept]), shapes(f, found[~kept])
+        fitted = found["fitted"].astype(bool)
+        natural, drift = shapes(f, found[kept]), shapes(f, found[~kept & fitted])
         searched["pulse_search"] = found
     if not rows.any() and not np.size(natural) and not np.size(drift):
         return replace(first, steps={**first.steps, **searched})

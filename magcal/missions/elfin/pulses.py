@@ -402,6 +402,40 @@ def zone_pulses(field: pd.DataFrame, **kw) -> pd.DataFrame:
     return out[cols]
 
 
+def taken_by_the_drift(found: pd.DataFrame, with_cubic: pd.DataFrame,
+                       degree: int) -> pd.DataFrame:
+    """``found`` (the search on the trend of the drift's ``degree``, :func:`zone_pulses`)
+    with the shapes a cubic search finds on the product with a cubic gain drift
+    (``with_cubic``: :func:`zone_pulses` of it) and it does not: what a drift above a
+    cubic takes without the search seeing it, stated (``natural`` False, ``why``) so
+    that it is not lost silently.
+
+    A drift of degree 4 or more takes a ``|B|`` structure a few minutes wide whole (a
+    quartic is 90 % of a 90 s pulse's energy over a 6 min pass), so the search on its
+    own trend finds nothing where the cubic's search found a wide shape and stated it.
+    A cubic shape matches a found one when their centres are within half the wider
+    FWHM. Every row gets ``fitted``: True for the shapes fitted with the drift (those
+    of ``found``), False for those only stated here.
+    """
+    out = found.assign(fitted=True)
+    if degree <= PULSE_TREND_DEGREE or not len(with_cubic):
+        return out
+    rows = []
+    for r in with_cubic.itertuples():
+        same = found[found["zone"] == r.zone]
+        if len(same) and np.any(np.abs(same["centre_s"].to_numpy(float) - r.centre_s)
+                                <= np.maximum(same["fwhm_s"].to_numpy(float), r.fwhm_s) / 2):
+            continue
+        why = f"taken by the degree-{degree} drift (found with a cubic drift)"
+        rows.append({**r._asdict(), "natural": False, "fitted": False,
+                     "why": why if not r.why else f"{r.why}; {why}"})
+    if not rows:
+        return out
+    extra = pd.DataFrame(rows).drop(columns="Index")
+    return pd.concat([out, extra[out.columns]], ignore_index=True).sort_values(
+        ["zone", "centre_s"], kind="stable", ignore_index=True)
+
+
 def shape_columns(frame: pd.DataFrame, prefix: str) -> np.ndarray:
     """The shapes (len(frame), m) in ``frame``'s columns named ``prefix<j>``
     (:data:`NATURAL_COLUMNS` or :data:`DRIFT_COLUMNS`; m = 0 without any)."""

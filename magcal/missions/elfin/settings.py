@@ -201,19 +201,21 @@ class ElfinSettings:
         (:func:`~magcal.missions.elfin.drift.fit_gain_drift`) and of the trend the
         pulses along B are searched on (:func:`~magcal.missions.elfin.pulses.find_pulses`;
         the two must agree: a search on a cubic under a quintic drift takes the drift's
-        own structure into the pulses, 1.45 of their energy). Default 3. On 2022-01-12
+        own structure into the pulses, 1.45 of their energy). Default 4. On 2022-01-12
         the 2x-spin harmonic's drift, which a spin-plane gain change makes and a
         natural field does not, has 0.9-5.1 nT of structure beyond a cubic per zone
-        (0.3-1.3 nT beyond a quintic), and in 9 of the 12 zones the ``|B|`` residual
-        beyond a cubic follows it (correlation 0.61-0.97): the cubic leaves some gain
-        drift in the product. 5 removes it (scalar residual 6.33 -> 5.20 nT, zone
-        median) and keeps a found pulse along B closer to whole (whole day, 36 places,
-        both polarities: 0.948 / 1.011 of the energy against 0.897 / 1.160), but its
-        signal trade is larger: a quintic over a 6 min pass is 90 % of a 90 s pulse
-        along B (a cubic 71 %), so a pulse along B that is not found, or whose rows are
-        left out of the fit, loses more (interval given, zone 1: 0.79 kept against
-        0.91), and a ``|B|`` structure wider than 150 s is taken by the drift without
-        being found and listed (``pulses_b.search``).
+        (0.6-3.4 nT beyond a quartic, 0.3-1.3 nT beyond a quintic), and in 9 of the 12
+        zones the ``|B|`` residual beyond a cubic follows it (correlation 0.61-0.97): a
+        cubic leaves gain drift in the product, and a pulse along B found there carries
+        it (whole day, 36 places, both polarities, zone medians of the energy kept:
+        cubic 0.897 / 1.160, quartic 1.003 / 1.098, quintic 0.948 / 1.011; scalar
+        residual 6.33 / 6.03 / 5.20 nT). The trade grows with the degree: a quartic
+        over a 6 min pass is 90 % of a 90 s pulse along B (a cubic 71 %), so a pulse
+        along B that is not found, or whose rows are left out of the fit, loses more
+        (interval given, zone 1: 0.79 kept against 0.91), and a ``|B|`` structure a few
+        minutes wide is taken by the drift before the search sees it (above a cubic it
+        is stated from a search on the product with a cubic drift:
+        :func:`~magcal.missions.elfin.pulses.taken_by_the_drift`).
     """
 
     harmonic: bool = True
@@ -241,7 +243,7 @@ class ElfinSettings:
     level_trials: int = 3
     pulses_perp: bool = True
     perp_trials: int = 3
-    gain_drift_degree: int = 3
+    gain_drift_degree: int = 4
 
     @classmethod
     def from_mapping(cls, given: dict, where: str = "settings") -> ElfinSettings:
