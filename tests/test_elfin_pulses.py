@@ -258,3 +258,33 @@ def test_a_wide_structure_along_b_is_removed_with_the_drift_and_stated(zones_1_4
     removed = [x for x in pulse_lines(day) if x.startswith("|B| structures")]
     assert len(removed) == 1 and "zone 0" in removed[0] and "FWHM 150 s or more" in removed[0]
 
+
+
+def test_what_a_drift_above_a_cubic_takes_unseen_is_stated_and_not_fitted():
+    """:func:`taken_by_the_drift`: a shape of the cubic search that none of the drift's
+    own search matches (centres within half the wider FWHM) is added, not natural and
+    not fitted, with the reason; a matched one is not repeated; at degree 3 nothing is
+    added and every found shape is fitted."""
+    from magcal.missions.elfin.pulses import taken_by_the_drift
+
+    start = pd.Timestamp("2022-01-12T06:30", tz="UTC")
+    cols = dict(start=start, gain=20.0, why="")
+    found = pd.DataFrame([dict(zone=1, centre_s=100.0, fwhm_s=60.0, height_nT=80.0,
+                               natural=True, **cols)])
+    cubic = pd.DataFrame([dict(zone=1, centre_s=120.0, fwhm_s=60.0, height_nT=70.0,
+                               natural=True, **cols),        # 20 s from the found one
+                          dict(zone=1, centre_s=300.0, fwhm_s=200.0, height_nT=100.0,
+                               natural=False, **{**cols, "why": "FWHM 150 s or more"}),
+                          dict(zone=2, centre_s=100.0, fwhm_s=60.0, height_nT=50.0,
+                               natural=True, **cols)])
+    out = taken_by_the_drift(found, cubic, 4)
+    assert len(out) == 3
+    assert out["fitted"].tolist() == [True, False, False]
+    assert out["natural"].tolist() == [True, False, False]
+    assert out["zone"].tolist() == [1, 1, 2]
+    assert out["why"].iloc[1] == ("FWHM 150 s or more; taken by the degree-4 drift "
+                                  "(found with a cubic drift)")
+    assert out["why"].iloc[2] == "taken by the degree-4 drift (found with a cubic drift)"
+    assert out["height_nT"].tolist() == [80.0, 100.0, 50.0]
+    same = taken_by_the_drift(found, cubic, 3)
+    assert len(same) == 1 and same["fitted"].all()

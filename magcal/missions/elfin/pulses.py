@@ -1,7 +1,9 @@
 """Localized fields along B in an ELFIN pass, kept out of the gain drift.
 
-The spin-plane gain drift (:mod:`magcal.missions.elfin.drift`, a cubic in time per
-zone against ``|B| - |IGRF|``) and a natural field along B are the same vector (along
+The spin-plane gain drift (:mod:`magcal.missions.elfin.drift`, a polynomial in time
+per zone against ``|B| - |IGRF|``, of degree ``ElfinSettings.gain_drift_degree``: 4,
+a cubic until 2026-11-30, which the numbers below were measured with) and a natural
+field along B are the same vector (along
 the spin-plane field), so the drift takes such a field whenever its time shape allows:
 71 % of the energy of a 90 s pulse in a 6 min pass is a cubic, and the product keeps
 8 % of it (2022-01-12). Leaving the pulse out of the fits does not save it either: the
@@ -10,7 +12,8 @@ distortion 19 % with the interval given to the injected run only).
 
 What separates the two is their time scale: a thermal gain drift is as slow as the
 pass, while a compressional pulse is localized. So the product's ``|B|`` residual is
-searched, zone by zone, for Gaussian pulses on top of a cubic (:func:`find_pulses`:
+searched, zone by zone, for Gaussian pulses on top of the drift's polynomial
+(:func:`find_pulses`:
 greedy, centre and width refined); a pulse is kept when it divides the residual's sum
 of squares by :data:`PULSE_MIN_GAIN` or more, is at least :data:`PULSE_MIN_NT` high,
 narrower than :data:`PULSE_MAX_FWHM_S` and rises and falls inside the zone (a wider
@@ -81,7 +84,8 @@ SEARCH_FWHM_S = (20.0, 30.0, 45.0, 60.0, 90.0, 120.0, 180.0, 240.0)
 #: Largest correlation (about the trend) of the two shapes of a pair searched together:
 #: closer ones are one shape twice, with large opposite heights.
 PAIR_MAX_CORRELATION = 0.9
-#: Trend under the pulses: the gain drift's cubic.
+#: Trend under the pulses by default, and the degree above which a search on the product
+#: with a cubic drift states what the drift took (:func:`taken_by_the_drift`).
 PULSE_TREND_DEGREE = 3
 #: RMS floor of the residual (nT) in the gain: finer structure than this is not
 #: resolved against the model (the day's fast part is about 5 nT).
@@ -94,7 +98,8 @@ NATURAL_COLUMNS, DRIFT_COLUMNS = "pulse_b_", "drift_b_"
 #: What ``pulses_b.search`` of ``ELFIN_CAL.json`` holds (:func:`zone_pulses`).
 SEARCH_NOTE = (
     "every shape the search found in the |B| residual of the product without pulses "
-    "(height_nT as found there, nT; gain: that residual's sum of squares about the cubic "
+    "(height_nT as found there, nT; gain: that residual's sum of squares about the drift's "
+    "polynomial "
     f"without the shape over that with it, kept from {PULSE_MIN_GAIN:g}): natural ones "
     "are kept in the product, the others removed with the gain drift for the reason "
     f"given (why). A natural pulse whose gain is near {PULSE_MIN_GAIN:g} is a close call: "
