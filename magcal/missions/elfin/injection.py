@@ -529,7 +529,6 @@ def trial_day(fgs: pd.DataFrame, state: pd.DataFrame, settings, day, signals: di
         None when the day with the signals cannot be calibrated as delivered (e.g. a
         trial zone no longer calibrated): the trials then state no error.
     """
-
     from magcal.missions.elfin.pipeline import calibrate_elfin_day
 
     lin = day.linear

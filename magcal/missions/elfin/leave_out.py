@@ -143,7 +143,6 @@ def leave_out_effect(fgs: pd.DataFrame, state: pd.DataFrame, settings=None, *,
         over those other rows), ``amplitude_for_target_nT`` (the amplitude at which the
         distortion, which falls as one over the amplitude, would be the issue's 10 %).
     """
-
     from magcal.missions.elfin.files import ns_index
     from magcal.missions.elfin.pipeline import ElfinSettings, calibrate_elfin_day
 

@@ -856,15 +856,14 @@ def _with_level_steps(fgs, state, settings, *, linear, level_step_rows=None,
     natural, drift = (none if x is None else x for x in (pulse_templates, drift_templates))
     if pulse_templates is None and settings.pulses_b:
         found = zone_pulses(f, degree=settings.gain_drift_degree)
+        with_cubic = found.iloc[:0]
         if settings.gain_drift_degree > PULSE_TREND_DEGREE and "harmonic" in first.products \
                 and settings.gain_drift:
             # what the cubic's search would have stated, on the product with a cubic drift
             cubic, _ = correct_gain_drift(first.products["harmonic"],
                                           degree=PULSE_TREND_DEGREE)
-            found = taken_by_the_drift(found, zone_pulses(cubic.field),
-                                       settings.gain_drift_degree)
-        else:
-            found = found.assign(fitted=True)
+            with_cubic = zone_pulses(cubic.field)
+        found = taken_by_the_drift(found, with_cubic, settings.gain_drift_degree)
         kept = found["natural"].astype(bool)
         fitted = found["fitted"].astype(bool)
         natural, drift = shapes(f, found[kept]), shapes(f, found[~kept & fitted])
